@@ -1,0 +1,156 @@
+"""Sensing features: pure functions on numpy arrays (SI units, time in s).
+
+Paper references: per-cycle offset (Methods, retrofit sections: mean of the last 0.5-1 s
+before the valve opens); window mean over [t0, t1] after opening (Methods, size
+sensing); dP against a free-air reference and the time of first contact (Methods,
+"Time of first contact"); dP_max and t_c at a dP threshold (ripeness experiment);
+smoothing by local quadratic regression over 20 samples (Methods, distance sensing).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+
+@dataclass(frozen=True)
+class WindowStats:
+    mean: float
+    sd: float
+    n: int
+
+
+def smooth(x: np.ndarray, span: int = 21) -> np.ndarray:
+    """Local quadratic regression over ``span`` samples (Savitzky-Golay, polyorder 2).
+
+    The paper used MATLAB's loess with a 20-point span; Savitzky-Golay is the same local
+    quadratic least-squares fit without loess's tricube weights, on an odd span.
+    """
+    x = np.asarray(x, dtype=float)
+    span = int(span) | 1  # odd
+    if len(x) < span:
+        return x.copy()
+    return savgol_filter(x, window_length=span, polyorder=2, mode="interp")
+
+
+def _between(t: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    return (t >= lo) & (t < hi)
+
+
+def sensor_offset(t: np.ndarray, p: np.ndarray, t_open: float, duration_s: float) -> float:
+    """Mean reading over the last ``duration_s`` before the actuation valve opens.
+
+    The actuator is vented then, so whatever the sensor reads is its offset.
+    """
+    sel = _between(t, t_open - duration_s, t_open)
+    if not sel.any():
+        raise ValueError(f"no samples in the {duration_s} s before t_open={t_open}")
+    return float(np.mean(p[sel]))
+
+
+def window_stats(t: np.ndarray, p: np.ndarray, t_open: float, start_s: float, end_s: float) -> WindowStats:
+    """Mean and sample sd of ``p`` over [t_open + start_s, t_open + end_s)."""
+    sel = _between(t, t_open + start_s, t_open + end_s)
+    n = int(sel.sum())
+    if n == 0:
+        raise ValueError(f"no samples in window [{start_s}, {end_s}) s after opening")
+    vals = p[sel]
+    return WindowStats(float(np.mean(vals)), float(np.std(vals, ddof=1)) if n > 1 else 0.0, n)
+
+
+def delta_p(t_rel: np.ndarray, p: np.ndarray, ref_t_rel: np.ndarray, ref_p: np.ndarray) -> np.ndarray:
+    """dP = P - P_ref, the reference interpolated onto ``t_rel`` (time since opening).
+
+    Outside the reference's time span dP is NaN: nothing is extrapolated.
+    """
+    ref = np.interp(t_rel, ref_t_rel, ref_p, left=np.nan, right=np.nan)
+    return np.asarray(p, dtype=float) - ref
+
+
+def contact_time_threshold(t_rel: np.ndarray, dp: np.ndarray, threshold: float) -> float | None:
+    """First time dP reaches ``threshold`` (linear interpolation between samples).
+
+    ``dp`` should already be smoothed. None if it never does.
+    """
+    ok = np.isfinite(dp)
+    above = ok & (dp >= threshold)
+    if not above.any():
+        return None
+    k = int(np.argmax(above))
+    if k == 0:
+        return float(t_rel[0])
+    t0, t1, y0, y1 = t_rel[k - 1], t_rel[k], dp[k - 1], dp[k]
+    if not np.isfinite(y0) or y1 == y0:
+        return float(t1)
+    return float(t0 + (threshold - y0) * (t1 - t0) / (y1 - y0))
+
+
+def dp_max(t_rel: np.ndarray, dp: np.ndarray) -> tuple[float, float] | None:
+    """Largest dP and when it happens (use a smoothed dP)."""
+    ok = np.isfinite(dp)
+    if not ok.any():
+        return None
+    k = int(np.nanargmax(np.where(ok, dp, -np.inf)))
+    return float(dp[k]), float(t_rel[k])
+
+
+def _hinge_sse(t: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """SSE of the best fit of ``a + b*u + c*u**2``, ``u = max(0, t - t[k])``, for every k.
+
+    Built from suffix power sums so that all splits cost O(n) together.
+    """
+    n = len(t)
+    span = t[-1] - t[0] or 1.0
+    x = (t - t[0]) / span  # scaled to [0, 1] for a well-conditioned normal matrix
+    rev = slice(None, None, -1)
+    s = [np.cumsum(x[rev] ** j)[rev] for j in range(5)]  # s[j][k] = sum_{i>=k} x_i^j
+    yy = [np.cumsum((y * x**j)[rev])[rev] for j in range(3)]
+    c = x  # candidate split at x[k]
+    su1 = s[1] - c * s[0]
+    su2 = s[2] - 2 * c * s[1] + c**2 * s[0]
+    su3 = s[3] - 3 * c * s[2] + 3 * c**2 * s[1] - c**3 * s[0]
+    su4 = s[4] - 4 * c * s[3] + 6 * c**2 * s[2] - 4 * c**3 * s[1] + c**4 * s[0]
+    syu1 = yy[1] - c * yy[0]
+    syu2 = yy[2] - 2 * c * yy[1] + c**2 * yy[0]
+    sy = np.full(n, y.sum())
+    m = np.empty((n, 3, 3))
+    m[:, 0] = np.column_stack([np.full(n, float(n)), su1, su2])
+    m[:, 1] = np.column_stack([su1, su2, su3])
+    m[:, 2] = np.column_stack([su2, su3, su4])
+    rhs = np.column_stack([sy, syu1, syu2])
+    sse = np.full(n, np.inf)
+    ok = np.abs(np.linalg.det(m)) > 1e-12 * np.abs(m).max(axis=(1, 2)) ** 3
+    coef = np.linalg.solve(m[ok], rhs[ok][..., None])[..., 0]
+    sse[ok] = float(np.sum(y * y)) - np.einsum("ij,ij->i", coef, rhs[ok])
+    return sse
+
+
+def contact_time_slope(t_rel: np.ndarray, dp: np.ndarray, min_rise: float) -> float | None:
+    """Time of first contact as the abrupt change of slope of dP (use a smoothed dP).
+
+    dP is flat before contact and bends upwards at it, so a hinge is fitted: constant up
+    to t_c, then a quadratic in (t - t_c), continuous at t_c. The t_c with the least
+    squared error over [opening, first time dP reaches half its maximum] is the change
+    point. (The paper detected "abrupt changes in slope" with a MATLAB script; a
+    straight line after the kink, as in ``findchangepts``, sits 5-10 ms late on the
+    concave rise, this hinge does not.) Returns None when dP never rises by
+    ``min_rise``: no contact, nothing to find.
+    """
+    ok = np.isfinite(dp) & (t_rel >= 0)
+    t, y = t_rel[ok], dp[ok]
+    if len(t) < 8:
+        return None
+    peak = float(np.max(y))
+    # both traces start from the same vented actuator, so dP starts near zero
+    if peak - float(np.median(y[:10])) < min_rise:
+        return None
+    k_half = int(np.argmax(y >= 0.5 * peak))
+    if k_half < 6:
+        return None
+    t, y = t[: k_half + 1], y[: k_half + 1]
+    sse = _hinge_sse(t, y)
+    sse[:2] = np.inf  # keep at least two points before the split ...
+    sse[-3:] = np.inf  # ... and three after it
+    return float(t[int(np.argmin(sse))])

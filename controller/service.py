@@ -1,0 +1,364 @@
+"""The controller service: sample loop, sequencer, features, publishing, commands.
+
+Data flow per block:  source -> supervisor -> sequencer (commands to the devices)
+-> recorder -> features at cycle end -> publisher.
+
+The controller's "now" is the timestamp of the newest sample. In virtual time the loop
+only pulls samples while something is waiting on the clock (a cycle, a wait, a task);
+when nothing is, virtual time stands still, which makes every run reproducible.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from drivers.base import Backend, SampleBlock
+from drivers.errors import CommandError, FaultError, NotSupportedError, SafetyError, SequenceError
+
+from .commands import AbortCmd, CycleCmd, ResetCmd, SceneCmd, ShutdownCmd, StatusCmd
+from .config import CellConfig
+from .cycle import CycleResult, Recorder, Reference, analyse, make_reference, transition_dict
+from .publisher import NullPublisher, Publisher
+from .sequencer import Command, Sequencer, SetpointCmd, State, ValveCmd
+from .supervisor import Fault, Supervisor
+
+log = logging.getLogger(__name__)
+
+KPA = 1e3
+
+
+def _reference_key(p0_pa: float) -> float:
+    return round(p0_pa / KPA, 3)
+
+
+class Controller:
+    def __init__(self, cfg: CellConfig, backend: Backend, publisher: Publisher | NullPublisher | None = None):
+        self.cfg = cfg
+        self.profile = cfg.profile
+        self.backend = backend
+        self.pub = publisher or NullPublisher()
+        self.sequencer = Sequencer(self.profile.sequence)
+        self.supervisor = Supervisor(self.profile)
+        self.now = 0.0
+        self.references: dict[float, Reference] = {}
+        self.results: deque[CycleResult] = deque(maxlen=100)
+        self.fault: Fault | None = None
+        self._recorder: Recorder | None = None
+        self._cycle_future: asyncio.Future[CycleResult] | None = None
+        self._cycle_opts: dict[str, Any] = {}
+        self._waiters: list[tuple[float, asyncio.Future[None]]] = []
+        self._demand = asyncio.Event()
+        self._task: asyncio.Task[None] | None = None
+        self._shutdown = asyncio.Event()
+        # statistics for the heartbeat
+        self.samples = 0
+        self.blocks = 0
+        self.missed = 0
+        self.late = 0
+        self._proc_s: deque[float] = deque(maxlen=2000)
+        self._next_heartbeat = 0.0
+        self._batch: list[SampleBlock] = []
+        self._batch_start: float | None = None
+        self._started_wall = time.monotonic()
+
+    # ------------------------------------------------------------- lifecycle
+    @property
+    def virtual(self) -> bool:
+        return self.backend.source.virtual
+
+    async def start(self) -> None:
+        await self.backend.setup()
+        if self.backend.regulator is not None:
+            self.backend.regulator.set_limits(self.profile.limits.min_pa, self.profile.limits.max_pa)
+        await self.backend.valves.safe(self.now)
+        self._task = asyncio.create_task(self._loop(), name="fluidsense-sample-loop")
+
+    async def stop(self) -> None:
+        """Vent, stop the loop, close the devices. Safe to call twice."""
+        if self.sequencer.busy:
+            cmds = self.sequencer.abort(self.now, "shutdown")
+            self._publish_transitions()
+            await self._apply_guarded(cmds)
+        if self._recorder is not None:  # report the interrupted cycle rather than drop it
+            self._finish_cycle()
+        if self._task is not None:
+            self._task.cancel()
+            try:
+                await self._task
+            except asyncio.CancelledError:
+                pass
+            self._task = None
+        self._fail_waiters(CommandError("controller stopped"))
+        await self.backend.stop(self.now)
+        self._flush_pressure()
+
+    async def __aenter__(self) -> Controller:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.stop()
+
+    async def wait_shutdown(self) -> None:
+        """Returns when a shutdown command arrives or the sample loop ends."""
+        waiter = asyncio.create_task(self._shutdown.wait())
+        done, _ = await asyncio.wait({waiter, self._task}, return_when=asyncio.FIRST_COMPLETED)
+        waiter.cancel()
+
+    # ------------------------------------------------------------ public API
+    async def run_cycle(self, *, p0_kpa: float | None = None, label: str | None = None,
+                        store_reference: bool = False) -> CycleResult:
+        """Run one actuation cycle and return its result."""
+        fut = await self.start_cycle(p0_kpa=p0_kpa, label=label, store_reference=store_reference)
+        return await fut
+
+    async def start_cycle(self, *, p0_kpa: float | None = None, label: str | None = None,
+                    store_reference: bool = False) -> asyncio.Future[CycleResult]:
+        """Start a cycle; the returned future resolves with its result."""
+        self._check_running()
+        if self.fault is not None:
+            raise FaultError(f"in FAULT ({self.fault.kind}: {self.fault.detail}); send reset")
+        if self.sequencer.busy:
+            raise SequenceError(f"busy: cycle {self.sequencer.cycle_id} is in {self.sequencer.state.value}")
+        p0 = self.profile.sequence.p0_kpa if p0_kpa is None else p0_kpa
+        lim = self.profile.limits
+        if not lim.min_kpa <= p0 <= lim.max_kpa:
+            raise SafetyError(f"p0 {p0} kPa outside the profile's limits [{lim.min_kpa}, {lim.max_kpa}] kPa")
+        cmds = self.sequencer.start(self.now, p0 * KPA)
+        self._cycle_opts = {"label": label, "store_reference": store_reference}
+        self._recorder = Recorder()
+        self._cycle_future = asyncio.get_running_loop().create_future()
+        self._publish_transitions()
+        await self._apply_guarded(cmds)
+        self._demand.set()
+        return self._cycle_future
+
+    async def wait(self, seconds: float) -> None:
+        """Wait ``seconds`` of sample time."""
+        self._check_running()
+        fut: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        self._waiters.append((self.now + seconds, fut))
+        self._demand.set()
+        await fut
+
+    async def set_scene(self, scene: Any) -> None:
+        if self.backend.scene is None:
+            raise NotSupportedError(f"backend {self.backend.name!r} cannot place objects")
+        await self.backend.scene.set_scene(scene, self.now)
+
+    async def abort(self, reason: str = "operator") -> bool:
+        """Abort the running cycle (vent). Returns False when nothing was running."""
+        if not self.sequencer.busy:
+            return False
+        cmds = self.sequencer.abort(self.now, reason)
+        self._publish_transitions()
+        await self._apply_guarded(cmds)
+        return True
+
+    def reset(self) -> None:
+        if self.fault is not None:
+            log.warning("fault reset by operator: %s", self.fault.detail)
+        self.fault = None
+        self.sequencer.reset(self.now)
+        self._publish_transitions()
+
+    def status(self) -> dict[str, Any]:
+        last = self.results[-1].to_dict() if self.results else None
+        return {
+            "state": self.sequencer.state.value, "cycle_id": self.sequencer.cycle_id,
+            "t_s": self.now, "virtual": self.virtual, "backend": self.backend.name,
+            "profile": self.profile.name,
+            "fault": None if self.fault is None else {"kind": self.fault.kind, "detail": self.fault.detail,
+                                                      "t_s": self.fault.t},
+            "valves": self.backend.valves.state,
+            "references_kpa": sorted(self.references),
+            "samples": self.samples, "missed": self.missed, "last_cycle": last,
+        }
+
+    async def handle_command(self, cmd: Any) -> dict[str, Any]:
+        """Dispatch a validated command-socket request."""
+        if isinstance(cmd, StatusCmd):
+            return self.status()
+        if isinstance(cmd, CycleCmd):
+            fut = await self.start_cycle(p0_kpa=cmd.p0_kpa, label=cmd.label, store_reference=cmd.store_reference)
+            fut.add_done_callback(lambda f: f.exception() if not f.cancelled() else None)
+            return {"cycle_id": self.sequencer.cycle_id}
+        if isinstance(cmd, AbortCmd):
+            return {"aborted": await self.abort(cmd.reason)}
+        if isinstance(cmd, ResetCmd):
+            self.reset()
+            return {"state": self.sequencer.state.value}
+        if isinstance(cmd, SceneCmd):
+            await self.set_scene(cmd.scene)
+            return {"scene": cmd.scene.model_dump()}
+        if isinstance(cmd, ShutdownCmd):
+            self._shutdown.set()
+            return {"shutting_down": True}
+        raise CommandError(f"unhandled command {cmd!r}")  # pragma: no cover
+
+    # -------------------------------------------------------------- the loop
+    def _check_running(self) -> None:
+        if self._task is None or self._task.done():
+            raise CommandError("controller is not running")
+
+    def _has_demand(self) -> bool:
+        return self.sequencer.busy or bool(self._waiters)
+
+    async def _loop(self) -> None:
+        try:
+            while True:
+                if self.virtual and not self._has_demand():
+                    self._demand.clear()
+                    await self._demand.wait()
+                    continue
+                block = await self.backend.source.read_block()
+                t0 = time.perf_counter()
+                await self._on_block(block)
+                self._proc_s.append(time.perf_counter() - t0)
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:  # a driver failure: vent and latch the fault
+            log.exception("sample loop stopped")
+            await self._enter_fault(Fault("driver", None, self.now, f"{type(exc).__name__}: {exc}"))
+            self._fail_waiters(FaultError(f"sample loop stopped: {exc}"))
+
+    async def _on_block(self, block: SampleBlock) -> None:
+        self.now = block.t_end
+        self.samples += len(block)
+        self.blocks += 1
+        self.missed += block.missed
+        self.late += block.late
+        fault = self.supervisor.check(block)
+        if self._recorder is not None:
+            self._recorder.add(block)
+        if fault is not None and self.fault is None:
+            await self._enter_fault(fault)
+        cmds = self.sequencer.on_time(self.now)
+        if cmds:
+            await self._apply_guarded(cmds)
+        self._publish_transitions()
+        if self.sequencer.state == State.IDLE and self._recorder is not None:
+            self._finish_cycle()
+        self._batch_pressure(block)
+        self._release_waiters()
+        if self.now >= self._next_heartbeat:
+            self._heartbeat()
+
+    async def _apply(self, cmds: list[Command]) -> None:
+        for cmd in cmds:
+            if isinstance(cmd, ValveCmd):
+                await self.backend.valves.set(cmd.valve, cmd.open, self.now)
+            elif isinstance(cmd, SetpointCmd):
+                if self.backend.regulator is None:
+                    raise NotSupportedError("this cell has no pressure regulator")
+                await self.backend.regulator.set_setpoint(cmd.pressure_pa, self.now)
+
+    async def _apply_guarded(self, cmds: list[Command]) -> None:
+        """Apply commands outside the sample loop (start, abort); a failure faults the cell."""
+        try:
+            await self._apply(cmds)
+        except Exception as exc:  # noqa: BLE001
+            log.error("command failed: %s", exc)
+            await self._enter_fault(Fault("command", None, self.now, str(exc)))
+
+    async def _enter_fault(self, fault: Fault) -> None:
+        self.fault = fault
+        log.error("FAULT %s at t=%.3f: %s", fault.kind, fault.t, fault.detail)
+        self.sequencer.fault(self.now, f"fault: {fault.kind}")
+        try:
+            await self.backend.valves.safe(self.now)
+        except Exception as exc:  # noqa: BLE001 - report, keep going
+            log.error("could not reach the safe state: %s", exc)
+        self.pub.send("fault", self.now, {"kind": fault.kind, "channel": fault.channel,
+                                          "fault_t_s": fault.t, "detail": fault.detail, "vented": True})
+        self._publish_transitions()
+        if self._recorder is not None:
+            self._finish_cycle()
+
+    def _finish_cycle(self) -> None:
+        rec, self._recorder = self._recorder, None
+        seq = self.sequencer
+        t, values = rec.arrays()
+        p = values[:, rec.channels.index("p_act")] if len(t) else np.empty(0)
+        key = _reference_key(seq.p0_pa)
+        store = self._cycle_opts.get("store_reference", False)
+        ref = None if store else self.references.get(key)
+        aborted = seq.aborted
+        try:
+            result = analyse(seq.cycle_id, seq.p0_pa, seq.t_start, seq.t_open, seq.t_end or self.now, t, p,
+                             self.profile.sequence, ref, aborted=aborted,
+                             label=self._cycle_opts.get("label"), missed=rec.missed)
+        except ValueError as exc:  # too few samples for a window: report, do not crash
+            result = CycleResult(seq.cycle_id, seq.p0_pa, seq.t_start, seq.t_open, self.now,
+                                 aborted=f"analysis failed: {exc}", missed=rec.missed)
+        if store and result.ok:
+            self.references[key] = make_reference(result)
+            result.is_reference = True
+        self.results.append(result)
+        self.pub.send("cycle", self.now, result.to_dict())
+        fut, self._cycle_future = self._cycle_future, None
+        if fut is not None and not fut.done():
+            fut.set_result(result)
+
+    def _publish_transitions(self) -> None:
+        for tr in self.sequencer.drain_transitions():
+            self.pub.send("state", self.now, transition_dict(tr))
+
+    def _batch_pressure(self, block: SampleBlock) -> None:
+        if self._batch_start is None:
+            self._batch_start = float(block.t[0])
+        self._batch.append(block)
+        if self.now - self._batch_start + 1e-12 >= self.cfg.publisher.pressure_batch_s:
+            self._flush_pressure()
+
+    def _flush_pressure(self) -> None:
+        if not self._batch:
+            return
+        t = np.concatenate([b.t for b in self._batch])
+        v = np.vstack([b.values for b in self._batch]) / KPA
+        self.pub.send("pressure", self.now, {
+            "t0_s": float(t[0]), "rate_hz": self.backend.source.rate_hz, "n": len(t),
+            "channels": list(self._batch[0].channels), "unit": "kPa",
+            "times_s": t.tolist(), "values": np.round(v, 4).T.tolist()})
+        self._batch, self._batch_start = [], None
+
+    def _release_waiters(self) -> None:
+        if not self._waiters:
+            return
+        keep = []
+        for t_target, fut in self._waiters:
+            if self.now >= t_target - 1e-12:
+                if not fut.done():
+                    fut.set_result(None)
+            else:
+                keep.append((t_target, fut))
+        self._waiters = keep
+
+    def _fail_waiters(self, exc: Exception) -> None:
+        for _, fut in self._waiters:
+            if not fut.done():
+                fut.set_exception(exc)
+        self._waiters = []
+        if self._cycle_future is not None and not self._cycle_future.done():
+            self._cycle_future.set_exception(exc)
+
+    def _heartbeat(self) -> None:
+        period = self.cfg.publisher.heartbeat_s
+        self._next_heartbeat = (np.floor(self.now / period) + 1) * period
+        proc = np.array(self._proc_s) * 1e6 if self._proc_s else np.zeros(1)
+        self.pub.send("heartbeat", self.now, {
+            "state": self.sequencer.state.value, "cycle_id": self.sequencer.cycle_id,
+            "fault": None if self.fault is None else self.fault.kind,
+            "samples": self.samples, "blocks": self.blocks, "missed": self.missed, "late": self.late,
+            "rate_hz": self.backend.source.rate_hz, "virtual": self.virtual,
+            "block_proc_us": {"p50": float(np.percentile(proc, 50)), "p99": float(np.percentile(proc, 99)),
+                              "max": float(proc.max())},
+            "pub_dropped": self.pub.dropped, "uptime_s": time.monotonic() - self._started_wall,
+        })
+        self._proc_s.clear()

@@ -1,0 +1,38 @@
+"""Driver selection: a pydantic discriminated union on ``kind``; the chosen backend's
+module is imported only when it is built, so a cell that does not ask for the
+simulated plant (or for ur_rtde) never imports it."""
+
+from __future__ import annotations
+
+import importlib
+from typing import Annotated, Literal
+
+from pydantic import Field
+
+from .base import Backend
+from .hardware import Hardware
+from .models import StrictModel
+from .scenes import EmptyScene, Scene
+
+
+class SimDriverConfig(StrictModel):
+    """The simulated cell built from the paper's physics."""
+
+    kind: Literal["sim"] = "sim"
+    clock: Literal["virtual", "realtime"] = Field(
+        "realtime", description="virtual: samples as fast as the CPU allows; realtime: at the wall-clock pace")
+    rate_hz: float = Field(1000.0, gt=0, le=20_000)
+    block_size: int = Field(10, ge=1, le=10_000, description="samples per delivered block")
+    seed: int = Field(0, ge=0, description="same seed, same samples")
+    scene: Scene = EmptyScene()
+
+
+DriverConfig = Annotated[SimDriverConfig, Field(discriminator="kind")]
+
+_BACKEND_MODULES = {"sim": "drivers.sim"}
+
+
+def build_backend(cfg: SimDriverConfig, hardware: Hardware) -> Backend:
+    """Import the selected backend lazily and build it."""
+    module = importlib.import_module(_BACKEND_MODULES[cfg.kind])
+    return module.build(cfg, hardware)

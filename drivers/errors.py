@@ -1,0 +1,48 @@
+"""The one exception root of fluidsense.
+
+It lives in the lowest layer so that every layer (drivers, controller, tasks, the
+application) raises the same family. Each subclass also inherits the builtin that
+describes it, so callers that only know Python's builtins still catch it.
+"""
+
+from __future__ import annotations
+
+
+class FluidsenseError(Exception):
+    """Root of every error raised by fluidsense."""
+
+
+class ConfigError(FluidsenseError, ValueError):
+    """A configuration file or value is invalid. The message names file, field and reason."""
+
+
+class CommandError(FluidsenseError, ValueError):
+    """A command (CLI, command socket, task) is malformed or not allowed now."""
+
+
+class SafetyError(FluidsenseError, ValueError):
+    """A request would leave the profile's safe envelope and was refused."""
+
+
+class DriverError(FluidsenseError, RuntimeError):
+    """A device did not do what it was asked."""
+
+
+class LinkLostError(DriverError, ConnectionError):
+    """The link to a device (Modbus, RTDE, sampler process) is gone."""
+
+
+class DeviceTimeoutError(DriverError, TimeoutError):
+    """A device did not answer in time."""
+
+
+class NotSupportedError(FluidsenseError, NotImplementedError):
+    """The selected backend cannot do this (e.g. placing objects on a real cell)."""
+
+
+class SequenceError(FluidsenseError, RuntimeError):
+    """The sequencer was asked for something its state does not allow."""
+
+
+class FaultError(FluidsenseError, RuntimeError):
+    """The controller is in its safe state after a fault and needs a reset."""

@@ -1,0 +1,86 @@
+"""Wiring: config -> backend -> controller (+ sockets). Used by the CLI and the tests."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import signal
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+import zmq
+
+from controller.commands import CommandServer
+from controller.config import CellConfig, load_cell_config
+from controller.publisher import Publisher
+from controller.service import Controller
+from drivers.config import build_backend
+from drivers.errors import ConfigError, FluidsenseError
+
+log = logging.getLogger(__name__)
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_CONFIG = REPO_ROOT / "config" / "cell-sim.yaml"
+
+
+def default_config_path() -> Path:
+    local = Path("config/cell-sim.yaml")
+    return local if local.exists() else DEFAULT_CONFIG
+
+
+def load(path: str | Path | None, overrides: dict[str, Any] | None = None) -> CellConfig:
+    return load_cell_config(path or default_config_path(), overrides)
+
+
+@contextlib.asynccontextmanager
+async def controller(cfg: CellConfig, publish: bool = False) -> AsyncIterator[Controller]:
+    """A started controller on the configured backend; vents and closes on exit."""
+    pub = None
+    if publish:
+        try:
+            pub = Publisher(cfg.publisher.pub)
+        except zmq.ZMQError as exc:
+            raise ConfigError(f"publisher.pub: cannot bind {cfg.publisher.pub}: {exc}") from exc
+    backend = build_backend(cfg.driver, cfg.profile.hardware)
+    ctrl = Controller(cfg, backend, pub)
+    try:
+        async with ctrl:
+            yield ctrl
+    finally:
+        if pub is not None:
+            pub.send("log", ctrl.now, {"level": "INFO", "message": "controller stopped"})
+            pub.close()
+
+
+async def run_daemon(cfg: CellConfig) -> int:
+    """The service: publish, accept commands, until SIGTERM/SIGINT or a shutdown command."""
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(sig, stop.set)
+    async with controller(cfg, publish=True) as ctrl:
+        try:
+            server = CommandServer(cfg.publisher.cmd, ctrl.handle_command)
+        except zmq.ZMQError as exc:
+            raise ConfigError(f"publisher.cmd: cannot bind {cfg.publisher.cmd}: {exc}") from exc
+        serve = asyncio.create_task(server.serve(), name="command-socket")
+        stopper = asyncio.create_task(stop.wait())
+        shutdown = asyncio.create_task(ctrl.wait_shutdown())
+        log.info("fluidsense running: profile %s on %s (%s time)", cfg.profile.name, ctrl.backend.name,
+                 "virtual" if ctrl.virtual else "real")
+        done, _ = await asyncio.wait({stopper, shutdown, serve}, return_when=asyncio.FIRST_COMPLETED)
+        for task in (stopper, shutdown, serve):
+            task.cancel()
+        if serve in done and not serve.cancelled() and serve.exception() is not None:
+            log.error("command socket failed: %s", serve.exception())
+        server.close()
+        log.info("stopping: venting and closing")
+        fault = ctrl.fault
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        loop.remove_signal_handler(sig)
+    return 0 if fault is None or fault.kind != "driver" else 1
+
+
+__all__ = ["FluidsenseError", "controller", "load", "run_daemon", "default_config_path"]

@@ -1,0 +1,143 @@
+"""Shared helpers: virtual-time controllers on the simulated cell, daemon subprocesses."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import subprocess
+import sys
+import uuid
+from pathlib import Path
+
+import pytest
+import yaml
+import zmq
+
+REPO = Path(__file__).resolve().parent.parent
+CONFIG = REPO / "config"
+PROFILE = CONFIG / "profiles" / "pneunet-gripper.yaml"
+
+
+def sim_config(tmp_path: Path, *, clock: str = "virtual", seed: int = 1, scene: dict | None = None,
+               profile: dict | str | None = None, endpoints: tuple[str, str] | None = None) -> Path:
+    """Write a cell config next to the test and return its path."""
+    pub, cmd = endpoints or ipc_endpoints(tmp_path)
+    data = {
+        "driver": {"kind": "sim", "clock": clock, "rate_hz": 1000, "block_size": 10, "seed": seed,
+                   "scene": scene or {"kind": "none"}},
+        "profile": profile if profile is not None else str(PROFILE),
+        "publisher": {"pub": pub, "cmd": cmd},
+    }
+    path = tmp_path / f"cell-{uuid.uuid4().hex[:6]}.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def ipc_endpoints(tmp_path: Path) -> tuple[str, str]:
+    """ipc endpoints in a per-test directory: no port can clash between tests."""
+    tag = uuid.uuid4().hex[:8]
+    return f"ipc://{tmp_path}/pub-{tag}", f"ipc://{tmp_path}/cmd-{tag}"
+
+
+def run(coro):
+    return asyncio.run(coro)
+
+
+class Daemon:
+    """``fluidsense run`` in a subprocess, with a SUB and a REQ socket attached."""
+
+    def __init__(self, config: Path, *extra: str):
+        cfg = yaml.safe_load(config.read_text())
+        self.pub, self.cmd = cfg["publisher"]["pub"], cfg["publisher"]["cmd"]
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        self.proc = subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "run", "--config", str(config), *extra],
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=REPO)
+        self.ctx = zmq.Context()
+        self.sub = self.ctx.socket(zmq.SUB)
+        self.sub.setsockopt(zmq.LINGER, 0)
+        self.sub.setsockopt(zmq.SUBSCRIBE, b"")
+        self.sub.connect(self.pub)
+
+    def wait_welcome(self, timeout_s: float = 30.0) -> None:
+        """Block until the daemon has attached our subscription (its welcome frame)."""
+        while True:
+            if not self.sub.poll(int(timeout_s * 1000)):
+                raise AssertionError(f"no welcome from the daemon; stderr:\n{self.stderr_now()}")
+            if self.sub.recv_multipart() == [b"hello"]:
+                return
+
+    def request(self, payload, timeout_s: float = 30.0, raw: list[bytes] | None = None) -> dict:
+        sock = self.ctx.socket(zmq.REQ)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.connect(self.cmd)
+        try:
+            if raw is not None:
+                sock.send_multipart(raw)
+            else:
+                sock.send(json.dumps(payload).encode())
+            if not sock.poll(int(timeout_s * 1000)):
+                raise AssertionError(f"no reply to {payload!r}; stderr:\n{self.stderr_now()}")
+            return json.loads(sock.recv())
+        finally:
+            sock.close()
+
+    def next_message(self, topic: str | None = None, timeout_s: float = 30.0) -> tuple[str, dict]:
+        while True:
+            if not self.sub.poll(int(timeout_s * 1000)):
+                raise AssertionError(f"no {topic or 'message'} within {timeout_s} s")
+            frames = self.sub.recv_multipart()
+            if len(frames) != 2:
+                continue
+            t, msg = frames[0].decode(), json.loads(frames[1])
+            if topic is None or t == topic:
+                return t, msg
+
+    def stderr_now(self) -> str:
+        if self.proc.poll() is None:
+            return "(still running)"
+        return self.proc.stderr.read().decode(errors="replace")
+
+    def close(self, timeout_s: float = 30.0) -> int:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+        try:
+            rc = self.proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            rc = self.proc.wait()
+        self.sub.close()
+        self.ctx.term()
+        return rc
+
+
+@pytest.fixture
+def daemon_factory():
+    made: list[Daemon] = []
+
+    def make(config: Path, *extra: str) -> Daemon:
+        d = Daemon(config, *extra)
+        made.append(d)
+        return d
+
+    yield make
+    for d in made:
+        d.close()
+
+
+@pytest.fixture
+def virtual_controller(tmp_path):
+    """Run ``body(controller)`` on a started virtual-time controller; returns its result."""
+    from controller.config import load_cell_config
+    from fluidsense import app
+
+    def go(body, **kwargs):
+        cfg = load_cell_config(sim_config(tmp_path, **kwargs))
+
+        async def main():
+            async with app.controller(cfg) as ctrl:
+                return await body(ctrl)
+
+        return asyncio.run(main())
+
+    return go

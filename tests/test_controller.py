@@ -1,0 +1,118 @@
+"""The controller on the simulated cell, in virtual time."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import yaml
+
+from drivers.errors import FaultError, SafetyError
+from drivers.scenes import CylinderScene, EmptyScene
+
+from .conftest import PROFILE, REPO
+
+
+def true_contact_time(diameter_mm: float) -> float:
+    """When the plant's true actuator pressure reaches the contact pressure, seconds after
+    the valve was commanded open (valve delay included), from the plant alone."""
+    from drivers.hardware import Circuit, GripperActuator
+    from drivers.sim.actuators import volume_law
+    from drivers.sim.gas import Link, Network, VolumeLaw
+    from drivers.sim.plant import Plant
+    from drivers.units import P_ATM
+
+    act, c = GripperActuator(), Circuit()
+    law = volume_law(act, CylinderScene(diameter_mm=diameter_mm), P_ATM)
+    net = Network(["tank", "actuator"], [VolumeLaw.constant(c.tank_m3), law],
+                  [Link(0, 1, c.valve_resistance_pa_s_per_m3 + c.resistor_pa_s_per_m3, "v", True)])
+    plant = Plant(net, {"v": True}, P_ATM, 0.05, p_initial_abs={"tank": P_ATM + 63e3})
+    t = np.arange(0, 1, 1e-5)
+    p = plant.pressures_abs(plant.sample(t))[1] - P_ATM
+    return float(t[np.argmax(p >= law.p_gauge[1])]) + c.valve_delay_s
+
+
+def test_contact_time_features_against_the_plants_truth(virtual_controller):
+    async def body(ctrl):
+        await ctrl.set_scene(EmptyScene())
+        ref = await ctrl.run_cycle(store_reference=True)
+        out = {}
+        for d in (40, 60, 80, 100):
+            await ctrl.set_scene(CylinderScene(diameter_mm=d))
+            out[d] = await ctrl.run_cycle()
+        return ref, out
+
+    ref, results = virtual_controller(body)
+    assert ref.is_reference and not ref.has_reference
+    for d, res in results.items():
+        truth = true_contact_time(d)
+        assert res.has_reference
+        assert res.t_c_slope == pytest.approx(truth, abs=0.005), d
+        # the threshold variant fires once dP has built up: after contact, soon after
+        assert truth < res.t_c_threshold < truth + 0.06
+        assert res.dp_max >= res.dp_eq > 0
+    dps = [results[d].dp_eq for d in (40, 60, 80, 100)]
+    assert dps == sorted(dps)  # bigger object, bigger dP
+
+
+def test_cycle_result_windows_and_offset(virtual_controller):
+    async def body(ctrl):
+        await ctrl.set_scene(CylinderScene(diameter_mm=80))
+        return await ctrl.run_cycle(label="x")
+
+    res = virtual_controller(body)
+    d = res.to_dict()
+    assert d["ok"] and d["label"] == "x"
+    assert d["offset_kpa"] == pytest.approx(0.3, abs=0.01)  # the sensor's offset, removed
+    assert d["windows"][0]["n"] == 1000  # 1 s at 1 kHz
+    assert d["t_open_s"] - d["t_start_s"] == pytest.approx(20.0, abs=0.011)
+    assert d["p_eq_kpa"] == pytest.approx(37.1, abs=0.2)
+
+
+def test_over_pressure_faults_vents_and_latches(tmp_path, virtual_controller):
+    """Limit set at P0: the tank reading (P0 + regulator error + 0.07 kPa noise) crosses it
+    while charging. The cycle must fault, vent, and refuse new cycles until reset."""
+    profile = yaml.safe_load(PROFILE.read_text())
+    profile["limits"] = {"max_kpa": 63.0, "min_kpa": -5}
+    path = tmp_path / "tight.yaml"
+    path.write_text(yaml.safe_dump(profile))
+
+    async def body(ctrl):
+        res = await ctrl.run_cycle()
+        status = ctrl.status()
+        with pytest.raises(FaultError):
+            await ctrl.run_cycle()
+        ctrl.reset()
+        after_reset = ctrl.status()["state"]
+        with pytest.raises(SafetyError, match="outside the profile's limits"):
+            await ctrl.run_cycle(p0_kpa=80.0)
+        return res, status, after_reset
+
+    res, status, after_reset = virtual_controller(body, profile=str(path))
+    assert res.aborted == "fault: over_pressure"
+    assert res.t_open is None  # it never reached the actuation
+    assert status["state"] == "fault"
+    assert status["fault"]["kind"] == "over_pressure"
+    assert status["valves"] == {"supply": False, "actuate": False}
+    assert after_reset == "idle"
+
+
+def test_demo_json_rises_with_diameter_at_the_papers_slope():
+    """`fluidsense demo --json` (the paper's Fig. 1f protocol): P_eq rises monotonically
+    from 40 to 100 mm with a slope within 30 % of 0.04 kPa/mm; D = 20 barely touches."""
+    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "demo", "--json"], cwd=REPO,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    data = json.loads(out.stdout)
+    pts = {p["diameter_mm"]: p for p in data["points"]}
+    assert set(pts) == {None, 20, 40, 60, 80, 100}
+    assert all(p["cycles"] == 5 for p in pts.values())
+    rising = [pts[d]["p_eq_kpa"] for d in (40, 60, 80, 100)]
+    assert all(b > a for a, b in zip(rising, rising[1:]))
+    assert data["slope_kpa_per_mm"] == pytest.approx(0.04, rel=0.3)
+    assert data["r2"] > 0.99
+    assert abs(pts[20]["p_eq_kpa"] - pts[None]["p_eq_kpa"]) < 0.2  # barely touching
+    assert pts[None]["p_eq_kpa"] == pytest.approx(34.6, abs=0.2)

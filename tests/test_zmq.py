@@ -1,0 +1,138 @@
+"""`fluidsense run` over real ZeroMQ sockets, checked against docs/zmq-schema.md.
+
+The subscriber here is written against the document: the JSON schemas are read out of
+docs/zmq-schema.md, not from the code.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import signal
+
+import jsonschema
+import pytest
+import yaml
+
+from .conftest import PROFILE, REPO, sim_config
+
+DOC = (REPO / "docs" / "zmq-schema.md").read_text()
+SCHEMAS = {m.group(1): json.loads(m.group(2))
+           for m in re.finditer(r"```json schema=(\w+)\n(.*?)```", DOC, flags=re.S)}
+
+
+def check(topic: str, msg: dict) -> None:
+    assert topic in SCHEMAS, f"topic {topic!r} is not documented"
+    jsonschema.validate(msg, SCHEMAS[topic])
+
+
+def test_the_document_has_a_schema_per_topic():
+    assert set(SCHEMAS) == {"heartbeat", "state", "cycle", "pressure", "fault", "log"}
+
+
+def collect_until_cycle(d, seen: dict) -> dict:
+    while True:
+        topic, msg = d.next_message()
+        check(topic, msg)
+        seen.setdefault(topic, []).append(msg)
+        if topic == "cycle":
+            return msg
+
+
+def test_subscriber_receives_heartbeats_states_pressure_and_cycle_results(tmp_path, daemon_factory):
+    d = daemon_factory(sim_config(tmp_path, clock="virtual"))
+    d.wait_welcome()
+    seen: dict[str, list] = {}
+    reply = d.request({"cmd": "cycle", "store_reference": True})
+    assert reply == {"ok": True, "cycle_id": 1}
+    ref = collect_until_cycle(d, seen)
+    assert ref["ok"] and ref["is_reference"] and ref["p_eq_kpa"] == pytest.approx(34.6, abs=0.2)
+    assert d.request({"cmd": "scene", "scene": {"kind": "cylinder", "diameter_mm": 80}})["ok"]
+    assert d.request({"cmd": "cycle"})["cycle_id"] == 2
+    res = collect_until_cycle(d, seen)
+    assert res["has_reference"] and res["dp_eq_kpa"] > 1.5 and res["t_c_slope_s"] > 0
+
+    # a heartbeat per second of sample time: two 50 s cycles give about 100
+    beats = seen["heartbeat"]
+    assert len(beats) >= 90
+    assert beats[-1]["samples"] > beats[0]["samples"] and beats[-1]["missed"] == 0
+    # the transitions, in order, for each cycle
+    states = [(m["cycle_id"], m["to"]) for m in seen["state"]]
+    order = ["charge", "isolate", "actuate", "hold", "vent", "idle"]
+    assert [s for c, s in states if c == 1] == order
+    assert [s for c, s in states if c == 2] == order
+    # one counter over all topics, no gaps after the welcome
+    seqs = sorted(m["seq"] for msgs in seen.values() for m in msgs)
+    assert seqs == list(range(seqs[0], seqs[0] + len(seqs)))
+    # every sample was published in pressure batches: contiguous, none lost or repeated
+    times = [t for m in seen["pressure"] for t in m["times_s"]]
+    k = [round(t * 1000) for t in times]
+    assert k == list(range(k[0], k[0] + len(k)))
+    assert k[0] == 0 and len(k) >= ref["samples"] + res["samples"] - 100  # the last batch may be pending
+
+    assert d.request({"cmd": "shutdown"}) == {"ok": True, "shutting_down": True}
+    assert d.proc.wait(30) == 0
+
+
+BAD_REQUESTS = [
+    ([b"not json"], "not a JSON object"),
+    ([b"[1, 2]"], "must be a JSON object"),
+    ([b'{"cmd": "explode"}'], "unknown command"),
+    ([b'{"nocmd": 1}'], "unknown command"),
+    ([b'{"cmd": "cycle", "p0_kpa": "high"}'], "p0_kpa"),
+    ([b'{"cmd": "cycle", "p0_kpa": 5000}'], "p0_kpa"),
+    ([b'{"cmd": "status", "extra": 1}'], "extra"),
+    ([b'{"cmd": "scene", "scene": {"kind": "dragon"}}'], "scene"),
+    ([b"\xff\xfe\x00"], "not a JSON object"),
+    ([b'{"cmd": "status"}', b"second frame"], "one frame"),
+    ([b'{"cmd": "cycle", "p0_kpa": 95}'], "outside the profile's limits"),
+]
+
+
+def test_bad_commands_get_an_error_reply_and_the_daemon_keeps_running(tmp_path, daemon_factory):
+    d = daemon_factory(sim_config(tmp_path, clock="virtual"))
+    d.wait_welcome()
+    for frames, reason in BAD_REQUESTS:
+        reply = d.request(None, raw=frames)
+        assert reply["ok"] is False, frames
+        assert reason in reply["error"], (frames, reply)
+    status = d.request({"cmd": "status"})
+    assert status["ok"] and status["state"] == "idle" and status["fault"] is None
+    assert d.proc.poll() is None
+    assert d.request({"cmd": "cycle"})["ok"]
+    assert d.request({"cmd": "cycle"})["error"].startswith("busy")
+
+
+def fast_profile(tmp_path):
+    """The gripper with a 3.5 s cycle so that real-time tests stay short."""
+    profile = yaml.safe_load(PROFILE.read_text())
+    profile["sequence"].update(charge_s=0.5, isolate_s=0.5, actuate_s=2.0, vent_s=0.5, offset_s=0.3,
+                               windows=[{"name": "eq", "start_s": 1.0, "end_s": 1.5}])
+    path = tmp_path / "fast.yaml"
+    path.write_text(yaml.safe_dump(profile))
+    return str(path)
+
+
+def test_real_time_heartbeat_and_sigterm_vents_then_exits(tmp_path, daemon_factory):
+    d = daemon_factory(sim_config(tmp_path, clock="realtime", profile=fast_profile(tmp_path)))
+    d.wait_welcome()
+    _, beat = d.next_message("heartbeat", timeout_s=10)
+    check("heartbeat", beat)
+    assert beat["virtual"] is False and beat["rate_hz"] == 1000
+    assert d.request({"cmd": "cycle"})["ok"]
+    while True:  # wait, in real time, for the actuator to be inflating
+        _, st = d.next_message("state", timeout_s=10)
+        if st["to"] == "hold":
+            break
+    d.proc.send_signal(signal.SIGTERM)
+    tail = []
+    while True:
+        topic, msg = d.next_message(timeout_s=15)
+        tail.append((topic, msg))
+        if topic == "log" and msg["message"] == "controller stopped":
+            break
+    assert d.proc.wait(30) == 0
+    vents = [m for t, m in tail if t == "state" and m["to"] == "vent"]
+    assert vents and vents[0]["reason"] == "abort: shutdown"
+    cycles = [m for t, m in tail if t == "cycle"]
+    assert not cycles or cycles[-1]["aborted"] == "shutdown"

@@ -136,3 +136,24 @@ def test_real_time_heartbeat_and_sigterm_vents_then_exits(tmp_path, daemon_facto
     assert vents and vents[0]["reason"] == "abort: shutdown"
     cycles = [m for t, m in tail if t == "cycle"]
     assert not cycles or cycles[-1]["aborted"] == "shutdown"
+
+
+def test_monitor_shows_transitions_and_the_result(tmp_path, daemon_factory):
+    import subprocess
+    import sys
+
+    d = daemon_factory(sim_config(tmp_path, clock="virtual"))
+    d.wait_welcome()
+    mon = subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "monitor", "--endpoint", d.pub,
+                            "--topic", "state", "--topic", "cycle", "--count", "7", "--timeout", "30"],
+                           cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert "(connected to" in mon.stderr.readline()  # its subscription is attached
+        assert d.request({"cmd": "cycle"})["ok"]
+        out, _ = mon.communicate(timeout=60)
+    finally:
+        mon.kill()
+    lines = out.strip().splitlines()
+    assert mon.returncode == 0 and len(lines) == 7
+    assert "idle -> charge" in lines[0] and "vent -> idle" in lines[5]
+    assert lines[6].startswith("[") and "cycle 1: P_eq 34." in lines[6]

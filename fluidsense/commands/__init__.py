@@ -1,0 +1,6 @@
+"""Subcommands of ``fluidsense``. Each module has ``register(subparsers)``; add a module
+here and to ``MODULES`` to add a command."""
+
+from . import clients, demo, run
+
+MODULES = [run, demo, clients]

@@ -1,0 +1,53 @@
+"""``fluidsense monitor`` and ``fluidsense cmd``: clients of a running daemon."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from .. import app
+from ..monitor import monitor, send_command
+
+
+def register(sub) -> None:
+    p = sub.add_parser("monitor", help="show live state and results from a running daemon",
+                       description="Subscribe to the daemon's PUB socket and print state transitions, "
+                       "cycle results, heartbeats and faults.")
+    p.add_argument("--config", "-c", help="cell config naming the endpoint (default: config/cell-sim.yaml)")
+    p.add_argument("--endpoint", help="PUB endpoint, e.g. tcp://127.0.0.1:5560 (overrides --config)")
+    p.add_argument("--topic", action="append", help="topic to show (repeatable; default: all but pressure)")
+    p.add_argument("--all", action="store_true", help="every topic, pressure included")
+    p.add_argument("--count", type=int, help="exit after this many messages")
+    p.add_argument("--timeout", type=float, help="exit after this many seconds without a message")
+    p.add_argument("--json", action="store_true", help="print raw JSON messages")
+    p.set_defaults(func=cmd_monitor)
+
+    p = sub.add_parser("cmd", help="send one request to the command socket",
+                       description="Send a request and print the reply, e.g. "
+                       "fluidsense cmd status, fluidsense cmd '{\"cmd\": \"cycle\", \"store_reference\": true}'.")
+    p.add_argument("request", help="a command name (status, cycle, abort, reset, shutdown) or a JSON object")
+    p.add_argument("--config", "-c", help="cell config naming the endpoint (default: config/cell-sim.yaml)")
+    p.add_argument("--endpoint", help="command endpoint, e.g. tcp://127.0.0.1:5561")
+    p.add_argument("--timeout", type=float, default=5.0)
+    p.set_defaults(func=cmd_cmd)
+
+
+def cmd_monitor(args: argparse.Namespace) -> int:
+    endpoint = args.endpoint
+    if endpoint is None:
+        endpoint = app.load(args.config).publisher.pub
+    topics = args.topic or ["state", "cycle", "heartbeat", "fault", "task", "log"]
+    if args.all:
+        topics = [""]
+    return monitor(endpoint, topics, args.count, args.timeout, args.json)
+
+
+def cmd_cmd(args: argparse.Namespace) -> int:
+    endpoint = args.endpoint or app.load(args.config).publisher.cmd
+    try:
+        request = json.loads(args.request)
+    except json.JSONDecodeError:
+        request = {"cmd": args.request}
+    reply = send_command(endpoint, request, args.timeout)
+    print(json.dumps(reply, indent=2))
+    return 0 if reply.get("ok") else 1

@@ -1,0 +1,27 @@
+"""``fluidsense run``: the daemon."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+
+from .. import app
+from ._common import setup_logging
+
+
+def register(sub) -> None:
+    p = sub.add_parser("run", help="run the controller daemon",
+                       description="Run the daemon: sample, sequence cycles on command, publish on ZeroMQ. "
+                       "Ctrl-C or SIGTERM vents the actuator and exits.")
+    p.add_argument("--config", "-c", help="cell config YAML (default: config/cell-sim.yaml)")
+    p.add_argument("--virtual", action="store_true",
+                   help="simulated cell in virtual time (sample time only advances while a cycle runs)")
+    p.add_argument("--log-level", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    overrides = {"driver": {"clock": "virtual"}} if args.virtual else None
+    cfg = app.load(args.config, overrides)
+    setup_logging(args.log_level or cfg.log_level)
+    return asyncio.run(app.run_daemon(cfg))

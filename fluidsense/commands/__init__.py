@@ -1,6 +1,6 @@
 """Subcommands of ``fluidsense``. Each module has ``register(subparsers)``; add a module
 here and to ``MODULES`` to add a command."""
 
-from . import clients, demo, run
+from . import bench, clients, demo, run
 
-MODULES = [run, demo, clients]
+MODULES = [run, demo, clients, bench]

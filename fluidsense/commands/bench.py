@@ -1,0 +1,15 @@
+"""``fluidsense bench NAME``: benchmarks that print figures (see fluidsense/bench/)."""
+
+from __future__ import annotations
+
+from ..bench import discover
+
+
+def register(sub) -> None:
+    p = sub.add_parser("bench", help="benchmarks (print figures; --json for machines)",
+                       description="Run a benchmark. Speed and memory goals live here, not in the tests.")
+    benches = p.add_subparsers(dest="bench", required=True, metavar="NAME")
+    for name, module in discover().items():
+        bp = benches.add_parser(name, help=module.HELP, description=getattr(module, "DESCRIPTION", module.HELP))
+        module.register(bp)
+        bp.set_defaults(func=module.run)

@@ -15,7 +15,7 @@ from pydantic import BaseModel, Field, ValidationError, model_validator
 
 from drivers.config import DriverConfig
 from drivers.errors import ConfigError
-from drivers.hardware import Actuator, Circuit, GripperActuator, Hardware, Sensor
+from drivers.hardware import Actuator, Circuit, FlowSensor, GripperActuator, Hardware, Sensor, TankCircuit
 from drivers.models import StrictModel
 from drivers.units import KPA
 
@@ -36,35 +36,69 @@ class Window(StrictModel):
         return self
 
 
-class SequenceConfig(StrictModel):
-    """One actuation cycle (tank method, paper Methods "Size sensing with soft gripper"):
-    charge the tank at P0, isolate it, open the actuation valve, hold while the windows are
-    measured, vent."""
+class FlowProfile(StrictModel):
+    """Flow-control programme (paper, Methods "Flow control with pressure measurement"):
+    ramp from 0 to ``flow_slpm`` in ``ramp_s``, hold ``hold_s``, then zero."""
 
-    method: Literal["tank"] = "tank"
-    p0_kpa: float = Field(63.0, ge=-100, le=1000, description="tank charge pressure (gauge)")
+    flow_slpm: float = Field(0.3, gt=0, le=100)
+    ramp_s: float = Field(5.0, ge=0, le=600)
+    hold_s: float = Field(4.0, ge=0, le=600)
+
+
+class SequenceConfig(StrictModel):
+    """One actuation cycle: CHARGE -> ISOLATE -> ACTUATE -> HOLD -> VENT.
+
+    Methods (paper, Methods "Distance sensing"): ``tank`` charges a tank to P0 and measures
+    the pressure the actuator settles at (method 1; with a free-air reference it also gives
+    the pressure-time features of method 4); ``pressure_flow`` holds the actuator at a
+    regulated P0 and integrates the flow into it (method 2); ``flow_control`` feeds a flow
+    profile and measures the pressure (method 3). A zero-length ISOLATE is skipped.
+    """
+
+    method: Literal["tank", "pressure_flow", "flow_control"] = "tank"
+    p0_kpa: float = Field(63.0, ge=-100, le=1000,
+                          description="tank charge pressure (tank) or regulated pressure (pressure_flow)")
     charge_s: float = Field(10.0, gt=0, le=600)
-    isolate_s: float = Field(10.0, gt=0, le=600)
+    isolate_s: float = Field(10.0, ge=0, le=600)
     actuate_s: float = Field(20.0, gt=0, le=3600)
     vent_s: float = Field(10.0, gt=0, le=600)
     offset_s: float = Field(1.0, gt=0, le=60, description="sensor offset: mean of this long before opening")
     windows: list[Window] = Field(default_factory=lambda: [Window(name="eq", start_s=4.0, end_s=5.0)],
                                   min_length=1, max_length=16)
+    flow_window: Window | None = Field(
+        None, description="integrate the flow into the actuator over this window (pressure_flow: V_eq)")
+    flow_profile: FlowProfile | None = Field(None, description="flow_control: the flow programme")
+    isolate_actuator_at_s: float | None = Field(
+        None, gt=0, description="close the actuation valve this long after opening and hold the actuator "
+        "isolated until VENT (needs a circuit with a separate vent valve)")
     contact_threshold_kpa: float = Field(0.5, gt=0, le=100, description="dP level for t_c by threshold")
     smoothing_samples: int = Field(21, ge=3, le=1001, description="local quadratic regression span")
 
     @model_validator(mode="after")
     def _consistent(self) -> SequenceConfig:
-        if self.offset_s > self.isolate_s:
-            raise ValueError(f"offset_s ({self.offset_s}) must fit inside isolate_s ({self.isolate_s})")
-        for w in self.windows:
+        if self.offset_s > self.charge_s + self.isolate_s:
+            raise ValueError(f"offset_s ({self.offset_s}) must fit before the valve opens "
+                             f"(charge_s + isolate_s = {self.charge_s + self.isolate_s})")
+        for w in [*self.windows, *([self.flow_window] if self.flow_window else [])]:
             if w.end_s > self.actuate_s:
                 raise ValueError(f"window {w.name!r} ends at {w.end_s} s, after the valve closes "
                                  f"(actuate_s = {self.actuate_s})")
         names = [w.name for w in self.windows]
         if len(set(names)) != len(names):
             raise ValueError(f"window names must be unique, got {names}")
+        if self.method == "flow_control" and self.flow_profile is None:
+            raise ValueError("method flow_control needs a flow_profile")
+        if self.method == "pressure_flow" and self.flow_window is None:
+            raise ValueError("method pressure_flow needs a flow_window to integrate over")
+        if self.method == "tank" and self.isolate_s == 0:
+            raise ValueError("method tank needs isolate_s > 0 (the tank must be isolated before opening)")
+        if self.isolate_actuator_at_s is not None and self.isolate_actuator_at_s >= self.actuate_s:
+            raise ValueError("isolate_actuator_at_s must come before the end of actuate_s")
         return self
+
+    @property
+    def p0_pa(self) -> float:
+        return self.p0_kpa * KPA
 
 
 class Limits(StrictModel):
@@ -93,25 +127,34 @@ class Profile(StrictModel):
 
     name: str = Field(min_length=1, max_length=80)
     description: str = ""
-    circuit: Circuit = Circuit()
+    circuit: Circuit = TankCircuit()
     actuator: Actuator = GripperActuator()
     sensor: Sensor = Sensor()
     tank_sensor: Sensor = Sensor(offset_kpa=0.0)
+    flow_sensor: FlowSensor = FlowSensor()
     limits: Limits = Limits(max_kpa=90.0, min_kpa=-5.0)
     sequence: SequenceConfig = SequenceConfig()
 
     @model_validator(mode="after")
-    def _p0_inside_limits(self) -> Profile:
-        p0 = self.sequence.p0_kpa
-        if not self.limits.min_kpa <= p0 <= self.limits.max_kpa:
+    def _consistent(self) -> Profile:
+        seq, circuit = self.sequence, self.circuit
+        p0 = seq.p0_kpa
+        if seq.method != "flow_control" and not self.limits.min_kpa <= p0 <= self.limits.max_kpa:
             raise ValueError(f"sequence.p0_kpa ({p0}) is outside limits "
                              f"[{self.limits.min_kpa}, {self.limits.max_kpa}] kPa")
+        needs = {"tank": "tank", "pressure_flow": "regulated", "flow_control": "flow"}[seq.method]
+        if circuit.kind != needs:
+            raise ValueError(f"sequence.method {seq.method!r} needs circuit.kind {needs!r}, got {circuit.kind!r}")
+        if seq.flow_window is not None and not circuit.flow_sensor:
+            raise ValueError("sequence.flow_window needs a circuit with flow_sensor: true")
+        if seq.isolate_actuator_at_s is not None and not getattr(circuit, "vent_valve", False):
+            raise ValueError("sequence.isolate_actuator_at_s needs circuit.vent_valve: true")
         return self
 
     @property
     def hardware(self) -> Hardware:
         return Hardware(circuit=self.circuit, actuator=self.actuator, sensor=self.sensor,
-                        tank_sensor=self.tank_sensor)
+                        tank_sensor=self.tank_sensor, flow_sensor=self.flow_sensor)
 
 
 class PublisherConfig(StrictModel):
@@ -134,10 +177,29 @@ class CellConfig(StrictModel):
 
 
 # ---------------------------------------------------------------------- loading
-def _format_errors(path: Path, exc: ValidationError, prefix: str = "") -> str:
+def _field_path(loc: tuple, data: Any) -> str:
+    """Dotted field path of an error location, without the union tags pydantic inserts
+    (``driver.sim.rate_hz`` -> ``driver.rate_hz``): the path the user wrote."""
+    parts, node = [], data
+    for item in loc:
+        if isinstance(node, dict) and item not in node and node.get("kind") == item:
+            continue  # the tag of a discriminated union, not a key in the file
+        if isinstance(item, str) and item.startswith("function-"):
+            continue
+        parts.append(str(item))
+        if isinstance(node, dict):
+            node = node.get(item)
+        elif isinstance(node, list) and isinstance(item, int) and 0 <= item < len(node):
+            node = node[item]
+        else:
+            node = None
+    return ".".join(parts)
+
+
+def _format_errors(path: Path, exc: ValidationError, data: Any, prefix: str = "") -> str:
     lines = []
     for err in exc.errors():
-        loc = ".".join(str(p) for p in err["loc"] if not str(p).startswith("function-after"))
+        loc = _field_path(err["loc"], data)
         loc = f"{prefix}{loc}" if loc else (prefix.rstrip(".") or "(top level)")
         msg = err["msg"]
         if err["type"] == "extra_forbidden":
@@ -171,7 +233,7 @@ def validate(model: type[M], data: Any, path: str | Path, prefix: str = "") -> M
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        raise ConfigError(_format_errors(Path(path), exc, prefix)) from exc
+        raise ConfigError(_format_errors(Path(path), exc, data, prefix)) from exc
 
 
 def load_model(model: type[M], path: str | Path) -> M:

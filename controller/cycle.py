@@ -79,6 +79,9 @@ class CycleResult:
     t_dp_max: float | None = None
     t_c_slope: float | None = None
     t_c_threshold: float | None = None
+    t_c2: float | None = None
+    v_eq: float | None = None  # standard m^3 into the actuator over the flow window
+    flow_offset: float | None = None
     samples: int = 0
     missed: int = 0
     trace: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
@@ -105,7 +108,8 @@ class CycleResult:
             "windows": [w.to_dict() for w in self.windows],
             "is_reference": self.is_reference, "has_reference": self.has_reference,
             "dp_eq_kpa": _kpa(self.dp_eq), "dp_max_kpa": _kpa(self.dp_max), "t_dp_max_s": self.t_dp_max,
-            "t_c_slope_s": self.t_c_slope, "t_c_threshold_s": self.t_c_threshold,
+            "t_c_slope_s": self.t_c_slope, "t_c_threshold_s": self.t_c_threshold, "t_c2_s": self.t_c2,
+            "v_eq_ml": None if self.v_eq is None else self.v_eq * 1e6,
             "samples": self.samples, "missed": self.missed,
         }
 
@@ -115,18 +119,25 @@ def _kpa(v: float | None) -> float | None:
 
 
 def analyse(cycle_id: int, p0: float, t_start: float, t_open: float | None, t_end: float | None,
-            t: np.ndarray, p: np.ndarray, cfg: SequenceConfig, reference: Reference | None,
-            aborted: str | None = None, label: str | None = None, missed: int = 0) -> CycleResult:
-    """Features of one cycle from its actuator pressure trace ``p`` (Pa) at times ``t``."""
+            t: np.ndarray, values: np.ndarray, channels: tuple[str, ...], cfg: SequenceConfig,
+            reference: Reference | None, aborted: str | None = None, label: str | None = None,
+            missed: int = 0) -> CycleResult:
+    """Features of one cycle from its recorded samples (SI units)."""
     res = CycleResult(cycle_id, p0, t_start, t_open, t_end, aborted=aborted, label=label,
                       samples=len(t), missed=missed)
     if t_open is None or aborted is not None:
         return res
+    p = values[:, channels.index("p_act")]
     res.offset = F.sensor_offset(t, p, t_open, cfg.offset_s)
     pc = p - res.offset
     for w in cfg.windows:
         ws = F.window_stats(t, pc, t_open, w.start_s, w.end_s)
         res.windows.append(WindowResult(w.name, w.start_s, w.end_s, ws.mean, ws.sd, ws.n))
+    if cfg.flow_window is not None and "flow" in channels:
+        q = values[:, channels.index("flow")]
+        res.flow_offset = F.sensor_offset(t, q, t_open, cfg.offset_s)
+        fw = cfg.flow_window
+        res.v_eq = F.integrate(t, q - res.flow_offset, t_open + fw.start_s, t_open + fw.end_s)
     opened = (t >= t_open) & (t < t_open + cfg.actuate_s)
     t_rel, p_rel = t[opened] - t_open, pc[opened]
     res.trace = (t_rel, p_rel)
@@ -149,6 +160,8 @@ def analyse(cycle_id: int, p0: float, t_start: float, t_open: float | None, t_en
     threshold = cfg.contact_threshold_kpa * KPA
     res.t_c_threshold = F.contact_time_threshold(t_rel, oriented, threshold)
     res.t_c_slope = F.contact_time_slope(t_rel, oriented, min_rise=threshold)
+    if res.t_c_slope is not None:
+        res.t_c2 = F.second_contact_time(t_rel, oriented, res.t_c_slope, min_rise=threshold)
     return res
 
 

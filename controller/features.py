@@ -60,6 +60,14 @@ def window_stats(t: np.ndarray, p: np.ndarray, t_open: float, start_s: float, en
     return WindowStats(float(np.mean(vals)), float(np.std(vals, ddof=1)) if n > 1 else 0.0, n)
 
 
+def integrate(t: np.ndarray, q: np.ndarray, t0: float, t1: float) -> float:
+    """Integral of ``q`` over [t0, t1) (trapezoids between the samples inside)."""
+    sel = _between(t, t0, t1)
+    if sel.sum() < 2:
+        raise ValueError(f"fewer than two samples in [{t0}, {t1})")
+    return float(np.trapezoid(q[sel], t[sel]))
+
+
 def delta_p(t_rel: np.ndarray, p: np.ndarray, ref_t_rel: np.ndarray, ref_p: np.ndarray) -> np.ndarray:
     """dP = P - P_ref, the reference interpolated onto ``t_rel`` (time since opening).
 
@@ -154,3 +162,44 @@ def contact_time_slope(t_rel: np.ndarray, dp: np.ndarray, min_rise: float) -> fl
     sse[:2] = np.inf  # keep at least two points before the split ...
     sse[-3:] = np.inf  # ... and three after it
     return float(t[int(np.argmin(sse))])
+
+
+def second_contact_time(t_rel: np.ndarray, dp: np.ndarray, t_c1: float, min_rise: float) -> float | None:
+    """Time of a second contact after ``t_c1`` (use a smoothed dP).
+
+    After a first contact dP keeps rising; a second contact (another finger pair meeting
+    the object) makes it rise faster again. A continuous broken line (slope b1, then b1 +
+    b2 after the break) is fitted from t_c1 until dP first reaches 90 % of its maximum;
+    the break with the least squared error is the second contact when the slope at
+    least doubles there and dP still rises by ``min_rise`` after it. None otherwise.
+    """
+    ok = np.isfinite(dp) & (t_rel > t_c1)
+    t, y = t_rel[ok], dp[ok]
+    if len(t) < 12:
+        return None
+    k_end = int(np.argmax(y >= 0.9 * np.max(y)))
+    t, y = t[: k_end + 1], y[: k_end + 1]
+    n = len(t)
+    if n < 12:
+        return None
+    x = (t - t[0]) / ((t[-1] - t[0]) or 1.0)
+    rev = slice(None, None, -1)
+    s0, s1, s2 = (np.cumsum((x**j)[rev])[rev] for j in range(3))  # suffix sums from k
+    y0, y1 = np.cumsum(y[rev])[rev], np.cumsum((y * x)[rev])[rev]
+    xk = x
+    su, suu = s1 - xk * s0, s2 - 2 * xk * s1 + xk**2 * s0
+    sxu, syu = s2 - xk * s1, y1 - xk * y0
+    m = np.empty((n, 3, 3))
+    sx, sxx = x.sum(), (x * x).sum()
+    m[:, 0] = np.column_stack([np.full(n, float(n)), np.full(n, sx), su])
+    m[:, 1] = np.column_stack([np.full(n, sx), np.full(n, sxx), sxu])
+    m[:, 2] = np.column_stack([su, sxu, suu])
+    rhs = np.column_stack([np.full(n, y.sum()), np.full(n, (x * y).sum()), syu])
+    ks = np.arange(4, n - 4)
+    coef = np.linalg.solve(m[ks], rhs[ks][..., None])[..., 0]
+    sse = float(np.sum(y * y)) - np.einsum("ij,ij->i", coef, rhs[ks])
+    j = int(np.argmin(sse))
+    k, (_, b1, b2) = int(ks[j]), coef[j]
+    if b1 <= 0 or b1 + b2 < 2 * b1 or y[-1] - y[k] < min_rise:
+        return None
+    return float(t[k])

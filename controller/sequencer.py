@@ -2,16 +2,18 @@
 
 IDLE -> CHARGE -> ISOLATE -> ACTUATE -> HOLD -> VENT -> IDLE
 
-CHARGE   regulator at P0, supply valve open: the tank fills.
-ISOLATE  supply valve closed: the tank holds its charge; the sensor offset is read at
-         the end of this state, with the actuator still vented.
-ACTUATE  actuation valve open (t_open): the actuator inflates from the tank.
+CHARGE   regulator at P0 (tank: supply valve open, the tank fills).
+ISOLATE  tank method: supply valve closed, the tank holds its charge. Skipped when its
+         duration is 0. The sensor offset is read just before the next step, while the
+         actuator is still vented.
+ACTUATE  actuation valve open (t_open): the actuator fills from the tank, the regulator
+         or the flow controller.
 HOLD     from the first measurement window until the valve closes.
-VENT     actuation valve closed: the actuator vents.
+VENT     every valve back to its safe position: the actuator vents.
 
-``abort`` from any state goes to VENT with every valve closed. The machine does no I/O:
-it returns commands, and the controller applies them. Its only clock is the sample time
-passed in, so the same code runs in real and virtual time.
+``abort`` from any state goes to VENT with every valve in its safe position. The
+machine does no I/O: it returns commands and the controller applies them. Its only
+clock is the sample time passed in, so the same code runs in real and virtual time.
 """
 
 from __future__ import annotations
@@ -21,10 +23,13 @@ import logging
 from dataclasses import dataclass
 
 from drivers.errors import SequenceError
+from drivers.hardware import ACTUATE, SUPPLY, VENT
 
 from .config import SequenceConfig
 
 log = logging.getLogger(__name__)
+
+SLPM = 1e-3 / 60.0
 
 
 class State(str, enum.Enum):
@@ -48,7 +53,15 @@ class SetpointCmd:
     pressure_pa: float
 
 
-Command = ValveCmd | SetpointCmd
+@dataclass(frozen=True)
+class FlowProfileCmd:
+    """Piecewise-linear flow (standard m^3/s) at absolute sample times; zero after."""
+
+    times: tuple[float, ...]
+    flows: tuple[float, ...]
+
+
+Command = ValveCmd | SetpointCmd | FlowProfileCmd
 
 
 @dataclass(frozen=True)
@@ -61,16 +74,20 @@ class Transition:
 
 
 class Sequencer:
-    def __init__(self, cfg: SequenceConfig):
+    """``valves``: the circuit's valves and their safe positions (name -> open)."""
+
+    def __init__(self, cfg: SequenceConfig, valves: dict[str, bool] | None = None):
         self.cfg = cfg
+        self.valves = dict(valves if valves is not None else {SUPPLY: False, ACTUATE: False})
         self.state = State.IDLE
         self.cycle_id = 0
-        self.p0_pa = cfg.p0_kpa * 1e3
+        self.p0_pa = cfg.p0_pa
         self.t_start: float | None = None
         self.t_open: float | None = None
         self.t_end: float | None = None
         self.aborted: str | None = None
         self._deadline = float("inf")
+        self._isolate_at = float("inf")
         self.transitions: list[Transition] = []
 
     @property
@@ -88,21 +105,39 @@ class Sequencer:
         out, self.transitions = self.transitions, []
         return out
 
+    def _safe(self) -> list[Command]:
+        cmds: list[Command] = [ValveCmd(name, pos) for name, pos in self.valves.items()]
+        if self.cfg.method == "flow_control":
+            cmds.append(FlowProfileCmd((), ()))
+        return cmds
+
+    # ----------------------------------------------------------------- cycle
     def start(self, t: float, p0_pa: float | None = None) -> list[Command]:
         if self.state == State.FAULT:
             raise SequenceError("controller is in FAULT; reset first")
         if self.busy:
             raise SequenceError(f"a cycle is running (state {self.state.value})")
         self.cycle_id += 1
-        self.p0_pa = self.cfg.p0_kpa * 1e3 if p0_pa is None else p0_pa
+        self.p0_pa = self.cfg.p0_pa if p0_pa is None else p0_pa
         self.t_start, self.t_open, self.t_end, self.aborted = t, None, None, None
+        self._isolate_at = float("inf")
         self._go(t, State.CHARGE, "start")
         self._deadline = t + self.cfg.charge_s
-        return [ValveCmd("actuate", False), SetpointCmd(self.p0_pa), ValveCmd("supply", True)]
+        tank = self.cfg.method == "tank"
+        cmds: list[Command] = [c for c in self._safe() if not (tank and getattr(c, "valve", None) == SUPPLY)]
+        if self.cfg.method != "flow_control":
+            cmds.append(SetpointCmd(self.p0_pa))
+        if tank:
+            cmds.append(ValveCmd(SUPPLY, True))
+        return cmds
 
     def on_time(self, t: float) -> list[Command]:
         """Advance with the newest sample time; returns the commands due now."""
         cmds: list[Command] = []
+        if t >= self._isolate_at and self.state in (State.ACTUATE, State.HOLD):
+            self._isolate_at = float("inf")
+            log.info("cycle %d: actuator isolated at t=%.3f s", self.cycle_id, t)
+            cmds.append(ValveCmd(ACTUATE, False))
         while self.busy and t >= self._deadline:
             cmds += self._advance(t)
         return cmds
@@ -110,15 +145,13 @@ class Sequencer:
     def _advance(self, t: float) -> list[Command]:
         cfg = self.cfg
         if self.state == State.CHARGE:
-            self._go(t, State.ISOLATE, "charged")
-            self._deadline = t + cfg.isolate_s
-            return [ValveCmd("supply", False)]
+            if cfg.isolate_s > 0:
+                self._go(t, State.ISOLATE, "charged")
+                self._deadline = t + cfg.isolate_s
+                return [ValveCmd(SUPPLY, False)] if cfg.method == "tank" else []
+            return self._open(t)
         if self.state == State.ISOLATE:
-            self._go(t, State.ACTUATE, "valve open")
-            self.t_open = t
-            first_window = min(w.start_s for w in cfg.windows)
-            self._deadline = t + first_window
-            return [ValveCmd("actuate", True)]
+            return self._open(t)
         if self.state == State.ACTUATE:
             self._go(t, State.HOLD, "measuring")
             self._deadline = self.t_open + cfg.actuate_s
@@ -126,7 +159,7 @@ class Sequencer:
         if self.state == State.HOLD:
             self._go(t, State.VENT, "hold done")
             self._deadline = t + cfg.vent_s
-            return [ValveCmd("actuate", False)]
+            return self._safe()
         if self.state == State.VENT:
             self._go(t, State.IDLE, "aborted" if self.aborted else "done")
             self.t_end = t
@@ -134,23 +167,44 @@ class Sequencer:
             return []
         raise SequenceError(f"no transition from {self.state}")  # pragma: no cover
 
+    def _open(self, t: float) -> list[Command]:
+        cfg = self.cfg
+        self._go(t, State.ACTUATE, "valve open")
+        self.t_open = t
+        self._deadline = t + min(w.start_s for w in cfg.windows)
+        if cfg.isolate_actuator_at_s is not None:
+            self._isolate_at = t + cfg.isolate_actuator_at_s
+        cmds: list[Command] = []
+        if VENT in self.valves:
+            cmds.append(ValveCmd(VENT, False))
+        cmds.append(ValveCmd(ACTUATE, True))
+        if cfg.method == "flow_control":
+            fp = cfg.flow_profile
+            q = fp.flow_slpm * SLPM
+            t1 = t + fp.ramp_s
+            t2 = t1 + fp.hold_s
+            cmds.append(FlowProfileCmd((t, t1, t2, t2 + 1e-6), (0.0, q, q, 0.0)))
+        return cmds
+
     def abort(self, t: float, reason: str) -> list[Command]:
-        """Go to VENT from any running state: every valve closed."""
+        """Go to VENT from any running state: every valve to its safe position."""
         if not self.busy:
             return []
         self.aborted = self.aborted or reason
+        self._isolate_at = float("inf")
         if self.state != State.VENT:
             self._go(t, State.VENT, f"abort: {reason}")
             self._deadline = t + self.cfg.vent_s
-        return [ValveCmd("actuate", False), ValveCmd("supply", False)]
+        return self._safe()
 
     def fault(self, t: float, reason: str) -> list[Command]:
         """Latch FAULT (safe state) until ``reset``."""
         self.aborted = self.aborted or reason
+        self._isolate_at = float("inf")
         if self.state != State.FAULT:
             self._go(t, State.FAULT, reason)
         self._deadline = float("inf")
-        return [ValveCmd("actuate", False), ValveCmd("supply", False)]
+        return self._safe()
 
     def reset(self, t: float) -> None:
         if self.state == State.FAULT:

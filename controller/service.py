@@ -25,12 +25,20 @@ from .commands import AbortCmd, CycleCmd, ResetCmd, SceneCmd, ShutdownCmd, Statu
 from .config import CellConfig
 from .cycle import CycleResult, Recorder, Reference, analyse, make_reference, transition_dict
 from .publisher import NullPublisher, Publisher
-from .sequencer import Command, Sequencer, SetpointCmd, State, ValveCmd
+from .sequencer import Command, FlowProfileCmd, Sequencer, SetpointCmd, State, ValveCmd
 from .supervisor import Fault, Supervisor
 
 log = logging.getLogger(__name__)
 
 KPA = 1e3
+
+
+_EDGE_SCALE = {"kPa": KPA, "SLPM": 1e-3 / 60.0}
+
+
+def _unit(channel: str) -> str:
+    """Unit of a channel at the published edge: pressures in kPa, flows in SLPM."""
+    return "SLPM" if channel.startswith("flow") else "kPa"
 
 
 def _reference_key(p0_pa: float) -> float:
@@ -43,7 +51,7 @@ class Controller:
         self.profile = cfg.profile
         self.backend = backend
         self.pub = publisher or NullPublisher()
-        self.sequencer = Sequencer(self.profile.sequence)
+        self.sequencer = Sequencer(self.profile.sequence, backend.valves.safe_positions)
         self.supervisor = Supervisor(self.profile)
         self.now = 0.0
         self.references: dict[float, Reference] = {}
@@ -76,7 +84,7 @@ class Controller:
         await self.backend.setup()
         if self.backend.regulator is not None:
             self.backend.regulator.set_limits(self.profile.limits.min_pa, self.profile.limits.max_pa)
-        await self.backend.valves.safe(self.now)
+        await self.backend.safe_state(self.now)
         self._task = asyncio.create_task(self._loop(), name="fluidsense-sample-loop")
 
     async def stop(self) -> None:
@@ -258,6 +266,13 @@ class Controller:
                 if self.backend.regulator is None:
                     raise NotSupportedError("this cell has no pressure regulator")
                 await self.backend.regulator.set_setpoint(cmd.pressure_pa, self.now)
+            elif isinstance(cmd, FlowProfileCmd):
+                if self.backend.flow is None:
+                    raise NotSupportedError("this cell has no flow controller")
+                if cmd.times:
+                    await self.backend.flow.set_profile(cmd.times, cmd.flows, self.now)
+                else:
+                    await self.backend.flow.stop_flow(self.now)
 
     async def _apply_guarded(self, cmds: list[Command]) -> None:
         """Apply commands outside the sample loop (start, abort); a failure faults the cell."""
@@ -272,7 +287,7 @@ class Controller:
         log.error("FAULT %s at t=%.3f: %s", fault.kind, fault.t, fault.detail)
         self.sequencer.fault(self.now, f"fault: {fault.kind}")
         try:
-            await self.backend.valves.safe(self.now)
+            await self.backend.safe_state(self.now)
         except Exception as exc:  # noqa: BLE001 - report, keep going
             log.error("could not reach the safe state: %s", exc)
         self.pub.send("fault", self.now, {"kind": fault.kind, "channel": fault.channel,
@@ -285,14 +300,13 @@ class Controller:
         rec, self._recorder = self._recorder, None
         seq = self.sequencer
         t, values = rec.arrays()
-        p = values[:, rec.channels.index("p_act")] if len(t) else np.empty(0)
         key = _reference_key(seq.p0_pa)
         store = self._cycle_opts.get("store_reference", False)
         ref = None if store else self.references.get(key)
         aborted = seq.aborted
         try:
-            result = analyse(seq.cycle_id, seq.p0_pa, seq.t_start, seq.t_open, seq.t_end or self.now, t, p,
-                             self.profile.sequence, ref, aborted=aborted,
+            result = analyse(seq.cycle_id, seq.p0_pa, seq.t_start, seq.t_open, seq.t_end or self.now, t, values,
+                             rec.channels, self.profile.sequence, ref, aborted=aborted,
                              label=self._cycle_opts.get("label"), missed=rec.missed)
         except ValueError as exc:  # too few samples for a window: report, do not crash
             result = CycleResult(seq.cycle_id, seq.p0_pa, seq.t_start, seq.t_open, self.now,
@@ -321,11 +335,12 @@ class Controller:
         if not self._batch:
             return
         t = np.concatenate([b.t for b in self._batch])
-        v = np.vstack([b.values for b in self._batch]) / KPA
+        channels = self._batch[0].channels
+        v = np.vstack([b.values for b in self._batch]) / np.array([_EDGE_SCALE[_unit(c)] for c in channels])
         self.pub.send("pressure", self.now, {
             "t0_s": float(t[0]), "rate_hz": self.backend.source.rate_hz, "n": len(t),
-            "channels": list(self._batch[0].channels), "unit": "kPa",
-            "times_s": t.tolist(), "values": np.round(v, 4).T.tolist()})
+            "channels": list(channels), "units": [_unit(c) for c in channels],
+            "times_s": t.tolist(), "values": np.round(v, 5).T.tolist()})
         self._batch, self._batch_start = [], None
 
     def _release_waiters(self) -> None:

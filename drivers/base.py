@@ -128,16 +128,16 @@ class SampleSource(Device):
 
 
 class ValveBank(Device):
-    """Logical valves. ``open=True`` connects the valve's source side (regulator, tank)
-    towards the actuator; ``open=False`` isolates it, and for the actuation valve vents
-    the actuator. The safe state is therefore every valve closed."""
+    """Logical valves. ``open=True`` connects the valve's source side (regulator, tank,
+    flow controller) towards the actuator; for a separate vent valve, open vents the
+    actuator. Each valve has a safe position (``safe``: name -> open): together they
+    leave the actuator vented and the tank isolated."""
 
-    names: tuple[str, ...]
-
-    def __init__(self, name: str, names: Sequence[str]) -> None:
+    def __init__(self, name: str, safe: dict[str, bool]) -> None:
         super().__init__(name)
-        self.names = tuple(names)
-        self._state: dict[str, bool] = dict.fromkeys(self.names, False)
+        self.names = tuple(safe)
+        self.safe_positions = dict(safe)
+        self._state: dict[str, bool] = dict(safe)
 
     def is_open(self, valve: str) -> bool:
         return self._state[self._check(valve)]
@@ -145,6 +145,10 @@ class ValveBank(Device):
     @property
     def state(self) -> dict[str, bool]:
         return dict(self._state)
+
+    @property
+    def in_safe_state(self) -> bool:
+        return self._state == self.safe_positions
 
     def _check(self, valve: str) -> str:
         if valve not in self._state:
@@ -160,18 +164,18 @@ class ValveBank(Device):
         self._state[valve] = bool(open)
 
     async def safe(self, t: float) -> None:
-        """Close every valve: actuator vented, tank isolated. Tries every valve even if
-        one fails, then raises the first failure."""
+        """Every valve to its safe position: actuator vented, tank isolated. Tries every
+        valve even if one fails, then raises the first failure."""
         first: Exception | None = None
-        for valve in self.names:
+        for valve, position in self.safe_positions.items():
             try:
-                await self._set(valve, False, t)
-                self._state[valve] = False
+                await self._set(valve, position, t)
+                self._state[valve] = position
             except Exception as exc:  # noqa: BLE001 - keep venting the others
-                log.error("could not close valve %s: %s", valve, exc)
+                log.error("could not put valve %s in its safe position: %s", valve, exc)
                 first = first or exc
         if first is not None:
-            raise DriverError("safe state incomplete: a valve did not close") from first
+            raise DriverError("safe state incomplete: a valve did not move") from first
 
     @abc.abstractmethod
     async def _set(self, valve: str, open: bool, t: float) -> None: ...
@@ -208,22 +212,27 @@ class Regulator(Device):
 
 
 class FlowController(Device):
-    """Mass flow controller: standard volumetric flow setpoint in standard m^3/s."""
+    """Mass flow controller. A setpoint profile is a piecewise-linear flow (standard
+    m^3/s) against sample time, zero outside it; the device follows it by itself."""
 
     def __init__(self, name: str, max_flow: float) -> None:
         super().__init__(name)
         self.max_flow = max_flow
-        self.flow: float = 0.0
 
-    async def set_flow(self, flow: float, t: float) -> None:
+    async def set_profile(self, times: Sequence[float], flows: Sequence[float], t: float) -> None:
         self._require_connected()
-        if not np.isfinite(flow) or not 0.0 <= flow <= self.max_flow:
-            raise SafetyError(f"flow setpoint {flow:.3g} m^3/s outside [0, {self.max_flow:.3g}]")
-        await self._set_flow(float(flow), t)
-        self.flow = float(flow)
+        tt, qq = np.asarray(times, dtype=float), np.asarray(flows, dtype=float)
+        if tt.shape != qq.shape or tt.ndim != 1 or np.any(np.diff(tt) < 0):
+            raise CommandError("flow profile needs matching, time-ordered points")
+        if not np.all(np.isfinite(qq)) or np.any(qq < 0) or np.any(qq > self.max_flow):
+            raise SafetyError(f"flow profile outside [0, {self.max_flow:.3g}] m^3/s")
+        await self._set_profile(tt, qq, t)
+
+    async def stop_flow(self, t: float) -> None:
+        await self.set_profile([t], [0.0], t)
 
     @abc.abstractmethod
-    async def _set_flow(self, flow: float, t: float) -> None: ...
+    async def _set_profile(self, times: np.ndarray, flows: np.ndarray, t: float) -> None: ...
 
 
 class SceneControl(Device):
@@ -251,6 +260,20 @@ class Backend:
     arm: Any = None
     extras: dict[str, Any] = field(default_factory=dict)
 
+    async def safe_state(self, t: float) -> None:
+        """Actuator vented, tank isolated, no flow commanded. Tries everything, raises
+        the first failure."""
+        first: Exception | None = None
+        for step in (self.valves.safe, self.flow.stop_flow if self.flow is not None else None):
+            if step is None:
+                continue
+            try:
+                await step(t)
+            except Exception as exc:  # noqa: BLE001 - keep going, report after
+                first = first or exc
+        if first is not None:
+            raise DriverError(f"safe state incomplete: {first}") from first
+
     def devices(self) -> list[Device]:
         found = [self.source, self.valves, self.regulator, self.flow, self.scene, self.arm]
         return [d for d in found if d is not None]
@@ -270,7 +293,7 @@ class Backend:
         """Vent first, then close every device."""
         if self.valves.connected:
             try:
-                await self.valves.safe(t if t is not None else float("nan"))
+                await self.safe_state(t if t is not None else float("nan"))
             except Exception as exc:  # noqa: BLE001 - closing must go on
                 log.error("venting at stop failed: %s", exc)
         for dev in reversed(self.devices()):

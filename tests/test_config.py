@@ -42,11 +42,11 @@ def test_shipped_configs_load():
 
 @pytest.mark.parametrize("dotted, value, field, reason", [
     ("publisher.colour", "red", "publisher.colour", "unknown field"),
-    ("driver.rate_hz", "fast", "driver.sim.rate_hz", "valid number"),
-    ("driver.block_size", 0, "driver.sim.block_size", "greater than or equal to 1"),
+    ("driver.rate_hz", "fast", "driver.rate_hz", "valid number"),
+    ("driver.block_size", 0, "driver.block_size", "greater than or equal to 1"),
     ("driver.kind", "plc", "driver", "does not match any of the expected tags"),
-    ("driver.scene", {"kind": "cylinder"}, "driver.sim.scene.cylinder.diameter_mm", "required field is missing"),
-    ("driver.scene", {"kind": "cylinder", "diameter_mm": -3}, "driver.sim.scene.cylinder.diameter_mm", "greater than 0"),
+    ("driver.scene", {"kind": "cylinder"}, "driver.scene.diameter_mm", "required field is missing"),
+    ("driver.scene", {"kind": "cylinder", "diameter_mm": -3}, "driver.scene.diameter_mm", "greater than 0"),
 ])
 def test_bad_cell_config_names_file_field_and_reason(tmp_path, dotted, value, field, reason):
     path = write(tmp_path, "bad.yaml", cell(tmp_path, **{dotted: value}))
@@ -66,9 +66,10 @@ def test_missing_section(tmp_path):
 
 
 @pytest.mark.parametrize("section, change, field, reason", [
-    ("sequence", {"p0_kpa": 95.0}, "(top level)", "outside limits"),
+    ("sequence", {"p0_kpa": 95.0}, "(top level)", "sequence.p0_kpa (95.0) is outside limits"),
+    ("sequence", {"method": "flow_control"}, "sequence", "needs a flow_profile"),
     ("sequence", {"windows": [{"name": "eq", "start_s": 4, "end_s": 30}]}, "sequence", "after the valve closes"),
-    ("actuator", {"kind": "gripper", "v0_ml": "lots"}, "actuator.gripper.v0_ml", "valid number"),
+    ("actuator", {"kind": "gripper", "v0_ml": "lots"}, "actuator.v0_ml", "valid number"),
     ("circuit", {"tank_litres": 0.3}, "circuit.tank_litres", "unknown field"),
     ("limits", {"max_kpa": 10, "min_kpa": 20}, "limits", "must be below"),
 ])
@@ -113,6 +114,6 @@ def test_run_with_a_bad_config_exits_before_binding_or_moving_anything(tmp_path)
     out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "run", "--config", str(path)],
                          cwd=REPO, capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
-    assert f"{path}: driver.sim.block_size: " in out.stderr
+    assert f"{path}: driver.block_size: " in out.stderr
     pub_path = data["publisher"]["pub"].removeprefix("ipc://")
     assert not Path(pub_path).exists()  # no socket was ever bound

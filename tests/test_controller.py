@@ -19,19 +19,19 @@ from .conftest import PROFILE, REPO
 def true_contact_time(diameter_mm: float) -> float:
     """When the plant's true actuator pressure reaches the contact pressure, seconds after
     the valve was commanded open (valve delay included), from the plant alone."""
-    from drivers.hardware import Circuit, GripperActuator
+    from drivers.hardware import GripperActuator, TankCircuit
     from drivers.sim.actuators import volume_law
     from drivers.sim.gas import Link, Network, VolumeLaw
     from drivers.sim.plant import Plant
     from drivers.units import P_ATM
 
-    act, c = GripperActuator(), Circuit()
+    act, c = GripperActuator(), TankCircuit()
     law = volume_law(act, CylinderScene(diameter_mm=diameter_mm), P_ATM)
     net = Network(["tank", "actuator"], [VolumeLaw.constant(c.tank_m3), law],
                   [Link(0, 1, c.valve_resistance_pa_s_per_m3 + c.resistor_pa_s_per_m3, "v", True)])
     plant = Plant(net, {"v": True}, P_ATM, 0.05, p_initial_abs={"tank": P_ATM + 63e3})
     t = np.arange(0, 1, 1e-5)
-    p = plant.pressures_abs(plant.sample(t))[1] - P_ATM
+    p = plant.pressures_abs(plant.sample(t)[0])[1] - P_ATM
     return float(t[np.argmax(p >= law.p_gauge[1])]) + c.valve_delay_s
 
 

@@ -28,10 +28,11 @@ def test_cycle_runs_the_states_in_order_with_the_configured_durations():
     seq = Sequencer(CFG)
     start = seq.start(0.0)
     assert start == [ValveCmd("actuate", False), SetpointCmd(63e3), ValveCmd("supply", True)]
+    assert seq.state == State.CHARGE
     cmds = drive(seq, 0.01, 60.0)
     assert cmds == [(10.0, [ValveCmd("supply", False)]),
                     (20.0, [ValveCmd("actuate", True)]),
-                    (40.0, [ValveCmd("actuate", False)])]
+                    (40.0, [ValveCmd("supply", False), ValveCmd("actuate", False)])]
     tr = [(round(x.t, 6), x.source, x.target) for x in seq.drain_transitions()]
     assert tr == [(0.0, State.IDLE, State.CHARGE), (10.0, State.CHARGE, State.ISOLATE),
                   (20.0, State.ISOLATE, State.ACTUATE), (24.0, State.ACTUATE, State.HOLD),
@@ -48,7 +49,7 @@ def test_abort_from_any_state_goes_to_vent_with_every_valve_closed(abort_at, sta
     drive(seq, 0.01, abort_at)
     assert seq.state == state
     cmds = seq.abort(abort_at, "operator")
-    assert set(cmds) == {ValveCmd("actuate", False), ValveCmd("supply", False)}
+    assert set(cmds) == {ValveCmd("actuate", False), ValveCmd("supply", False)}  # the safe positions
     assert seq.state == State.VENT
     later = drive(seq, abort_at + 0.01, abort_at + 20.0)
     assert later == []  # nothing re-opens after an abort

@@ -1,57 +1,145 @@
 """Actuator + scene -> piecewise-linear volume law ``v(p_gauge)``.
 
-Each function is the smallest contact law that explains its measurement:
-a free P-V line, and after contact a reduced compliance (rigid wall: none).
+Every actuator here (but the linear one of eq. 6) is a free P-V line whose compliance
+drops at contact events: ``contacts`` lists, in order, the volume change at which
+something is touched and the fraction of the free compliance that remains after it.
+That is the whole contact model; each scene only says where its contacts are.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from ..errors import ConfigError
-from ..hardware import GripperActuator, LinearActuator
-from ..scenes import CylinderScene, EmptyScene, WallScene
+from ..hardware import BendingActuator, GripperActuator, LinearActuator, MuscleActuator, SuctionCup
+from ..scenes import (CylinderScene, EmptyScene, PlateScene, ProfileScene, PullScene, RectangleScene,
+                      SampleScene, StopperScene, WallScene)
 from ..units import KPA, ML, MM
 from .gas import VolumeLaw
 
-# Far breakpoint: beyond it the law extrapolates with its last slope, so any value works
+# Far breakpoint: beyond it a law extrapolates with its last slope, so any value works
 # as long as it is above every pressure a profile allows.
-_FAR_PA = 1000 * KPA
+_FAR_PA = 2000 * KPA
+
+
+def _law(v0: float, c_free: float, contacts: Sequence[tuple[float, float]], p_atm: float,
+         vacuum: bool = False, shift: float = 0.0) -> VolumeLaw:
+    """Free line ``v0 + c_free*p`` whose slope drops at each contact.
+
+    ``contacts``: (volume change in m^3 at which the contact happens, fraction of the free
+    compliance that remains after it), in the order they happen. A change <= 0 means
+    touching from the start. For a ``vacuum`` actuator the changes are shrinkage under
+    negative pressure. ``shift`` adds a constant volume (a pulled suction cup).
+    """
+    sign = -1.0 if vacuum else 1.0
+    p, v = [0.0], [v0]
+    c, done = c_free, 0.0
+    for change, ratio in contacts:
+        if change > done and c > 0:
+            p.append(p[-1] + sign * (change - done) / c)
+            v.append(v0 + sign * change)
+            done = change
+        c = c_free * ratio
+    p.append(p[-1] + sign * _FAR_PA)
+    v.append(v[-1] + sign * c * _FAR_PA)
+    if vacuum:  # VolumeLaw wants rising pressure; a collapsed cavity keeps a little volume
+        p, v = p[::-1], [max(x, 1e-3 * v0) for x in v[::-1]]
+    return VolumeLaw(p, [x + shift for x in v], p_atm)
+
+
+def _stiffness_share(k_actuator: float, k_object: float | None) -> float:
+    """Fraction of blocked travel that still happens against a soft object."""
+    if k_object is None:
+        return 0.0
+    return k_actuator / (k_actuator + k_object)
 
 
 def gripper_law(act: GripperActuator, scene, p_atm: float) -> VolumeLaw:
     c = act.compliance
+    vacuum = act.drive == "vacuum"
+
+    def change_at(opening_mm: float) -> float:
+        return (act.open_mm - opening_mm) / act.closing_mm_per_ml * ML
+
     if isinstance(scene, EmptyScene):
-        return VolumeLaw([0.0, _FAR_PA], [act.v0, act.v0 + c * _FAR_PA], p_atm)
-    if isinstance(scene, CylinderScene):
-        growth_at_contact = (act.open_mm - scene.diameter_mm) / act.closing_mm_per_ml * ML
-        c_after = act.wrap_ratio * c
-        if growth_at_contact <= 0:  # wider than the open gripper: touching from the start
-            return VolumeLaw([0.0, _FAR_PA], [act.v0, act.v0 + c_after * _FAR_PA], p_atm)
-        p_contact = growth_at_contact / c
-        v_contact = act.v0 + growth_at_contact
-        return VolumeLaw([0.0, p_contact, p_contact + _FAR_PA],
-                         [act.v0, v_contact, v_contact + c_after * _FAR_PA], p_atm)
-    raise ConfigError(f"scene {scene.kind!r} does not apply to a gripper (use none or cylinder)")
+        contacts: list[tuple[float, float]] = []
+    elif isinstance(scene, CylinderScene):
+        ratio = act.wrap_ratio + (1 - act.wrap_ratio) * _stiffness_share(
+            act.finger_stiffness_n_per_mm, scene.stiffness_n_per_mm)
+        contacts = []
+        if scene.offset_mm > 0:
+            # one finger meets the off-centre object first and pushes it to the centre
+            contacts.append((change_at(scene.diameter_mm + 2 * scene.offset_mm), act.push_ratio))
+        contacts.append((change_at(scene.diameter_mm), ratio))
+    elif isinstance(scene, RectangleScene):
+        # one finger pair meets the length first; the other pair, the width
+        contacts = [(change_at(scene.length_mm), (1 + act.wrap_ratio) / 2),
+                    (change_at(scene.width_mm), act.wrap_ratio)]
+    else:
+        raise ConfigError(f"scene {scene.kind!r} does not apply to a gripper (none, cylinder, rectangle)")
+    return _law(act.v0, c, contacts, p_atm, vacuum=vacuum)
+
+
+def bending_law(act: BendingActuator, scene, p_atm: float, t_since_set: float = 0.0) -> VolumeLaw:
+    if isinstance(scene, EmptyScene):
+        return _law(act.v0, act.compliance, [], p_atm)
+    if isinstance(scene, PlateScene):
+        height, k_plate = scene.height_mm, scene.stiffness_n_per_mm
+    elif isinstance(scene, ProfileScene):
+        height, k_plate = max(float(scene.gap_mm(t_since_set)), 0.0), None
+    else:
+        raise ConfigError(f"scene {scene.kind!r} does not apply to a bending actuator (none, plate, profile)")
+    share = _stiffness_share(act.tip_stiffness_n_per_mm, k_plate)
+    ratio = act.contact_ratio + (1 - act.contact_ratio) * share
+    return _law(act.v0, act.compliance, [(height / act.travel_mm_per_ml * ML, ratio)], p_atm)
+
+
+def suction_law(act: SuctionCup, scene, p_atm: float, t_since_set: float = 0.0) -> VolumeLaw:
+    """Vacuum: the cup collapses and the sample is drawn in, both in proportion to |p|."""
+    if isinstance(scene, EmptyScene):  # sealed on a rigid flat surface: the cup alone
+        c = act.compliance
+    elif isinstance(scene, SampleScene):  # PullScene is one too
+        c = act.compliance + act.sample_bulge_ml_kpa / scene.modulus * ML / KPA
+    else:
+        raise ConfigError(f"scene {scene.kind!r} does not apply to a suction cup (none, sample, pull)")
+    shift = 0.0
+    if isinstance(scene, PullScene):
+        shift = act.pull_compliance_ml_per_n * ML * float(scene.force_n(t_since_set))
+    return _law(act.v0, c, [], p_atm, shift=shift)
+
+
+def muscle_law(act: MuscleActuator, scene, p_atm: float) -> VolumeLaw:
+    if isinstance(scene, EmptyScene):
+        return _law(act.v0, act.compliance, [], p_atm)
+    if isinstance(scene, StopperScene):
+        return _law(act.v0, act.compliance, [(scene.angle_deg / act.deg_per_ml * ML, act.blocked_ratio)], p_atm)
+    raise ConfigError(f"scene {scene.kind!r} does not apply to a muscle (none, stopper)")
 
 
 def linear_law(act: LinearActuator, scene, p_atm: float) -> VolumeLaw:
     """Paper eq. 6: v = A*(l0 + p*A/k) until the tip reaches the wall at L, then A*(l0 + L)."""
     a, l0, k = act.area, act.l0, act.stiffness_n_per_m
-    slope = a * a / k
     if isinstance(scene, EmptyScene):
-        return VolumeLaw([0.0, _FAR_PA], [a * l0, a * l0 + slope * _FAR_PA], p_atm)
+        return _law(a * l0, a * a / k, [], p_atm)
     if isinstance(scene, WallScene):
-        wall = scene.distance_mm * MM
-        p_contact = wall * k / a
-        v_wall = a * (l0 + wall)
-        if p_contact <= 0:
-            return VolumeLaw.constant(v_wall, p_atm)
-        return VolumeLaw([0.0, p_contact, p_contact + _FAR_PA], [a * l0, v_wall, v_wall], p_atm)
-    raise ConfigError(f"scene {scene.kind!r} does not apply to a linear actuator (use none or wall)")
+        return _law(a * l0, a * a / k, [(a * scene.distance_mm * MM, 0.0)], p_atm)
+    raise ConfigError(f"scene {scene.kind!r} does not apply to a linear actuator (none, wall)")
 
 
-def volume_law(actuator, scene, p_atm: float) -> VolumeLaw:
+def is_dynamic(scene) -> bool:
+    """Scenes whose contact law changes with time after they are set."""
+    return isinstance(scene, (ProfileScene, PullScene))
+
+
+def volume_law(actuator, scene, p_atm: float, t_since_set: float = 0.0) -> VolumeLaw:
     if isinstance(actuator, GripperActuator):
         return gripper_law(actuator, scene, p_atm)
+    if isinstance(actuator, BendingActuator):
+        return bending_law(actuator, scene, p_atm, t_since_set)
+    if isinstance(actuator, SuctionCup):
+        return suction_law(actuator, scene, p_atm, t_since_set)
+    if isinstance(actuator, MuscleActuator):
+        return muscle_law(actuator, scene, p_atm)
     if isinstance(actuator, LinearActuator):
         return linear_law(actuator, scene, p_atm)
     raise ConfigError(f"no simulated model for actuator kind {actuator.kind!r}")

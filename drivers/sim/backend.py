@@ -13,18 +13,50 @@ from typing import Any
 
 import numpy as np
 
-from ..base import Backend, SampleBlock, SampleSource, SceneControl, ValveBank, Regulator
+from ..base import Backend, FlowController, Regulator, SampleBlock, SampleSource, SceneControl, ValveBank
 from ..config import SimDriverConfig
-from ..hardware import Hardware
-from .actuators import volume_law
-from .gas import ATMOSPHERE, REGULATOR, Link, Network, VolumeLaw
+from ..hardware import ACTUATE, SUPPLY, VENT, FlowControlledCircuit, Hardware, RegulatedCircuit, TankCircuit
+from ..scenes import PullScene
+from ..units import KPA
+from .actuators import is_dynamic, volume_law
+from .gas import ATMOSPHERE, REGULATOR, FlowSource, Link, Network, VolumeLaw
 from .plant import Plant
 from .sensor import SensorModel
 
 log = logging.getLogger(__name__)
 
-VALVES = ("supply", "actuate")
-CHANNELS = ("p_act", "p_tank")
+AIR = "_air"  # internal valve: the actuator open to the air (a suction cup that let go)
+_SCENE_STEP_S = 0.01  # how often a moving scene updates its contact law
+_AIR_RESISTANCE = 1e7
+
+
+def _network(hw: Hardware, law: VolumeLaw) -> tuple[Network, dict[str, bool]]:
+    """Nodes, links and valves of the configured circuit (see drivers.hardware)."""
+    c = hw.circuit
+    p_atm = c.p_atm
+    r_valve, r_res = c.valve_resistance_pa_s_per_m3, c.resistor_pa_s_per_m3
+    r_vent = r_valve + (r_res if c.resistor_position == "downstream" else 0.0)
+    links: list[Link] = []
+    sources: list[FlowSource] = []
+    if isinstance(c, FlowControlledCircuit):
+        names, laws = ["actuator"], [law]
+        act = 0
+        sources.append(FlowSource(act, ACTUATE, True))
+    else:
+        names, laws = ["tank", "actuator"], [VolumeLaw.constant(c.tank_m3, p_atm), law]
+        tank, act = 0, 1
+        supply_valve = SUPPLY if isinstance(c, TankCircuit) else None
+        links.append(Link(REGULATOR, tank, c.supply_resistance_pa_s_per_m3, supply_valve, True, "supply"))
+        links.append(Link(tank, act, r_valve + r_res, ACTUATE, True, "actuate"))
+    if isinstance(c, TankCircuit) and c.vent_valve:
+        links.append(Link(act, ATMOSPHERE, r_vent, VENT, True, "vent"))
+    else:
+        links.append(Link(act, ATMOSPHERE, r_vent, ACTUATE, False, "vent"))
+    if c.leak_resistance_pa_s_per_m3 is not None:
+        links.append(Link(act, ATMOSPHERE, c.leak_resistance_pa_s_per_m3, None, True, "leak"))
+    links.append(Link(act, ATMOSPHERE, _AIR_RESISTANCE, AIR, True, AIR))
+    valves = {**dict.fromkeys(c.safe_valves, False), AIR: False}
+    return Network(names, laws, links, p_atm=p_atm, p_std=p_atm, flow_sources=sources), valves
 
 
 class SimCell:
@@ -35,39 +67,39 @@ class SimCell:
         self.hw = hw
         c = hw.circuit
         self.p_atm = c.p_atm
-        seeds = np.random.SeedSequence(cfg.seed).spawn(3)
+        seeds = np.random.SeedSequence(cfg.seed).spawn(5)
         self.rng_regulator = np.random.default_rng(seeds[0])
-        self.sensor_act = SensorModel(hw.sensor, np.random.default_rng(seeds[1]))
-        self.sensor_tank = SensorModel(hw.tank_sensor, np.random.default_rng(seeds[2]))
+        self.rng_flow = np.random.default_rng(seeds[4])
+        self.sensors = {"p_act": SensorModel.pressure(hw.sensor, np.random.default_rng(seeds[1])),
+                        "p_tank": SensorModel.pressure(hw.tank_sensor, np.random.default_rng(seeds[2])),
+                        "flow": SensorModel.flow(hw.flow_sensor, np.random.default_rng(seeds[3]))}
+        self.channels = hw.channels
         self.scene = cfg.scene
-        law = volume_law(hw.actuator, cfg.scene, self.p_atm)
-        r_valve = c.valve_resistance_pa_s_per_m3
-        r_res = c.resistor_pa_s_per_m3
-        r_vent = r_valve + (r_res if c.resistor_position == "downstream" else 0.0)
-        tank, act = 0, 1
-        links = [
-            Link(REGULATOR, tank, c.supply_resistance_pa_s_per_m3, "supply", True, "supply"),
-            Link(tank, act, r_valve + r_res, "actuate", True, "actuate"),
-            Link(act, ATMOSPHERE, r_vent, "actuate", False, "vent"),
-        ]
-        if c.leak_resistance_pa_s_per_m3 is not None:
-            links.append(Link(act, ATMOSPHERE, c.leak_resistance_pa_s_per_m3, None, True, "leak"))
-        net = Network(["tank", "actuator"], [VolumeLaw.constant(c.tank_m3, self.p_atm), law], links,
-                      p_atm=self.p_atm, p_std=self.p_atm)
-        self.plant = Plant(net, dict.fromkeys(VALVES, False), p_reg_abs=self.p_atm,
-                           regulator_tau_s=c.regulator_tau_s)
+        self.scene_set_t = 0.0
+        net, valves = _network(hw, volume_law(hw.actuator, cfg.scene, self.p_atm))
+        self.act_node = net.index["actuator"]
+        self.tank_node = net.index.get("tank")
+        self.flow_links = {"actuate": 1.0, "vent": -1.0} if c.flow_sensor else None
+        tau = getattr(c, "regulator_tau_s", 0.05)
+        self.plant = Plant(net, valves, p_reg_abs=self.p_atm, regulator_tau_s=tau)
+        self.valve_names = tuple(c.safe_valves)
         self.setpoint_pa = 0.0
         self.regulator_error_pa = 0.0
+        self.detached_at: float | None = None
         self.dt = 1.0 / cfg.rate_hz
         self.k_next = 0  # index of the next sample to deliver
         # Samples are computed in chunks ahead of delivery; a command that lands inside
         # the chunk drops the rest of it, so what is delivered always reflects every
         # command issued before it.
         self._chunk = max(cfg.block_size, int(round(0.1 * cfg.rate_hz)))
+        n_ch = len(self.channels)
         self._cache_t = np.empty(0)
-        self._cache_v = np.empty((0, 2))
-        self._cache_true = np.empty((0, 2))
+        self._cache_v = np.empty((0, n_ch))
+        self._cache_true = np.empty((0, n_ch))
         self._cache_pos = 0
+        self._next_scene_update = float("inf")
+        if is_dynamic(cfg.scene):
+            self._next_scene_update = _SCENE_STEP_S
 
     @property
     def t_next(self) -> float:
@@ -78,8 +110,9 @@ class SimCell:
         """Time of the last delivered sample (commands cannot act before it)."""
         return (self.k_next - 1) * self.dt
 
+    # ------------------------------------------------------------- sampling
     def next_block(self, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """The next n samples: (t, readings[n, 2]) with readings (p_act, p_tank) in Pa."""
+        """The next n samples: (t, readings[n, channels]) in SI units."""
         if len(self._cache_t) - self._cache_pos < n:
             self._fill(n)
         sl = slice(self._cache_pos, self._cache_pos + n)
@@ -87,11 +120,18 @@ class SimCell:
         self.k_next += n
         return self._cache_t[sl], self._cache_v[sl]
 
+    def true_values(self) -> dict[str, float]:
+        """True values (Pa gauge, standard m^3/s) of the last delivered sample (for tests)."""
+        row = self._cache_true[self._cache_pos - 1]
+        return dict(zip(self.channels, row.tolist()))
+
     def true_pressures(self) -> np.ndarray:
         """True gauge pressures (p_act, p_tank) of the last delivered sample (for tests)."""
-        return self._cache_true[self._cache_pos - 1]
+        tv = self.true_values()
+        return np.array([tv["p_act"], tv.get("p_tank", np.nan)])
 
     def _fill(self, n_min: int) -> None:
+        self._schedule_scene_updates(self.t_next + self._chunk * self.dt)
         # Stop the chunk before the next known event: a later command may still land
         # before that event, and the plant cannot undo an event it has applied.
         t_event = self.plant.next_event_time
@@ -99,60 +139,100 @@ class SimCell:
         if t_event < (self.k_next + n) * self.dt:
             n = int(np.ceil(t_event / self.dt - 1e-9)) - self.k_next
         n = max(n_min, n)
-        k = np.arange(self.k_next, self.k_next + n)
-        t = k * self.dt
-        state = self.plant.sample(t)
+        t = np.arange(self.k_next, self.k_next + n) * self.dt
+        state, flow = self.plant.sample(t, self.flow_links, flow_sources=True)
         p_abs = self.plant.pressures_abs(state)
-        p_act, p_tank = p_abs[1] - self.p_atm, p_abs[0] - self.p_atm
+        true = {"p_act": p_abs[self.act_node] - self.p_atm}
+        if self.tank_node is not None:
+            true["p_tank"] = p_abs[self.tank_node] - self.p_atm
+        if flow is not None:
+            true["flow"] = flow
         self._cache_t = t
-        self._cache_true = np.column_stack([p_act, p_tank])
-        self._cache_v = np.column_stack([self.sensor_act.read(t, p_act), self.sensor_tank.read(t, p_tank)])
+        self._cache_true = np.column_stack([true[ch] for ch in self.channels])
+        self._cache_v = np.column_stack([self.sensors[ch].read(t, true[ch]) for ch in self.channels])
         self._cache_pos = 0
+        self._check_detach(t[-1], true["p_act"][-1])
 
     def _invalidate(self, t_event: float) -> None:
         """Drop cached samples at or after ``t_event``; they are recomputed with the event."""
         if self._cache_pos < len(self._cache_t) and self._cache_t[-1] >= t_event:
-            keep = int(np.searchsorted(self._cache_t, t_event, side="left"))
-            keep = max(keep, self._cache_pos)
+            keep = max(int(np.searchsorted(self._cache_t, t_event, side="left")), self._cache_pos)
             self._cache_t = self._cache_t[:keep]
             self._cache_v = self._cache_v[:keep]
             self._cache_true = self._cache_true[:keep]
             self.plant.rewind(float(self._cache_t[keep - 1]) if keep > 0 else self.t_last)
 
+    # ------------------------------------------------------------- commands
     def command_valve(self, valve: str, open_: bool, t: float) -> None:
-        if valve == "supply" and open_ and not self.plant.valves["supply"]:
-            # a new charge: the regulator lands slightly differently each time
-            sd = self.hw.circuit.regulator_repeatability_kpa * 1e3
-            self.regulator_error_pa = float(self.rng_regulator.normal(0.0, sd)) if sd > 0 else 0.0
-            self._schedule_regulator(t)
         t_eff = max(t, self.t_last) + self.hw.circuit.valve_delay_s
         self._invalidate(t_eff)
         self.plant.schedule_valve(t_eff, valve, open_)
 
     def command_setpoint(self, pressure_pa: float, t: float) -> None:
+        """A new setpoint: the regulator lands slightly differently every time it is set."""
         self.setpoint_pa = pressure_pa
-        self._schedule_regulator(t)
-
-    def _schedule_regulator(self, t: float) -> None:
-        target = self.p_atm + self.setpoint_pa + (self.regulator_error_pa if self.setpoint_pa else 0.0)
+        sd = getattr(self.hw.circuit, "regulator_repeatability_kpa", 0.0) * KPA
+        self.regulator_error_pa = float(self.rng_regulator.normal(0.0, sd)) if sd > 0 and pressure_pa else 0.0
         t_eff = max(t, self.t_last)
         self._invalidate(t_eff)
-        self.plant.schedule_regulator(t_eff, target)
+        self.plant.schedule_regulator(t_eff, self.p_atm + self.setpoint_pa + self.regulator_error_pa)
+
+    def command_flow_profile(self, times: np.ndarray, flows: np.ndarray, t: float) -> None:
+        """Flow setpoint following (times, flows) piecewise linearly; 0 after the last point."""
+        c = self.hw.circuit
+        gain = 1.0 + float(self.rng_flow.normal(0.0, getattr(c, "flow_repeatability", 0.0)))
+        tt, qq = np.asarray(times, float), np.asarray(flows, float) * gain
+
+        def flow_of_t(x):
+            return np.interp(x, tt, qq, left=0.0, right=0.0)
+
+        t_eff = max(t, self.t_last)
+        self._invalidate(t_eff)
+        self.plant.schedule_flow(t_eff, flow_of_t if np.any(qq != 0) else None)
+        if len(tt) and tt[-1] > t_eff:  # afterwards nothing flows: let the plant settle
+            self.plant.schedule_flow(float(tt[-1]), None)
 
     def set_scene(self, scene, t: float) -> None:
-        law = volume_law(self.hw.actuator, scene, self.p_atm)
-        self.scene = scene
         t_eff = max(t, self.t_last)
+        law = volume_law(self.hw.actuator, scene, self.p_atm)
+        self.scene, self.scene_set_t, self.detached_at = scene, t_eff, None
         self._invalidate(t_eff)
         self.plant.schedule_law(t_eff, "actuator", law)
+        self.plant.schedule_valve(t_eff, AIR, False)
+        self._next_scene_update = t_eff + _SCENE_STEP_S if is_dynamic(scene) else float("inf")
+
+    def _schedule_scene_updates(self, until: float) -> None:
+        """Moving scenes change the contact law every few milliseconds."""
+        while self._next_scene_update <= until:
+            t = self._next_scene_update
+            law = volume_law(self.hw.actuator, self.scene, self.p_atm, t - self.scene_set_t)
+            self.plant.schedule_law(t, "actuator", law)
+            self._next_scene_update = t + _SCENE_STEP_S
+
+    def _check_detach(self, t: float, p_act_gauge: float) -> None:
+        """A pulled suction cup lets go when the pull exceeds the suction force."""
+        scene = self.scene
+        if not isinstance(scene, PullScene) or self.detached_at is not None:
+            return
+        force = float(scene.force_n(t - self.scene_set_t))
+        area = self.hw.actuator.area_mm2 * 1e-6
+        if force > 0 and force >= -p_act_gauge * area:
+            self.detached_at = t
+            log.info("suction cup detached at t=%.3f s, pull %.2f N", t, force)
+            self.plant.schedule_valve(t + self.dt, AIR, True)
+
+    def truth(self) -> dict[str, Any]:
+        out = self.scene.model_dump()
+        if self.detached_at is not None:
+            out["detached_at_s"] = self.detached_at
+        return out
 
 
 class SimSource(SampleSource):
-    channels = CHANNELS
-
     def __init__(self, cell: SimCell):
         super().__init__("sim-source")
         self.cell = cell
+        self.channels = cell.channels
         self.rate_hz = cell.cfg.rate_hz
         self.virtual = cell.cfg.clock == "virtual"
         self._seq = 0
@@ -171,12 +251,12 @@ class SimSource(SampleSource):
         else:
             await asyncio.sleep(0)  # let the rest of the daemon run between blocks
         self._seq += 1
-        return SampleBlock(self._seq, t, values, CHANNELS)
+        return SampleBlock(self._seq, t, values, self.channels)
 
 
 class SimValves(ValveBank):
     def __init__(self, cell: SimCell):
-        super().__init__("sim-valves", VALVES)
+        super().__init__("sim-valves", cell.hw.circuit.safe_valves)
         self.cell = cell
 
     async def _set(self, valve: str, open: bool, t: float) -> None:
@@ -192,6 +272,15 @@ class SimRegulator(Regulator):
         self.cell.command_setpoint(pressure_pa, t)
 
 
+class SimFlowController(FlowController):
+    def __init__(self, cell: SimCell):
+        super().__init__("sim-mfc", cell.hw.circuit.max_flow)
+        self.cell = cell
+
+    async def _set_profile(self, times: np.ndarray, flows: np.ndarray, t: float) -> None:
+        self.cell.command_flow_profile(times, flows, t)
+
+
 class SimScene(SceneControl):
     def __init__(self, cell: SimCell):
         super().__init__("sim-scene")
@@ -201,10 +290,16 @@ class SimScene(SceneControl):
         self.cell.set_scene(scene, t)
 
     def truth(self) -> dict[str, Any]:
-        return self.cell.scene.model_dump()
+        return self.cell.truth()
 
 
 def build(cfg: SimDriverConfig, hw: Hardware) -> Backend:
     cell = SimCell(cfg, hw)
-    return Backend(name="sim", source=SimSource(cell), valves=SimValves(cell),
-                   regulator=SimRegulator(cell), scene=SimScene(cell), extras={"cell": cell})
+    c = hw.circuit
+    regulator = SimRegulator(cell) if isinstance(c, (TankCircuit, RegulatedCircuit)) else None
+    flow = SimFlowController(cell) if isinstance(c, FlowControlledCircuit) else None
+    return Backend(name="sim", source=SimSource(cell), valves=SimValves(cell), regulator=regulator,
+                   flow=flow, scene=SimScene(cell), extras={"cell": cell})
+
+
+__all__ = ["SimCell", "build"]

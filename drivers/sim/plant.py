@@ -167,20 +167,27 @@ class Plant:
         self._seg = self._new_segment(t, y)
 
     # -------------------------------------------------------------- sampling
-    def sample(self, times: np.ndarray) -> np.ndarray:
-        """State at the sample instants (sorted, not before the last request).
+    def sample(self, times: np.ndarray, flow_links: dict[str, float] | None = None,
+               flow_sources: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+        """State at the sample instants (sorted, not before the segment start).
 
-        Returns shape (n_nodes + 1, len(times)): gas amounts then the regulator output.
-        Events due at or before a sample instant are applied before it.
+        Returns (state, flow): state has shape (n_nodes + 1, len(times)), the gas amounts
+        then the regulator output; flow (standard m^3/s, or None when not asked for) is
+        the signed sum over ``flow_links`` (link name -> sign) of the flow through each,
+        plus the flow sources when ``flow_sources``. Events due at or before a sample
+        instant are applied before it.
         """
         times = np.asarray(times, dtype=float)
         out = np.empty((self.net.n_nodes + 1, len(times)))
+        flow = np.zeros(len(times)) if flow_links is not None else None
         i = 0
         while i < len(times):
             t_ev = self.next_event_time
             j = int(np.searchsorted(times, t_ev, side="left"))
             if j > i:
                 out[:, i:j] = self._state(self._seg, times[i:j])
+                if flow is not None:
+                    flow[i:j] = self._flow(times[i:j], out[:, i:j], flow_links, flow_sources)
                 i = j
             if i < len(times):
                 t_apply = max(t_ev, self._seg.t0)
@@ -190,7 +197,17 @@ class Plant:
                     ev.apply()
                     log.debug("plant t=%.4f: %s", t_apply, ev.what)
                 self._seg = self._new_segment(self._seg.t0, self._seg.y0)
-        return out
+        return out, flow
+
+    def _flow(self, t: np.ndarray, state: np.ndarray, links: dict[str, float], sources: bool) -> np.ndarray:
+        p_abs = self.pressures_abs(state)
+        flows = self.net.link_flows(self.valves, p_abs, state[-1], list(links))
+        total = sum(sign * flows[name] for name, sign in links.items())
+        total = np.zeros(len(t)) + total
+        if sources and self.flow_of_t is not None and any(
+                fs.valve is None or self.valves[fs.valve] == fs.when_open for fs in self.net.flow_sources):
+            total = total + self.flow_of_t(t)  # vectorised: np.interp profiles
+        return total
 
     def rewind(self, t: float) -> None:
         """Forget samples after ``t``: the next ``sample`` may start again from there.

@@ -1,27 +1,38 @@
-"""Pressure sensor model: offset, slow drift, white noise, ADC quantisation, range."""
+"""Sensor model: offset, slow drift, white noise, ADC quantisation, range (rails)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..hardware import Sensor
-from ..units import KPA
+from ..hardware import FlowSensor, Sensor
+from ..units import KPA, SLPM
 
 
 class SensorModel:
-    def __init__(self, spec: Sensor, rng: np.random.Generator):
-        self.spec = spec
-        self.rng = rng
-        self.lo = spec.range_kpa[0] * KPA
-        self.hi = spec.range_kpa[1] * KPA
-        self.offset = spec.offset_kpa * KPA
-        self.drift_per_s = spec.drift_kpa_per_h * KPA / 3600.0
-        self.noise_sd = spec.noise_sd_kpa * KPA
-        self.quantum = spec.quantum_kpa * KPA
+    """Works in SI: Pa for pressure sensors, standard m^3/s for flow sensors."""
 
-    def read(self, t: np.ndarray, p_gauge: np.ndarray) -> np.ndarray:
-        """What the sensor reports (Pa) for true gauge pressures at times t."""
-        out = p_gauge + self.offset + self.drift_per_s * t
+    def __init__(self, lo: float, hi: float, offset: float, drift_per_s: float, noise_sd: float,
+                 quantum: float, rng: np.random.Generator):
+        self.lo, self.hi = lo, hi
+        self.offset = offset
+        self.drift_per_s = drift_per_s
+        self.noise_sd = noise_sd
+        self.quantum = quantum
+        self.rng = rng
+
+    @classmethod
+    def pressure(cls, spec: Sensor, rng: np.random.Generator) -> SensorModel:
+        return cls(spec.range_kpa[0] * KPA, spec.range_kpa[1] * KPA, spec.offset_kpa * KPA,
+                   spec.drift_kpa_per_h * KPA / 3600.0, spec.noise_sd_kpa * KPA, spec.quantum_kpa * KPA, rng)
+
+    @classmethod
+    def flow(cls, spec: FlowSensor, rng: np.random.Generator) -> SensorModel:
+        return cls(spec.range_slpm[0] * SLPM, spec.range_slpm[1] * SLPM, spec.offset_slpm * SLPM, 0.0,
+                   spec.noise_sd_slpm * SLPM, spec.quantum_slpm * SLPM, rng)
+
+    def read(self, t: np.ndarray, true: np.ndarray) -> np.ndarray:
+        """What the sensor reports for the true values at times t."""
+        out = true + self.offset + self.drift_per_s * t
         if self.noise_sd > 0:
             out = out + self.rng.normal(0.0, self.noise_sd, size=out.shape)
         if self.quantum > 0:

@@ -17,6 +17,7 @@ from drivers.config import DriverConfig
 from drivers.errors import ConfigError
 from drivers.hardware import Actuator, Circuit, FlowSensor, GripperActuator, Hardware, Sensor, TankCircuit
 from drivers.models import StrictModel
+from drivers.scenes import Scene
 from drivers.units import KPA
 
 M = TypeVar("M", bound=BaseModel)
@@ -122,6 +123,26 @@ class Limits(StrictModel):
         return self.min_kpa * KPA
 
 
+class CalibrationPlan(StrictModel):
+    """How this profile is calibrated by default (the paper's protocol for it)."""
+
+    scene: Scene = Field(description="scene whose target field is varied")
+    target: str = Field(min_length=1, description="the scene field that is the sensing target")
+    values: list[float] = Field(min_length=2, max_length=200)
+    cycles: int = Field(8, ge=1, le=1000)
+    drop_first: int = Field(1, ge=0, le=100)
+    feature: Literal["p_eq", "v_eq", "dp_eq", "dp_max", "t_c_slope", "t_c_threshold", "t_c2"] = "p_eq"
+    fit: Literal["linear", "poly2", "poly3"] = "linear"
+
+    @model_validator(mode="after")
+    def _target_exists(self) -> CalibrationPlan:
+        if self.target not in type(self.scene).model_fields:
+            raise ValueError(f"target {self.target!r} is not a field of scene {self.scene.kind!r}")
+        if self.drop_first >= self.cycles:
+            raise ValueError(f"drop_first ({self.drop_first}) leaves no cycle of {self.cycles}")
+        return self
+
+
 class Profile(StrictModel):
     """One actuator or gripper: its hardware, its safe envelope and its cycle."""
 
@@ -134,6 +155,7 @@ class Profile(StrictModel):
     flow_sensor: FlowSensor = FlowSensor()
     limits: Limits = Limits(max_kpa=90.0, min_kpa=-5.0)
     sequence: SequenceConfig = SequenceConfig()
+    calibration: CalibrationPlan | None = None
 
     @model_validator(mode="after")
     def _consistent(self) -> Profile:

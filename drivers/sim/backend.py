@@ -79,7 +79,11 @@ class SimCell:
         net, valves = _network(hw, volume_law(hw.actuator, cfg.scene, self.p_atm))
         self.act_node = net.index["actuator"]
         self.tank_node = net.index.get("tank")
-        self.flow_links = {"actuate": 1.0, "vent": -1.0} if c.flow_sensor else None
+        # the flow sensor sits between the actuation valve and the actuator: it sees the
+        # inflow through the valve (or from the flow controller) and the vent outflow
+        self.flow_links = None
+        if c.flow_sensor:
+            self.flow_links = {"vent": -1.0} if isinstance(c, FlowControlledCircuit) else {"actuate": 1.0, "vent": -1.0}
         tau = getattr(c, "regulator_tau_s", 0.05)
         self.plant = Plant(net, valves, p_reg_abs=self.p_atm, regulator_tau_s=tau)
         self.valve_names = tuple(c.safe_valves)

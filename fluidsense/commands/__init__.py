@@ -1,6 +1,6 @@
 """Subcommands of ``fluidsense``. Each module has ``register(subparsers)``; add a module
 here and to ``MODULES`` to add a command."""
 
-from . import bench, clients, demo, run
+from . import bench, calibrate, clients, demo, run
 
-MODULES = [run, demo, clients, bench]
+MODULES = [run, demo, clients, calibrate, bench]

@@ -1,0 +1,169 @@
+"""Calibration curves: fit a feature against a known target, invert it with an interval.
+
+The curve is fitted as the paper draws it, feature against target (P_eq against h), by
+least squares (numpy's polynomial fit), one point per cycle. Sensing inverts it: the
+estimate is the target whose predicted feature equals the measurement, and the 95 %
+interval is the classical inverse-prediction interval: the residual sd of the fit (which
+holds per-cycle noise and cycle-to-cycle variation) plus the uncertainty of the curve
+itself, divided by the local slope.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import optimize, stats
+
+from drivers.errors import ConfigError, FluidsenseError
+
+FIT_DEGREE = {"linear": 1, "poly2": 2, "poly3": 3}
+FORMAT = "fluidsense-calibration/1"
+
+# feature name -> (CycleResult attribute, unit at the edge, scale from SI to that unit)
+FEATURES: dict[str, tuple[str, str, float]] = {
+    "p_eq": ("p_eq", "kPa", 1e-3),
+    "v_eq": ("v_eq", "ml", 1e6),
+    "dp_eq": ("dp_eq", "kPa", 1e-3),
+    "dp_max": ("dp_max", "kPa", 1e-3),
+    "t_c_slope": ("t_c_slope", "s", 1.0),
+    "t_c_threshold": ("t_c_threshold", "s", 1.0),
+    "t_c2": ("t_c2", "s", 1.0),
+}
+NEEDS_REFERENCE = {"dp_eq", "dp_max", "t_c_slope", "t_c_threshold", "t_c2"}
+
+
+class CalibrationError(FluidsenseError, ValueError):
+    """A calibration cannot be fitted or inverted."""
+
+
+def feature_value(result, feature: str) -> float | None:
+    """The named feature of a cycle result, in its edge unit (None if not available)."""
+    attr, _, scale = FEATURES[feature]
+    v = getattr(result, attr)
+    return None if v is None or not math.isfinite(v) else v * scale
+
+
+@dataclass
+class Estimate:
+    estimate: float
+    interval95: tuple[float, float]
+    unit: str
+    feature: str
+    measured: float
+    extrapolated: bool
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["interval95"] = list(self.interval95)
+        return d
+
+
+@dataclass
+class Calibration:
+    """A fitted calibration with its metadata; saved as JSON."""
+
+    profile: str
+    method: str
+    feature: str
+    feature_unit: str
+    scene: dict[str, Any]
+    target: str
+    target_unit: str
+    fit: str
+    coeffs: list[float]  # highest power first (numpy.polyfit)
+    x: list[float]  # target of every calibration cycle
+    y: list[float]  # feature of every calibration cycle
+    window: dict[str, Any] = field(default_factory=dict)
+    date: str = ""
+    seed: int | None = None
+    cycles: int = 0
+    drop_first: int = 0
+    residual_sd: float = 0.0
+    r2: float = 0.0
+    format: str = FORMAT
+
+    # ------------------------------------------------------------------ fit
+    @classmethod
+    def fit_points(cls, x, y, fit: str = "linear", **meta) -> Calibration:
+        x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+        deg = FIT_DEGREE[fit]
+        if len(np.unique(x)) <= deg:
+            raise CalibrationError(f"a {fit} fit needs at least {deg + 1} distinct targets, got {len(np.unique(x))}")
+        if len(x) <= deg + 1:
+            raise CalibrationError(f"a {fit} fit needs more than {deg + 1} points to estimate its residual")
+        coeffs = np.polyfit(x, y, deg)
+        resid = y - np.polyval(coeffs, x)
+        dof = len(x) - (deg + 1)
+        sd = float(np.sqrt(np.sum(resid**2) / dof))
+        ss_tot = float(np.sum((y - y.mean()) ** 2))
+        r2 = 1.0 - float(np.sum(resid**2)) / ss_tot if ss_tot > 0 else 0.0
+        return cls(fit=fit, coeffs=[float(c) for c in coeffs], x=x.tolist(), y=y.tolist(), residual_sd=sd,
+                   r2=r2, date=meta.pop("date", _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")),
+                   **meta)
+
+    @property
+    def slope(self) -> float:
+        """Mean feature change per unit of target over the calibrated range."""
+        lo, hi = min(self.x), max(self.x)
+        return float((np.polyval(self.coeffs, hi) - np.polyval(self.coeffs, lo)) / (hi - lo))
+
+    def predict(self, x) -> np.ndarray:
+        return np.polyval(self.coeffs, x)
+
+    # -------------------------------------------------------------- invert
+    def invert(self, measured: float, n_measurements: int = 1) -> Estimate:
+        """Target for a measured feature, with its 95 % interval."""
+        lo, hi = min(self.x), max(self.x)
+        span = hi - lo
+        a, b = lo - 0.5 * span, hi + 0.5 * span  # search a little beyond the calibrated range
+        grid = np.linspace(a, b, 2001)
+        g = self.predict(grid) - measured
+        crossings = np.nonzero(np.sign(g[:-1]) != np.sign(g[1:]))[0]
+        if len(crossings) == 0:
+            raise CalibrationError(
+                f"measured {self.feature} {measured:.4g} {self.feature_unit} is outside what the calibration "
+                f"predicts for {self.target} in [{a:.3g}, {b:.3g}] {self.target_unit}")
+        mid = 0.5 * (lo + hi)
+        k = min(crossings, key=lambda i: abs(grid[i] - mid))  # prefer the root nearest the range
+        est = float(optimize.brentq(lambda v: float(self.predict(v)) - measured, grid[k], grid[k + 1]))
+        slope = float(np.polyval(np.polyder(self.coeffs), est))
+        if slope == 0:
+            raise CalibrationError(f"the calibration is flat at {self.target} = {est:.3g}: no resolution there")
+        x = np.asarray(self.x)
+        n = len(x)
+        deg = FIT_DEGREE[self.fit]
+        t = stats.t.ppf(0.975, n - (deg + 1))
+        sxx = float(np.sum((x - x.mean()) ** 2))
+        lever = 1.0 / n + (est - x.mean()) ** 2 / sxx if sxx > 0 else 1.0 / n
+        half = t * self.residual_sd * math.sqrt(1.0 / max(n_measurements, 1) + lever) / abs(slope)
+        return Estimate(est, (est - half, est + half), self.target_unit, self.feature, measured,
+                        extrapolated=not lo <= est <= hi)
+
+    # --------------------------------------------------------------- files
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+
+    @classmethod
+    def load(cls, path: str | Path) -> Calibration:
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except OSError as exc:
+            raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+        except json.JSONDecodeError as exc:
+            raise ConfigError(f"{path}: not a calibration file (JSON: {exc})") from exc
+        if not isinstance(data, dict) or data.get("format") != FORMAT:
+            raise ConfigError(f"{path}: not a calibration file (format is not {FORMAT!r})")
+        try:
+            return cls(**data)
+        except TypeError as exc:
+            raise ConfigError(f"{path}: calibration file has unexpected fields: {exc}") from exc

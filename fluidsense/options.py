@@ -1,0 +1,92 @@
+"""Command-line options shared by the jobs: which cell, which scene."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from pydantic import TypeAdapter, ValidationError
+
+from controller.config import CellConfig, Profile, load_cell_config, load_profile
+from drivers.config import SimDriverConfig
+from drivers.errors import ConfigError
+from drivers.scenes import Scene
+
+from . import app
+
+PROFILES = app.REPO_ROOT / "config" / "profiles"
+_SCENE = TypeAdapter(Scene)
+
+
+def add_cell_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--config", "-c", help="cell config YAML (default: a simulated cell for --profile)")
+    g.add_argument("--profile", "-p", help="actuator profile YAML or name in config/profiles/ "
+                   "(runs on a simulated cell in virtual time)")
+    p.add_argument("--seed", type=int, default=1, help="seed of the simulated cell (default 1)")
+
+
+def add_scene_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scene", help="simulated scene kind, e.g. plate, cylinder, sample, stopper")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="scene field, repeatable, e.g. --set height_mm=17.5")
+
+
+def profile_path(name: str) -> Path:
+    path = Path(name)
+    if path.exists():
+        return path
+    for candidate in (PROFILES / name, PROFILES / f"{name}.yaml"):
+        if candidate.exists():
+            return candidate
+    known = ", ".join(sorted(p.stem for p in PROFILES.glob("*.yaml")))
+    raise ConfigError(f"{name}: no such profile file or name (known: {known})")
+
+
+def cell_config(args: argparse.Namespace, default_profile: str | None = None) -> CellConfig:
+    """The cell for a job. Simulated cells run in virtual time with ``--seed``."""
+    if args.config:
+        cfg = load_cell_config(args.config)
+        if cfg.driver.kind == "sim":
+            cfg = cfg.model_copy(update={"driver": cfg.driver.model_copy(update={"clock": "virtual",
+                                                                                  "seed": args.seed})})
+        return cfg
+    name = args.profile or default_profile
+    if name is None:
+        raise ConfigError("give --profile NAME (a file in config/profiles/) or --config CELL.yaml")
+    profile: Profile = load_profile(profile_path(name))
+    return CellConfig(driver=SimDriverConfig(clock="virtual", seed=args.seed), profile=profile)
+
+
+def _value(text: str) -> Any:
+    for cast in (int, float):
+        try:
+            return cast(text)
+        except ValueError:
+            pass
+    if text.lower() in ("none", "null"):
+        return None
+    return text
+
+
+def scene_from_args(args: argparse.Namespace, base: Any | None = None) -> Any | None:
+    """``--scene NAME --set k=v ...`` on top of ``base`` (a scene or None)."""
+    if args.scene is None and not args.set:
+        return base
+    data: dict[str, Any] = base.model_dump() if base is not None else {}
+    if args.scene is not None:
+        if data.get("kind") != args.scene:
+            data = {}
+        data["kind"] = args.scene
+    for item in args.set:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"--set {item!r}: expected KEY=VALUE")
+        data[key.strip()] = _value(value.strip())
+    try:
+        return _SCENE.validate_python(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = ".".join(str(x) for x in err["loc"][1:]) or "scene"
+        raise ConfigError(f"--scene/--set: {loc}: {err['msg']}") from None

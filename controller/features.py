@@ -164,42 +164,38 @@ def contact_time_slope(t_rel: np.ndarray, dp: np.ndarray, min_rise: float) -> fl
     return float(t[int(np.argmin(sse))])
 
 
-def second_contact_time(t_rel: np.ndarray, dp: np.ndarray, t_c1: float, min_rise: float) -> float | None:
+def second_contact_time(t_rel: np.ndarray, dp: np.ndarray, t_c1: float, min_rise: float,
+                        min_jump: float = 0.2) -> float | None:
     """Time of a second contact after ``t_c1`` (use a smoothed dP).
 
-    After a first contact dP keeps rising; a second contact (another finger pair meeting
-    the object) makes it rise faster again. A continuous broken line (slope b1, then b1 +
-    b2 after the break) is fitted from t_c1 until dP first reaches 90 % of its maximum;
-    the break with the least squared error is the second contact when the slope at
-    least doubles there and dP still rises by ``min_rise`` after it. None otherwise.
+    Between contacts dP rises and bends over smoothly; a second contact (another finger
+    pair meeting the object) puts a kink into it: the slope jumps up. From t_c1 until dP
+    reaches 95 % of its maximum, a quadratic plus a hinge ``d*max(0, t - t2)`` is fitted for
+    every candidate t2 (on every 10th sample: the kink spans many samples anyway); the best
+    t2 counts as a contact when the slope jumps by at least ``min_jump`` of the slope just
+    before it and dP still rises by ``min_rise`` afterwards. None otherwise.
     """
     ok = np.isfinite(dp) & (t_rel > t_c1)
-    t, y = t_rel[ok], dp[ok]
-    if len(t) < 12:
+    t, y = t_rel[ok][::10], dp[ok][::10]
+    if len(t) < 10:
         return None
-    k_end = int(np.argmax(y >= 0.9 * np.max(y)))
+    k_end = int(np.argmax(y >= 0.95 * np.max(y)))
     t, y = t[: k_end + 1], y[: k_end + 1]
     n = len(t)
-    if n < 12:
+    if n < 10:
         return None
-    x = (t - t[0]) / ((t[-1] - t[0]) or 1.0)
-    rev = slice(None, None, -1)
-    s0, s1, s2 = (np.cumsum((x**j)[rev])[rev] for j in range(3))  # suffix sums from k
-    y0, y1 = np.cumsum(y[rev])[rev], np.cumsum((y * x)[rev])[rev]
-    xk = x
-    su, suu = s1 - xk * s0, s2 - 2 * xk * s1 + xk**2 * s0
-    sxu, syu = s2 - xk * s1, y1 - xk * y0
-    m = np.empty((n, 3, 3))
-    sx, sxx = x.sum(), (x * x).sum()
-    m[:, 0] = np.column_stack([np.full(n, float(n)), np.full(n, sx), su])
-    m[:, 1] = np.column_stack([np.full(n, sx), np.full(n, sxx), sxu])
-    m[:, 2] = np.column_stack([su, sxu, suu])
-    rhs = np.column_stack([np.full(n, y.sum()), np.full(n, (x * y).sum()), syu])
-    ks = np.arange(4, n - 4)
-    coef = np.linalg.solve(m[ks], rhs[ks][..., None])[..., 0]
-    sse = float(np.sum(y * y)) - np.einsum("ij,ij->i", coef, rhs[ks])
-    j = int(np.argmin(sse))
-    k, (_, b1, b2) = int(ks[j]), coef[j]
-    if b1 <= 0 or b1 + b2 < 2 * b1 or y[-1] - y[k] < min_rise:
+    x = (t - t[0]) / (t[-1] - t[0])
+    base = np.column_stack([np.ones(n), x, x * x])
+    best_sse, best_k, best_coef = np.inf, -1, None
+    for k in range(3, n - 3):
+        design = np.column_stack([base, np.clip(x - x[k], 0.0, None)])
+        coef, *_ = np.linalg.lstsq(design, y, rcond=None)
+        sse = float(np.sum((design @ coef - y) ** 2))
+        if sse < best_sse:
+            best_sse, best_k, best_coef = sse, k, coef
+    if best_coef is None:
         return None
-    return float(t[k])
+    slope_before = best_coef[1] + 2 * best_coef[2] * x[best_k]
+    if slope_before <= 0 or best_coef[3] < min_jump * slope_before or y[-1] - y[best_k] < min_rise:
+        return None
+    return float(t[best_k])

@@ -141,3 +141,36 @@ def virtual_controller(tmp_path):
         return asyncio.run(main())
 
     return go
+
+
+def profile_controller(profile: str, body, seed: int = 1):
+    """Run ``body(controller)`` on a virtual simulated cell with a shipped profile."""
+    from controller.config import CellConfig, load_profile
+    from drivers.config import SimDriverConfig
+    from fluidsense import app
+
+    prof = load_profile(CONFIG / "profiles" / f"{profile}.yaml")
+    cfg = CellConfig(driver=SimDriverConfig(clock="virtual", seed=seed), profile=prof)
+
+    async def main():
+        async with app.controller(cfg) as ctrl:
+            return await body(ctrl)
+
+    return asyncio.run(main())
+
+
+async def cycles_over(ctrl, scenes, n: int = 1, reference: bool = False):
+    """Results of n cycles per scene (after an optional free-air reference)."""
+    from drivers.scenes import EmptyScene
+
+    if reference:
+        await ctrl.set_scene(EmptyScene())
+        await ctrl.run_cycle(store_reference=True)
+    out = []
+    for scene in scenes:
+        await ctrl.set_scene(scene)
+        for _ in range(n):
+            res = await ctrl.run_cycle()
+            assert res.ok, res.aborted
+            out.append((scene, res, ctrl.backend.scene.truth()))
+    return out

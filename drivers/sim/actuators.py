@@ -40,8 +40,10 @@ def _law(v0: float, c_free: float, contacts: Sequence[tuple[float, float]], p_at
             v.append(v0 + sign * change)
             done = change
         c = c_free * ratio
-    p.append(p[-1] + sign * _FAR_PA)
-    v.append(v[-1] + sign * c * _FAR_PA)
+    # the last segment extends far; under vacuum no further than absolute zero
+    far = _FAR_PA if not vacuum else max(0.99 * p_atm + p[-1], 1.0)
+    p.append(p[-1] + sign * far)
+    v.append(v[-1] + sign * c * far)
     if vacuum:  # VolumeLaw wants rising pressure; a collapsed cavity keeps a little volume
         p, v = p[::-1], [max(x, 1e-3 * v0) for x in v[::-1]]
     return VolumeLaw(p, [x + shift for x in v], p_atm)
@@ -124,6 +126,26 @@ def linear_law(act: LinearActuator, scene, p_atm: float) -> VolumeLaw:
     if isinstance(scene, WallScene):
         return _law(a * l0, a * a / k, [(a * scene.distance_mm * MM, 0.0)], p_atm)
     raise ConfigError(f"scene {scene.kind!r} does not apply to a linear actuator (none, wall)")
+
+
+def contact_truth(actuator, scene, p_atm: float, p_gauge: float, t_since_set: float = 0.0) -> dict[str, float]:
+    """What an instrumented bench would measure at this pressure: the tip force on a
+    plate (force area times the pressure above contact) and the indentation of a soft
+    one (force over plate stiffness)."""
+    if not isinstance(actuator, BendingActuator) or not isinstance(scene, (PlateScene, ProfileScene)):
+        return {}
+    law = volume_law(actuator, scene, p_atm, t_since_set)
+    if len(law.p_gauge) < 3:  # touching from the start: contact at atmospheric pressure
+        p_contact, v_contact = 0.0, float(law.volume_at(0.0))
+    else:
+        p_contact, v_contact = float(law.p_gauge[1]), float(law.volume[1])
+    above = max(p_gauge - p_contact, 0.0)
+    out = {"tip_force_n": actuator.force_area_mm2 * MM * MM * above}
+    if isinstance(scene, PlateScene):
+        # a soft plate pushes back with k*delta = F
+        k_plate = scene.stiffness_n_per_mm
+        out["indentation_mm"] = 0.0 if k_plate is None else out["tip_force_n"] / k_plate
+    return out
 
 
 def is_dynamic(scene) -> bool:

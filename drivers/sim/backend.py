@@ -18,7 +18,7 @@ from ..config import SimDriverConfig
 from ..hardware import ACTUATE, SUPPLY, VENT, FlowControlledCircuit, Hardware, RegulatedCircuit, TankCircuit
 from ..scenes import PullScene
 from ..units import KPA
-from .actuators import is_dynamic, volume_law
+from .actuators import contact_truth, is_dynamic, volume_law
 from .gas import ATMOSPHERE, REGULATOR, FlowSource, Link, Network, VolumeLaw
 from .plant import Plant
 from .sensor import SensorModel
@@ -226,9 +226,13 @@ class SimCell:
             self.plant.schedule_valve(t + self.dt, AIR, True)
 
     def truth(self) -> dict[str, Any]:
+        """The scene, plus what a bench instrument would read now (force, indentation)."""
         out = self.scene.model_dump()
         if self.detached_at is not None:
             out["detached_at_s"] = self.detached_at
+        if self._cache_pos > 0:
+            p_act = self.true_values()["p_act"]
+            out.update(contact_truth(self.hw.actuator, self.scene, self.p_atm, p_act, self.t_last - self.scene_set_t))
         return out
 
 

@@ -1,0 +1,138 @@
+"""Calibration: fitting, inverting with an interval, files, and the accuracy it reaches."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from controller.calibration import Calibration, CalibrationError
+from drivers.errors import ConfigError
+from drivers.scenes import PlateScene
+
+from .conftest import REPO, profile_controller
+
+
+def synthetic(slope=-0.04, sd=0.03, n_per=7, seed=0, fit="linear", curve=0.0):
+    rng = np.random.default_rng(seed)
+    x = np.repeat(np.arange(0, 45, 5.0), n_per)
+    y = 22.6 + slope * x + curve * x**2 + rng.normal(0, sd, len(x))
+    meta = dict(profile="p", method="tank", feature="p_eq", feature_unit="kPa", scene={"kind": "plate"},
+                target="height_mm", target_unit="mm")
+    return Calibration.fit_points(x, y, fit, **meta)
+
+
+def test_inverse_of_a_noiseless_line_is_exact():
+    cal = synthetic(sd=1e-9)
+    est = cal.invert(22.6 - 0.04 * 17.5)
+    assert est.estimate == pytest.approx(17.5, abs=1e-6)
+    assert not est.extrapolated and est.unit == "mm"
+
+
+def test_interval_covers_the_truth_about_95_percent_of_the_time():
+    """Over many calibrations (the interval also accounts for the curve's own error)."""
+    rng = np.random.default_rng(2)
+    inside = total = 0
+    for seed in range(300):
+        cal = synthetic(sd=0.03, seed=100 + seed)
+        truth = rng.uniform(0, 40, 10)
+        measured = 22.6 - 0.04 * truth + rng.normal(0, 0.03, len(truth))
+        for h, y in zip(truth, measured):
+            lo, hi = cal.invert(y).interval95
+            inside += lo <= h <= hi
+            total += 1
+    assert inside / total == pytest.approx(0.95, abs=0.015)
+    # half width is about t * sd / slope: 0.03 / 0.04 * 1.99 = 1.5 mm
+    lo, hi = synthetic(sd=0.03, seed=1).invert(22.6 - 0.04 * 20).interval95
+    assert (hi - lo) / 2 == pytest.approx(1.99 * 0.03 / 0.04, rel=0.15)
+
+
+def test_averaging_cycles_narrows_the_interval():
+    cal = synthetic()
+    one = cal.invert(21.8)
+    four = cal.invert(21.8, n_measurements=4)
+    assert four.interval95[1] - four.interval95[0] < 0.6 * (one.interval95[1] - one.interval95[0])
+
+
+def test_polynomial_fit_follows_a_curve():
+    cal_lin = synthetic(curve=0.001, sd=0.005)
+    cal_q = synthetic(curve=0.001, sd=0.005, fit="poly2")
+    assert cal_q.residual_sd < 0.5 * cal_lin.residual_sd
+    y = 22.6 - 0.04 * 30 + 0.001 * 900
+    assert cal_q.invert(y).estimate == pytest.approx(30, abs=0.3)
+
+
+def test_outside_what_the_curve_predicts_is_an_error():
+    cal = synthetic()
+    with pytest.raises(CalibrationError, match="outside"):
+        cal.invert(40.0)
+    with pytest.raises(CalibrationError, match="distinct targets"):
+        Calibration.fit_points([1, 1, 1], [2, 3, 4], "linear", profile="p", method="tank", feature="p_eq",
+                               feature_unit="kPa", scene={}, target="x", target_unit="mm")
+
+
+def test_file_round_trip_and_bad_files(tmp_path):
+    cal = synthetic()
+    path = tmp_path / "cal.json"
+    cal.save(path)
+    again = Calibration.load(path)
+    assert again == cal
+    assert json.loads(path.read_text())["format"] == "fluidsense-calibration/1"
+    (tmp_path / "bad.json").write_text("{\"format\": \"other\"}")
+    with pytest.raises(ConfigError, match="not a calibration file"):
+        Calibration.load(tmp_path / "bad.json")
+    with pytest.raises(ConfigError, match="cannot read"):
+        Calibration.load(tmp_path / "missing.json")
+
+
+def test_tank_method_distance_accuracy_on_held_out_heights():
+    """Issue criterion: tank method, default noise, heights not used in calibration:
+    the 95 % error stays within +-2.5 mm (paper: +-1.7 mm)."""
+    from tasks.calibrate import calibrate
+
+    rng = np.random.default_rng(11)
+    held_out = rng.uniform(1, 39, 16)
+    held_out = held_out[np.abs(held_out - np.round(held_out / 10) * 10) > 1]  # not a calibration height
+
+    async def body(ctrl):
+        run = await calibrate(ctrl, PlateScene(height_mm=0), "height_mm", [0, 10, 20, 30, 40],
+                              feature="p_eq", cycles=4, drop_first=1)
+        errors, covered = [], 0
+        for h in held_out:
+            await ctrl.set_scene(PlateScene(height_mm=float(h)))
+            res = await ctrl.run_cycle()
+            est = run.calibration.invert(res.p_eq / 1e3)
+            errors.append(est.estimate - h)
+            covered += est.interval95[0] <= h <= est.interval95[1]
+        return run.calibration, np.array(errors), covered
+
+    cal, errors, covered = profile_controller("pneunet-bending", body)
+    assert cal.slope == pytest.approx(-0.04, rel=0.2)
+    assert np.all(np.abs(errors) < 2.5)
+    assert covered >= len(errors) - 2
+
+
+def test_calibrate_and_sense_commands(tmp_path):
+    out = tmp_path / "wall.json"
+    cal = subprocess.run([sys.executable, "-m", "fluidsense.cli", "calibrate", "--profile", "linear-actuator",
+                          "--values", "0,10,20,30", "--cycles", "3", "--out", str(out), "--json"],
+                         cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert cal.returncode == 0, cal.stderr
+    data = json.loads(cal.stdout)
+    assert data["target"] == "distance_mm" and data["feature"] == "p_eq" and len(data["x"]) == 8
+    assert data["profile"] == "linear-actuator" and data["window"]["start_s"] == 15.0
+    assert data["residual_sd"] > 0 and data["date"]
+    sense = subprocess.run([sys.executable, "-m", "fluidsense.cli", "sense", "-k", str(out), "--scene", "wall",
+                            "--set", "distance_mm=17.5", "--seed", "4", "--json"],
+                           cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert sense.returncode == 0, sense.stderr
+    res = json.loads(sense.stdout)
+    lo, hi = res["interval95"]
+    assert res["unit"] == "mm" and lo < res["estimate"] < hi
+    assert abs(res["estimate"] - 17.5) < 2.0 and res["truth"] == 17.5
+    bad = subprocess.run([sys.executable, "-m", "fluidsense.cli", "sense", "-k", str(out), "--scene", "wall",
+                          "--set", "distance=3"], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "distance" in bad.stderr

@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test install clean lint-imports
+.PHONY: demo test install clean lint-imports report
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -20,6 +20,10 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
+
+# Regenerates docs/reproduction (the paper's numbers beside ours; a few minutes).
+report: $(STAMP)
+	$(BIN)/fluidsense report --out docs/reproduction
 
 lint-imports: $(STAMP)
 	$(BIN)/lint-imports

@@ -177,16 +177,17 @@ class GripperActuator(_Compliant):
     push_ratio: Ratio = Field(
         0.9, description="compliance kept while one finger pushes an off-centre object towards the "
         "centre (sliding friction only; assumed)")
-    finger_stiffness_n_per_mm: PositiveFloat = Field(
-        0.5, le=1e6, description="finger tip stiffness against soft objects (assumed)")
+    force_area_mm2: PositiveFloat = Field(
+        300.0, le=1e6, description="grip force per pressure above the contact pressure, which squeezes soft "
+        "objects (assumed)")
 
 
 class BendingActuator(_Compliant):
     """A single PneuNet bending actuator whose tip moves towards a surface (paper, Fig. 1a-d
     and Fig. 2). Tip travel grows ``travel_mm_per_ml`` per ml of growth; once the tip meets
     a rigid surface the actuator keeps ``contact_ratio`` of its free compliance (it
-    balloons). On a soft surface the blocked part of the travel goes partly into
-    indentation, in the ratio of tip to surface stiffness.
+    balloons). A soft surface yields to the tip force ``force_area * (p - p_contact)`` by
+    force over its stiffness, and the tip follows it.
 
     Defaults: v0 25 ml and 1.0 ml/kPa put a 0.1 L tank at 49.9 kPa at about 20 kPa with
     ~29 ml of standard air in the actuator (the paper's free-actuation snapshot at 28.7 ml);
@@ -199,7 +200,6 @@ class BendingActuator(_Compliant):
     compliance_ml_per_kpa: PositiveFloat = Field(1.0, le=100)
     travel_mm_per_ml: PositiveFloat = Field(3.0, le=1000)
     contact_ratio: Ratio = 0.77
-    tip_stiffness_n_per_mm: PositiveFloat = Field(0.5, le=1e6, description="assumed")
     force_area_mm2: PositiveFloat = Field(
         150.0, le=1e6, description="tip force per pressure above the contact pressure (assumed)")
 

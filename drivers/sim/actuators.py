@@ -49,11 +49,22 @@ def _law(v0: float, c_free: float, contacts: Sequence[tuple[float, float]], p_at
     return VolumeLaw(p, [x + shift for x in v], p_atm)
 
 
-def _stiffness_share(k_actuator: float, k_object: float | None) -> float:
-    """Fraction of blocked travel that still happens against a soft object."""
-    if k_object is None:
-        return 0.0
-    return k_actuator / (k_actuator + k_object)
+def _soft_ratio(ratio_rigid: float, force_area: float, k_object_n_per_mm: float | None, travel_mm_per_ml: float,
+                compliance: float) -> float:
+    """Compliance fraction after contact with a soft object.
+
+    Free growth splits into a part that moves the tip (a fraction ``1 - ratio_rigid``,
+    which a rigid contact blocks) and a part that balloons the actuator. A soft object
+    yields ``delta = F / k`` with ``F = force_area * (p - p_contact)``, and the tip follows
+    it; that motion takes ``delta * (1 - ratio_rigid) / travel`` of volume, so the object
+    adds ``force_area * (1 - ratio_rigid) / (k * travel)`` to the rigid contact's
+    compliance (never beyond free).
+    """
+    if k_object_n_per_mm is None:
+        return ratio_rigid
+    k = k_object_n_per_mm * 1e3  # N/m
+    travel = travel_mm_per_ml * MM / ML  # m of tip travel per m^3 of free growth
+    return min(1.0, ratio_rigid + force_area * (1 - ratio_rigid) / (k * travel) / compliance)
 
 
 def gripper_law(act: GripperActuator, scene, p_atm: float) -> VolumeLaw:
@@ -66,8 +77,8 @@ def gripper_law(act: GripperActuator, scene, p_atm: float) -> VolumeLaw:
     if isinstance(scene, EmptyScene):
         contacts: list[tuple[float, float]] = []
     elif isinstance(scene, CylinderScene):
-        ratio = act.wrap_ratio + (1 - act.wrap_ratio) * _stiffness_share(
-            act.finger_stiffness_n_per_mm, scene.stiffness_n_per_mm)
+        ratio = _soft_ratio(act.wrap_ratio, act.force_area_mm2 * MM * MM, scene.stiffness_n_per_mm,
+                            act.closing_mm_per_ml, c)
         contacts = []
         if scene.offset_mm > 0:
             # one finger meets the off-centre object first and pushes it to the centre
@@ -91,8 +102,8 @@ def bending_law(act: BendingActuator, scene, p_atm: float, t_since_set: float = 
         height, k_plate = max(float(scene.gap_mm(t_since_set)), 0.0), None
     else:
         raise ConfigError(f"scene {scene.kind!r} does not apply to a bending actuator (none, plate, profile)")
-    share = _stiffness_share(act.tip_stiffness_n_per_mm, k_plate)
-    ratio = act.contact_ratio + (1 - act.contact_ratio) * share
+    ratio = _soft_ratio(act.contact_ratio, act.force_area_mm2 * MM * MM, k_plate, act.travel_mm_per_ml,
+                        act.compliance)
     return _law(act.v0, act.compliance, [(height / act.travel_mm_per_ml * ML, ratio)], p_atm)
 
 

@@ -1,0 +1,94 @@
+"""Shared pieces of the report sections: running a profile, fitting, formatting."""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from controller.calibration import Calibration, feature_value
+from controller.config import Profile, load_profile
+from controller.service import Controller
+from tasks.experiments import sim_cell
+
+from ..options import PROFILES
+
+
+@dataclass
+class Section:
+    """What one section contributes: Markdown, numbers (for results.json) and rows of the
+    paper-versus-ours table."""
+
+    key: str
+    title: str
+    markdown: str = ""
+    numbers: dict[str, Any] = field(default_factory=dict)
+    rows: list[dict[str, Any]] = field(default_factory=list)
+
+    def row(self, quantity: str, paper: str, ours: str, match: bool | None, why: str, source: str) -> None:
+        verdict = {True: "match", False: "mismatch", None: "qualitative"}[match]
+        self.rows.append({"quantity": quantity, "paper": paper, "ours": ours, "verdict": verdict,
+                          "why": why, "source": source})
+
+
+def profile(name: str) -> Profile:
+    return load_profile(PROFILES / f"{name}.yaml")
+
+
+def run_on(prof: Profile, body, seed: int = 1):
+    """``await body(controller)`` on a virtual simulated cell; returns its result."""
+    cfg, backend = sim_cell(prof, seed)
+
+    async def main():
+        async with Controller(cfg, backend) as ctrl:
+            return await body(ctrl)
+
+    return asyncio.run(main())
+
+
+def fit(runs, feature: str, fit_kind: str = "linear", **meta) -> Calibration:
+    x = [r.target for r in runs if feature_value(r.result, feature) is not None]
+    y = [feature_value(r.result, feature) for r in runs if feature_value(r.result, feature) is not None]
+    defaults = dict(profile="", method="", feature=feature, feature_unit="", scene={}, target="", target_unit="")
+    defaults.update(meta)
+    return Calibration.fit_points(x, y, fit_kind, date="generated", **defaults)
+
+
+def errors_on(cal: Calibration, runs, feature: str) -> np.ndarray:
+    out = []
+    for r in runs:
+        y = feature_value(r.result, feature)
+        out.append(np.nan if y is None else cal.invert(y).estimate - r.target)
+    return np.array(out)
+
+
+def interval95(err: np.ndarray) -> tuple[float, float]:
+    e = err[np.isfinite(err)]
+    return float(np.percentile(e, 2.5)), float(np.percentile(e, 97.5))
+
+
+def r4(x: float) -> float:
+    """Four significant digits: what results.json and the text keep."""
+    return float(f"{x:.4g}")
+
+
+def md_table(header: list[str], rows: list[list[Any]]) -> str:
+    def cell(v):
+        return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def img(name: str, alt: str) -> str:
+    return f"![{alt}]({name})"
+
+
+def out_path(out_dir: str | Path) -> Path:
+    p = Path(out_dir)
+    p.mkdir(parents=True, exist_ok=True)
+    return p

@@ -1,0 +1,60 @@
+"""Experiment protocols shared by the reproduction report and the benchmarks: run
+cycles over scenes and keep every result (calibration and sensing keep only features)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from controller.config import CellConfig, Profile
+from controller.cycle import CycleResult
+from controller.service import Controller
+from drivers.config import SimDriverConfig, build_backend
+from drivers.errors import FluidsenseError
+from drivers.scenes import EmptyScene
+
+from .calibrate import scene_with
+
+
+@dataclass
+class Run:
+    scene: Any
+    target: float | None
+    result: CycleResult
+    truth: dict[str, Any]
+
+
+def sim_cell(profile: Profile, seed: int, block_size: int = 10) -> tuple[CellConfig, Any]:
+    """A virtual-time simulated cell for a profile (config and backend)."""
+    cfg = CellConfig(driver=SimDriverConfig(clock="virtual", seed=seed, block_size=block_size), profile=profile)
+    return cfg, build_backend(cfg.driver, profile.hardware)
+
+
+async def reference(ctrl: Controller, p0_kpa: float | None = None) -> CycleResult:
+    await ctrl.set_scene(EmptyScene())
+    res = await ctrl.run_cycle(p0_kpa=p0_kpa, label="reference", store_reference=True)
+    if not res.ok:
+        raise FluidsenseError(f"reference cycle failed: {res.aborted}")
+    return res
+
+
+async def sweep(ctrl: Controller, scene: Any, target: str | None, values: Sequence[float | None], cycles: int = 1,
+                drop_first: int = 0, p0_kpa: float | None = None,
+                on_cycle: Callable[[], None] | None = None) -> list[Run]:
+    """``cycles`` cycles for each target value (the first ``drop_first`` not kept).
+    ``target`` None with ``values`` of scenes runs those scenes as given."""
+    runs = []
+    for value in values:
+        sc = value if target is None else scene_with(scene, target, value)
+        await ctrl.set_scene(sc)
+        for k in range(cycles):
+            res = await ctrl.run_cycle(p0_kpa=p0_kpa)
+            if on_cycle is not None:
+                on_cycle()
+            if not res.ok:
+                raise FluidsenseError(f"cycle {res.cycle_id} on {sc} failed: {res.aborted}")
+            if k >= drop_first:
+                tv = None if target is None else float(value)
+                runs.append(Run(sc, tv, res, ctrl.backend.scene.truth()))
+    return runs

@@ -1,0 +1,31 @@
+"""Model factories for ``python -m drivers.sim.controlbox --model tests.controlbox_models:NAME``:
+what a plant-backed subclass of KinematicModel does, in miniature."""
+
+from __future__ import annotations
+
+from drivers.sim.controlbox import AnalogDomain, KinematicModel
+
+
+class LoopbackModel(KinematicModel):
+    """Standard outputs wired back to the standard inputs, and each analog output to the
+    analog input of the same number (the input reads the output's voltage)."""
+
+    def __init__(self):
+        super().__init__(analog_input_source=self._read_back)
+        self.changes = 0
+
+    def on_outputs_changed(self, t: float) -> None:
+        self.changes += 1
+        self.set_digital_inputs(0xFF, self.digital_outputs & 0xFF)
+
+    def _read_back(self, channel: int, domain: AnalogDomain, t: float) -> float:
+        out = self.analog_output(channel)
+        return out.value if out.domain == domain else 0.0
+
+
+def loopback() -> LoopbackModel:
+    return LoopbackModel()
+
+
+def not_a_model() -> object:
+    return object()

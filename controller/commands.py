@@ -51,14 +51,20 @@ class SceneCmd(StrictModel):
     scene: Scene
 
 
+class TaskCmd(StrictModel):
+    cmd: Literal["task"]
+    file: str = Field(min_length=1, max_length=200, description="task file name in the daemon's task directory")
+    order_mm: list[float] | None = Field(None, max_length=50)
+
+
 class ShutdownCmd(StrictModel):
     cmd: Literal["shutdown"]
 
 
-Command = Annotated[StatusCmd | CycleCmd | AbortCmd | ResetCmd | SceneCmd | ShutdownCmd,
+Command = Annotated[StatusCmd | CycleCmd | AbortCmd | ResetCmd | SceneCmd | TaskCmd | ShutdownCmd,
                     Field(discriminator="cmd")]
 _ADAPTER = TypeAdapter(Command)
-COMMANDS = ("status", "cycle", "abort", "reset", "scene", "shutdown")
+COMMANDS = ("status", "cycle", "abort", "reset", "scene", "task", "shutdown")
 
 
 def parse(frames: list[bytes]) -> Any:

@@ -204,7 +204,7 @@ def _field_path(loc: tuple, data: Any) -> str:
     (``driver.sim.rate_hz`` -> ``driver.rate_hz``): the path the user wrote."""
     parts, node = [], data
     for item in loc:
-        if isinstance(node, dict) and item not in node and node.get("kind") == item:
+        if isinstance(node, dict) and item not in node and item in (node.get("kind"), node.get("task")):
             continue  # the tag of a discriminated union, not a key in the file
         if isinstance(item, str) and item.startswith("function-"):
             continue

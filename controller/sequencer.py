@@ -86,6 +86,7 @@ class Sequencer:
         self.t_open: float | None = None
         self.t_end: float | None = None
         self.aborted: str | None = None
+        self.hold = False
         self._deadline = float("inf")
         self._isolate_at = float("inf")
         self.transitions: list[Transition] = []
@@ -112,7 +113,9 @@ class Sequencer:
         return cmds
 
     # ----------------------------------------------------------------- cycle
-    def start(self, t: float, p0_pa: float | None = None) -> list[Command]:
+    def start(self, t: float, p0_pa: float | None = None, hold: bool = False) -> list[Command]:
+        """Begin a cycle. With ``hold`` HOLD lasts until ``release`` instead of ``actuate_s``
+        after opening (a gripper that carries what it measured)."""
         if self.state == State.FAULT:
             raise SequenceError("controller is in FAULT; reset first")
         if self.busy:
@@ -121,6 +124,7 @@ class Sequencer:
         self.p0_pa = self.cfg.p0_pa if p0_pa is None else p0_pa
         self.t_start, self.t_open, self.t_end, self.aborted = t, None, None, None
         self._isolate_at = float("inf")
+        self.hold = hold
         self._go(t, State.CHARGE, "start")
         self._deadline = t + self.cfg.charge_s
         tank = self.cfg.method == "tank"
@@ -154,7 +158,7 @@ class Sequencer:
             return self._open(t)
         if self.state == State.ACTUATE:
             self._go(t, State.HOLD, "measuring")
-            self._deadline = self.t_open + cfg.actuate_s
+            self._deadline = float("inf") if self.hold else self.t_open + cfg.actuate_s
             return []
         if self.state == State.HOLD:
             self._go(t, State.VENT, "hold done")
@@ -185,6 +189,18 @@ class Sequencer:
             t2 = t1 + fp.hold_s
             cmds.append(FlowProfileCmd((t, t1, t2, t2 + 1e-6), (0.0, q, q, 0.0)))
         return cmds
+
+    def release(self, t: float) -> list[Command]:
+        """End a held cycle: to VENT now (from HOLD or, if the windows are still open,
+        from ACTUATE: the measurement is then incomplete)."""
+        if not self.busy:
+            raise SequenceError("no cycle is running")
+        if self.state not in (State.ACTUATE, State.HOLD):
+            raise SequenceError(f"cannot release in state {self.state.value}")
+        self._go(t, State.VENT, "released")
+        self._deadline = t + self.cfg.vent_s
+        self._isolate_at = float("inf")
+        return self._safe()
 
     def abort(self, t: float, reason: str) -> list[Command]:
         """Go to VENT from any running state: every valve to its safe position."""

@@ -14,6 +14,7 @@ import asyncio
 import logging
 import time
 from collections import deque
+from collections.abc import Awaitable, Callable
 from typing import Any
 
 import numpy as np
@@ -21,7 +22,7 @@ import numpy as np
 from drivers.base import Backend, SampleBlock
 from drivers.errors import CommandError, FaultError, NotSupportedError, SafetyError, SequenceError
 
-from .commands import AbortCmd, CycleCmd, ResetCmd, SceneCmd, ShutdownCmd, StatusCmd
+from .commands import AbortCmd, CycleCmd, ResetCmd, SceneCmd, ShutdownCmd, StatusCmd, TaskCmd
 from .config import CellConfig
 from .cycle import CycleResult, Recorder, Reference, analyse, make_reference, transition_dict
 from .publisher import NullPublisher, Publisher
@@ -43,6 +44,22 @@ def _unit(channel: str) -> str:
 
 def _reference_key(p0_pa: float) -> float:
     return round(p0_pa / KPA, 3)
+
+
+class SampleClock:
+    """The controller's clock as devices see it: ``now`` is the newest sample's time and
+    ``wait_until`` returns once samples have reached a time (in virtual time it also
+    keeps sample time running until then)."""
+
+    def __init__(self, ctrl: Controller):
+        self._ctrl = ctrl
+
+    @property
+    def now(self) -> float:
+        return self._ctrl.now
+
+    async def wait_until(self, t: float) -> None:
+        await self._ctrl.wait(t - self._ctrl.now)
 
 
 class Controller:
@@ -74,6 +91,14 @@ class Controller:
         self._batch: list[SampleBlock] = []
         self._batch_start: float | None = None
         self._started_wall = time.monotonic()
+        self.clock = SampleClock(self)
+        # the application installs this: (file, order_mm) -> coroutine running a task (it
+        # raises at once for a bad file); the controller never imports a task itself
+        self.task_runner: Callable[[str, list[float] | None], Awaitable[dict[str, Any]]] | None = None
+        self._task_job: asyncio.Task | None = None
+        self._task_name: str | None = None
+        self._measured: asyncio.Future[CycleResult] | None = None
+        self._hold = False
 
     # ------------------------------------------------------------- lifecycle
     @property
@@ -82,6 +107,8 @@ class Controller:
 
     async def start(self) -> None:
         await self.backend.setup()
+        if self.backend.arm is not None:
+            self.backend.arm.use_clock(self.clock)
         if self.backend.regulator is not None:
             self.backend.regulator.set_limits(self.profile.limits.min_pa, self.profile.limits.max_pa)
         await self.backend.safe_state(self.now)
@@ -89,6 +116,11 @@ class Controller:
 
     async def stop(self) -> None:
         """Vent, stop the loop, close the devices. Safe to call twice."""
+        if self._cancel_task():
+            try:
+                await self._task_job
+            except (asyncio.CancelledError, Exception):  # noqa: BLE001 - stopping anyway
+                pass
         if self.sequencer.busy:
             cmds = self.sequencer.abort(self.now, "shutdown")
             self._publish_transitions()
@@ -127,8 +159,13 @@ class Controller:
         return await fut
 
     async def start_cycle(self, *, p0_kpa: float | None = None, label: str | None = None,
-                    store_reference: bool = False) -> asyncio.Future[CycleResult]:
-        """Start a cycle; the returned future resolves with its result."""
+                    store_reference: bool = False, hold: bool = False) -> asyncio.Future[CycleResult]:
+        """Start a cycle; the returned future resolves with its result.
+
+        With ``hold`` the actuator stays inflated after the measurement windows until
+        ``release()`` (a gripper carrying what it measured); ``measured()`` gives the
+        features as soon as the last window has closed.
+        """
         self._check_running()
         if self.fault is not None:
             raise FaultError(f"in FAULT ({self.fault.kind}: {self.fault.detail}); send reset")
@@ -138,14 +175,56 @@ class Controller:
         lim = self.profile.limits
         if not lim.min_kpa <= p0 <= lim.max_kpa:
             raise SafetyError(f"p0 {p0} kPa outside the profile's limits [{lim.min_kpa}, {lim.max_kpa}] kPa")
-        cmds = self.sequencer.start(self.now, p0 * KPA)
+        cmds = self.sequencer.start(self.now, p0 * KPA, hold=hold)
         self._cycle_opts = {"label": label, "store_reference": store_reference}
+        self._hold = hold
+        self._measured = asyncio.get_running_loop().create_future()
         self._recorder = Recorder()
         self._cycle_future = asyncio.get_running_loop().create_future()
         self._publish_transitions()
         await self._apply_guarded(cmds)
         self._demand.set()
         return self._cycle_future
+
+    async def measured(self) -> CycleResult:
+        """Features of the running (held) cycle once its last window has closed."""
+        if self._measured is None:
+            raise SequenceError("no cycle is running")
+        return await self._measured
+
+    async def release(self) -> CycleResult:
+        """End a held cycle: vent, and return its final result."""
+        fut = self._cycle_future
+        if fut is None or not self.sequencer.busy:
+            raise SequenceError("no cycle is running")
+        cmds = self.sequencer.release(self.now)
+        self._publish_transitions()
+        await self._apply_guarded(cmds)
+        self._demand.set()
+        return await fut
+
+    async def wait_after_open(self, seconds: float) -> None:
+        """Wait until ``seconds`` after the running cycle's actuation valve opened."""
+        while self.sequencer.busy and self.sequencer.t_open is None:
+            await self.wait(self.profile.sequence.charge_s / 4)
+        if self.sequencer.t_open is None:
+            raise SequenceError("the cycle ended before its valve opened")
+        remaining = self.sequencer.t_open + seconds - self.now
+        if remaining > 0:
+            await self.wait(remaining)
+
+    async def move_l(self, pose, speed: float, acc: float) -> None:
+        """Move the arm's tool in a straight line; returns on arrival (sample time)."""
+        if self.backend.arm is None:
+            raise NotSupportedError(f"backend {self.backend.name!r} has no arm")
+        if self.fault is not None:
+            raise FaultError(f"in FAULT ({self.fault.kind}); send reset")
+        await self.backend.arm.move_l(pose, speed, acc, self.now)
+
+    async def set_world(self, world: Any) -> None:
+        if self.backend.scene is None:
+            raise NotSupportedError(f"backend {self.backend.name!r} cannot lay out a work cell")
+        await self.backend.scene.set_world(world, self.now)
 
     async def wait(self, seconds: float) -> None:
         """Wait ``seconds`` of sample time."""
@@ -176,6 +255,37 @@ class Controller:
         self.sequencer.reset(self.now)
         self._publish_transitions()
 
+    def _start_task(self, file: str, order_mm: list[float] | None) -> dict[str, Any]:
+        if self.task_runner is None:
+            raise NotSupportedError("this daemon runs no tasks")
+        if self._task_job is not None and not self._task_job.done():
+            raise SequenceError(f"busy: task {self._task_name} is running")
+        if self.sequencer.busy:
+            raise SequenceError(f"busy: cycle {self.sequencer.cycle_id} is in {self.sequencer.state.value}")
+
+        work = self.task_runner(file, order_mm)  # raises here for a bad file: an error reply
+
+        async def job() -> None:
+            try:
+                await work
+            except asyncio.CancelledError:
+                self.pub.send("task", self.now, {"task": file, "event": "aborted"})
+                raise
+            except Exception as exc:  # noqa: BLE001 - reported on the task topic; the daemon goes on
+                log.error("task %s failed: %s", file, exc)
+                if self.sequencer.busy:
+                    await self.abort(f"task failed: {exc}")
+
+        self._task_name = file
+        self._task_job = asyncio.get_running_loop().create_task(job(), name=f"task {file}")
+        return {"task": file, "started": True}
+
+    def _cancel_task(self) -> bool:
+        if self._task_job is None or self._task_job.done():
+            return False
+        self._task_job.cancel()
+        return True
+
     def status(self) -> dict[str, Any]:
         last = self.results[-1].to_dict() if self.results else None
         return {
@@ -187,6 +297,7 @@ class Controller:
             "valves": self.backend.valves.state,
             "references_kpa": sorted(self.references),
             "samples": self.samples, "missed": self.missed, "last_cycle": last,
+            "task": None if self._task_job is None else {"file": self._task_name, "running": not self._task_job.done()},
         }
 
     async def handle_command(self, cmd: Any) -> dict[str, Any]:
@@ -198,7 +309,10 @@ class Controller:
             fut.add_done_callback(lambda f: f.exception() if not f.cancelled() else None)
             return {"cycle_id": self.sequencer.cycle_id}
         if isinstance(cmd, AbortCmd):
-            return {"aborted": await self.abort(cmd.reason)}
+            stopped_task = self._cancel_task()
+            return {"aborted": await self.abort(cmd.reason) or stopped_task}
+        if isinstance(cmd, TaskCmd):
+            return self._start_task(cmd.file, cmd.order_mm)
         if isinstance(cmd, ResetCmd):
             self.reset()
             return {"state": self.sequencer.state.value}
@@ -216,7 +330,14 @@ class Controller:
             raise CommandError("controller is not running")
 
     def _has_demand(self) -> bool:
-        return self.sequencer.busy or bool(self._waiters)
+        """In virtual time samples are only worth producing while something waits on them.
+        A held cycle whose measurement is done waits on the task, not on samples."""
+        if self._waiters:
+            return True
+        if self.sequencer.busy:
+            return not (self.sequencer.state == State.HOLD and self._hold and self._measured is not None
+                        and self._measured.done())
+        return False
 
     async def _loop(self) -> None:
         try:
@@ -251,6 +372,8 @@ class Controller:
         if cmds:
             await self._apply_guarded(cmds)
         self._publish_transitions()
+        if self._measured is not None and not self._measured.done() and self._measurement_due():
+            self._measured.set_result(self._analyse(final=False))
         if self.sequencer.state == State.IDLE and self._recorder is not None:
             self._finish_cycle()
         self._batch_pressure(block)
@@ -296,21 +419,34 @@ class Controller:
         if self._recorder is not None:
             self._finish_cycle()
 
-    def _finish_cycle(self) -> None:
-        rec, self._recorder = self._recorder, None
+    def _measurement_due(self) -> bool:
         seq = self.sequencer
+        if seq.t_open is None:
+            return seq.aborted is not None or not seq.busy
+        last = max(w.end_s for w in self.profile.sequence.windows)
+        return self.now >= seq.t_open + last or seq.aborted is not None or not seq.busy
+
+    def _analyse(self, final: bool) -> CycleResult:
+        rec, seq = self._recorder, self.sequencer
         t, values = rec.arrays()
-        key = _reference_key(seq.p0_pa)
         store = self._cycle_opts.get("store_reference", False)
-        ref = None if store else self.references.get(key)
-        aborted = seq.aborted
+        ref = None if store else self.references.get(_reference_key(seq.p0_pa))
         try:
-            result = analyse(seq.cycle_id, seq.p0_pa, seq.t_start, seq.t_open, seq.t_end or self.now, t, values,
-                             rec.channels, self.profile.sequence, ref, aborted=aborted,
-                             label=self._cycle_opts.get("label"), missed=rec.missed)
+            return analyse(seq.cycle_id, seq.p0_pa, seq.t_start, seq.t_open, (seq.t_end or self.now) if final else None,
+                           t, values, rec.channels, self.profile.sequence, ref, aborted=seq.aborted,
+                           label=self._cycle_opts.get("label"), missed=rec.missed)
         except ValueError as exc:  # too few samples for a window: report, do not crash
-            result = CycleResult(seq.cycle_id, seq.p0_pa, seq.t_start, seq.t_open, self.now,
-                                 aborted=f"analysis failed: {exc}", missed=rec.missed)
+            return CycleResult(seq.cycle_id, seq.p0_pa, seq.t_start, seq.t_open, self.now,
+                               aborted=f"analysis failed: {exc}", missed=rec.missed)
+
+    def _finish_cycle(self) -> None:
+        seq = self.sequencer
+        store = self._cycle_opts.get("store_reference", False)
+        key = _reference_key(seq.p0_pa)
+        result = self._analyse(final=True)
+        self._recorder = None
+        if self._measured is not None and not self._measured.done():
+            self._measured.set_result(result)
         if store and result.ok:
             self.references[key] = make_reference(result)
             result.is_reference = True
@@ -360,8 +496,9 @@ class Controller:
             if not fut.done():
                 fut.set_exception(exc)
         self._waiters = []
-        if self._cycle_future is not None and not self._cycle_future.done():
-            self._cycle_future.set_exception(exc)
+        for fut in (self._cycle_future, self._measured):
+            if fut is not None and not fut.done():
+                fut.set_exception(exc)
 
     def _heartbeat(self) -> None:
         period = self.cfg.publisher.heartbeat_s

@@ -235,12 +235,70 @@ class FlowController(Device):
     async def _set_profile(self, times: np.ndarray, flows: np.ndarray, t: float) -> None: ...
 
 
+Pose = tuple[float, float, float, float, float, float]
+
+
+class Arm(Device):
+    """A robot arm: linear moves of the tool centre point, its pose, protective stop.
+
+    Poses are UR's [x, y, z, rx, ry, rz] (m, rad) in the base frame. ``move_l`` returns
+    when the tool has arrived. The public method refuses what the arm must not do
+    (non-finite poses, speeds beyond the configured limits, moving while protective-
+    stopped); the protected one drives the hardware.
+    """
+
+    def __init__(self, name: str, max_speed: float = 1.0, max_acc: float = 3.0) -> None:
+        super().__init__(name)
+        self.max_speed = max_speed
+        self.max_acc = max_acc
+        self.clock: Any = None
+
+    def use_clock(self, clock: Any) -> None:
+        """The controller's sample clock (``now``, ``wait_until(t)``), for arms that move
+        in sample time."""
+        self.clock = clock
+
+    async def move_l(self, pose: Sequence[float], speed: float, acc: float, t: float) -> None:
+        self._require_connected()
+        target = tuple(float(v) for v in pose)
+        if len(target) != 6 or not all(np.isfinite(target)):
+            raise CommandError(f"a pose is 6 finite numbers [x, y, z, rx, ry, rz], got {list(pose)!r}")
+        if not 0 < speed <= self.max_speed or not 0 < acc <= self.max_acc:
+            raise SafetyError(f"move at {speed} m/s, {acc} m/s^2 outside (0, {self.max_speed}] m/s, "
+                              f"(0, {self.max_acc}] m/s^2")
+        if self.protective_stopped:
+            raise SafetyError("the arm is protective-stopped")
+        await self._move_l(target, float(speed), float(acc), t)
+
+    async def stop_motion(self, t: float) -> None:
+        if self.connected:
+            await self._stop_motion(t)
+
+    @property
+    @abc.abstractmethod
+    def tcp_pose(self) -> Pose: ...
+
+    @property
+    @abc.abstractmethod
+    def protective_stopped(self) -> bool: ...
+
+    @abc.abstractmethod
+    async def _move_l(self, pose: Pose, speed: float, acc: float, t: float) -> None: ...
+
+    @abc.abstractmethod
+    async def _stop_motion(self, t: float) -> None: ...
+
+
 class SceneControl(Device):
     """Places objects in front of the actuator. Only the simulated cell has one; on a
     real cell the operator or the arm does this."""
 
     @abc.abstractmethod
     async def set_scene(self, scene: Any, t: float) -> None: ...
+
+    async def set_world(self, world: Any, t: float) -> None:
+        """Lay out a work cell (slots and objects) for an arm to work in."""
+        raise NotSupportedError("this backend cannot lay out a work cell")
 
     def truth(self) -> dict[str, Any]:
         """Ground truth of the current scene (simulated cells only)."""
@@ -257,14 +315,16 @@ class Backend:
     regulator: Regulator | None = None
     flow: FlowController | None = None
     scene: SceneControl | None = None
-    arm: Any = None
+    arm: Arm | None = None
     extras: dict[str, Any] = field(default_factory=dict)
 
     async def safe_state(self, t: float) -> None:
-        """Actuator vented, tank isolated, no flow commanded. Tries everything, raises
-        the first failure."""
+        """Actuator vented, tank isolated, no flow commanded, arm stopped. Tries
+        everything, raises the first failure."""
         first: Exception | None = None
-        for step in (self.valves.safe, self.flow.stop_flow if self.flow is not None else None):
+        steps = (self.valves.safe, self.flow.stop_flow if self.flow is not None else None,
+                 self.arm.stop_motion if self.arm is not None else None)
+        for step in steps:
             if step is None:
                 continue
             try:

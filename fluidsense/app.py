@@ -17,7 +17,7 @@ from controller.config import CellConfig, load_cell_config
 from controller.publisher import Publisher
 from controller.service import Controller
 from drivers.config import build_backend
-from drivers.errors import ConfigError, FluidsenseError
+from drivers.errors import CommandError, ConfigError, FluidsenseError
 
 log = logging.getLogger(__name__)
 
@@ -54,13 +54,34 @@ async def controller(cfg: CellConfig, publish: bool = False) -> AsyncIterator[Co
             pub.close()
 
 
-async def run_daemon(cfg: CellConfig) -> int:
+def _task_runner(ctrl: Controller, tasks_dir: Path):
+    """Tasks started from the command socket: only YAML files in the task directory.
+    The file is checked and loaded before anything starts, so a bad request gets an
+    error reply instead of a failing task."""
+    from tasks.config import load_task
+    from tasks.runner import run_task
+
+    root = tasks_dir.resolve()
+
+    def start(name: str, order_mm):
+        path = (root / name).resolve()
+        if root not in path.parents or path.suffix not in (".yaml", ".yml") or not path.is_file():
+            raise CommandError(f"task file {name!r} is not a YAML file in {root}")
+        task = load_task(path)
+        return run_task(ctrl, task, order_mm=order_mm)
+
+    return start
+
+
+async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None) -> int:
     """The service: publish, accept commands, until SIGTERM/SIGINT or a shutdown command."""
+    tasks_dir = tasks_dir or REPO_ROOT / "config" / "tasks"
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, stop.set)
     async with controller(cfg, publish=True) as ctrl:
+        ctrl.task_runner = _task_runner(ctrl, tasks_dir)
         try:
             server = CommandServer(cfg.publisher.cmd, ctrl.handle_command)
         except zmq.ZMQError as exc:

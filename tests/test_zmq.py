@@ -27,7 +27,7 @@ def check(topic: str, msg: dict) -> None:
 
 
 def test_the_document_has_a_schema_per_topic():
-    assert set(SCHEMAS) == {"heartbeat", "state", "cycle", "pressure", "fault", "log"}
+    assert set(SCHEMAS) == {"heartbeat", "state", "cycle", "pressure", "fault", "task", "log"}
 
 
 def collect_until_cycle(d, seen: dict) -> dict:

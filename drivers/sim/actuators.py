@@ -159,6 +159,19 @@ def contact_truth(actuator, scene, p_atm: float, p_gauge: float, t_since_set: fl
     return out
 
 
+def contact_pressure(actuator, scene, p_atm: float) -> float | None:
+    """Gauge pressure at which the actuator makes (full) contact with the scene, or None
+    when the scene has nothing to touch."""
+    if isinstance(scene, EmptyScene):
+        return None
+    law = volume_law(actuator, scene, p_atm)
+    inner = law.p_gauge[1:-1] if len(law.p_gauge) > 2 else law.p_gauge[:1]
+    inner = [p for p in inner if p != 0.0] or [0.0]
+    # the last contact in the direction of actuation is the one that closes the grip
+    vacuum = getattr(actuator, "drive", "positive") == "vacuum"
+    return float(min(inner) if vacuum else max(inner))
+
+
 def is_dynamic(scene) -> bool:
     """Scenes whose contact law changes with time after they are set."""
     return isinstance(scene, (ProfileScene, PullScene))

@@ -16,9 +16,11 @@ import numpy as np
 from ..base import Backend, FlowController, Regulator, SampleBlock, SampleSource, SceneControl, ValveBank
 from ..config import SimDriverConfig
 from ..hardware import ACTUATE, SUPPLY, VENT, FlowControlledCircuit, Hardware, RegulatedCircuit, TankCircuit
-from ..scenes import PullScene
+from ..scenes import EmptyScene, PullScene
 from ..units import KPA
-from .actuators import contact_truth, is_dynamic, volume_law
+from .actuators import contact_pressure, contact_truth, is_dynamic, volume_law
+from .arm import SimArm
+from .world import World
 from .gas import ATMOSPHERE, REGULATOR, FlowSource, Link, Network, VolumeLaw
 from .plant import Plant
 from .sensor import SensorModel
@@ -90,6 +92,9 @@ class SimCell:
         self.setpoint_pa = 0.0
         self.regulator_error_pa = 0.0
         self.detached_at: float | None = None
+        self.world: World | None = None
+        self.arm: SimArm | None = None
+        self._pending_scenes: list[tuple[float, Any]] = []  # (time, scene) changes still to come
         self.dt = 1.0 / cfg.rate_hz
         self.k_next = 0  # index of the next sample to deliver
         # Samples are computed in chunks ahead of delivery; a command that lands inside
@@ -171,6 +176,18 @@ class SimCell:
         t_eff = max(t, self.t_last) + self.hw.circuit.valve_delay_s
         self._invalidate(t_eff)
         self.plant.schedule_valve(t_eff, valve, open_)
+        if self.world is not None and valve == ACTUATE and open_ != self.world.closed:
+            # the gripper closes (or opens) on whatever is under the tool
+            pose = self.arm.pose_at(t_eff) if self.arm is not None else (0.0,) * 6
+            if open_:
+                scene = self.world.close(pose, t_eff)
+                obj = self.world.objects.get(self.world.holding) if self.world.holding else None
+                if obj is not None and obj.slip_after_s is not None:
+                    self._pending_scenes.append((t_eff + obj.slip_after_s, "slip"))
+            else:
+                scene = self.world.open(pose, t_eff)
+                self._pending_scenes = [e for e in self._pending_scenes if e[1] != "slip"]
+            self._apply_scene(scene, t_eff)
 
     def command_setpoint(self, pressure_pa: float, t: float) -> None:
         """A new setpoint: the regulator lands slightly differently every time it is set."""
@@ -197,7 +214,27 @@ class SimCell:
             self.plant.schedule_flow(float(tt[-1]), None)
 
     def set_scene(self, scene, t: float) -> None:
-        t_eff = max(t, self.t_last)
+        self._apply_scene(scene, max(t, self.t_last))
+
+    def set_world(self, spec, t: float) -> None:
+        """Lay out slots and objects; the gripper starts open and empty."""
+        self.world = World(spec)
+        self._pending_scenes = []
+        self._apply_scene(EmptyScene(), max(t, self.t_last))
+
+    def on_arm_move(self, t: float) -> None:
+        """The arm starts a move: a closed gripper either takes its object along or, when
+        it holds it too weakly, leaves it behind."""
+        if self.world is None or not self.world.closed or self.world.holding is None:
+            return
+        p_now = self.true_values()["p_act"] if self._cache_pos > 0 else 0.0
+        p_c = contact_pressure(self.hw.actuator, self.scene, self.p_atm)
+        margin = abs(p_now) - abs(p_c) if p_c is not None else 0.0
+        scene = self.world.move_away(t, margin / KPA)
+        if scene is not None:
+            self._apply_scene(scene, max(t, self.t_last))
+
+    def _apply_scene(self, scene, t_eff: float) -> None:
         law = volume_law(self.hw.actuator, scene, self.p_atm)
         self.scene, self.scene_set_t, self.detached_at = scene, t_eff, None
         self._invalidate(t_eff)
@@ -206,7 +243,14 @@ class SimCell:
         self._next_scene_update = t_eff + _SCENE_STEP_S if is_dynamic(scene) else float("inf")
 
     def _schedule_scene_updates(self, until: float) -> None:
-        """Moving scenes change the contact law every few milliseconds."""
+        """Moving scenes change the contact law every few milliseconds; pending world
+        events (a slip) happen at their time."""
+        due = [e for e in self._pending_scenes if e[0] <= until]
+        self._pending_scenes = [e for e in self._pending_scenes if e[0] > until]
+        for t, what in due:
+            scene = self.world.slip(t) if what == "slip" and self.world is not None else None
+            if scene is not None:
+                self._apply_scene(scene, max(t, self.t_last))
         while self._next_scene_update <= until:
             t = self._next_scene_update
             law = volume_law(self.hw.actuator, self.scene, self.p_atm, t - self.scene_set_t)
@@ -228,6 +272,8 @@ class SimCell:
     def truth(self) -> dict[str, Any]:
         """The scene, plus what a bench instrument would read now (force, indentation)."""
         out = self.scene.model_dump()
+        if self.world is not None:
+            out["world"] = self.world.truth()
         if self.detached_at is not None:
             out["detached_at_s"] = self.detached_at
         if self._cache_pos > 0:
@@ -297,6 +343,9 @@ class SimScene(SceneControl):
     async def set_scene(self, scene, t: float) -> None:
         self.cell.set_scene(scene, t)
 
+    async def set_world(self, world, t: float) -> None:
+        self.cell.set_world(world, t)
+
     def truth(self) -> dict[str, Any]:
         return self.cell.truth()
 
@@ -307,7 +356,7 @@ def build(cfg: SimDriverConfig, hw: Hardware) -> Backend:
     regulator = SimRegulator(cell) if isinstance(c, (TankCircuit, RegulatedCircuit)) else None
     flow = SimFlowController(cell) if isinstance(c, FlowControlledCircuit) else None
     return Backend(name="sim", source=SimSource(cell), valves=SimValves(cell), regulator=regulator,
-                   flow=flow, scene=SimScene(cell), extras={"cell": cell})
+                   flow=flow, scene=SimScene(cell), arm=SimArm(cell), extras={"cell": cell})
 
 
 __all__ = ["SimCell", "build"]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+from pathlib import Path
 
 from .. import app
 from ._common import setup_logging
@@ -17,6 +18,8 @@ def register(sub) -> None:
     p.add_argument("--virtual", action="store_true",
                    help="simulated cell in virtual time (sample time only advances while a cycle runs)")
     p.add_argument("--log-level", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    p.add_argument("--tasks-dir", help="directory of task files the command socket may start "
+                   "(default: config/tasks)")
     p.set_defaults(func=main)
 
 
@@ -24,4 +27,4 @@ def main(args: argparse.Namespace) -> int:
     overrides = {"driver": {"clock": "virtual"}} if args.virtual else None
     cfg = app.load(args.config, overrides)
     setup_logging(args.log_level or cfg.log_level)
-    return asyncio.run(app.run_daemon(cfg))
+    return asyncio.run(app.run_daemon(cfg, Path(args.tasks_dir) if args.tasks_dir else None))

@@ -1,0 +1,142 @@
+"""The closed-loop tasks on the simulated cell, in virtual time, scored against the truth."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import subprocess
+import sys
+
+import jsonschema
+import pytest
+import yaml
+
+from controller.config import load_cell_config
+from drivers.errors import ConfigError
+from fluidsense import app
+from tasks.config import cell_path, load_task
+from tasks.runner import run_task
+
+from .conftest import CONFIG, REPO, run, sim_config
+from .test_zmq import SCHEMAS
+
+TASKS = CONFIG / "tasks"
+
+
+def run_file(name: str, **kw):
+    path = TASKS / name
+    task = load_task(path)
+    if "edit" in kw:
+        task = task.model_copy(update=kw.pop("edit"))
+    cfg = load_cell_config(cell_path(path, task))
+
+    async def main():
+        async with app.controller(cfg) as ctrl:
+            return await run_task(ctrl, task, **kw)
+
+    return run(main())
+
+
+def test_all_24_input_orders_of_four_cylinders_sort_correctly():
+    """The paper's sorting: modified insertion sort by P_eq, no calibration."""
+
+    async def main():
+        path = TASKS / "sorting.yaml"
+        task = load_task(path)
+        cfg = load_cell_config(cell_path(path, task))
+        results = []
+        async with app.controller(cfg) as ctrl:
+            for order in itertools.permutations([40.0, 60.0, 80.0, 100.0]):
+                results.append((order, await run_task(ctrl, task, order_mm=list(order))))
+        return results
+
+    results = run(main())
+    assert len(results) == 24
+    for order, summary in results:
+        assert summary["success"], (order, summary["final_order_mm"])
+        assert summary["final_order_mm"] == [100.0, 80.0, 60.0, 40.0]
+        vals = summary["sorted_p_eq_kpa"]
+        assert vals == sorted(vals, reverse=True)
+    # the readings are the paper's kind of numbers: 34-35.5 kPa for 40-100 mm
+    flat = [r["p_eq_kpa"] for _, s in results for r in s["readings"]]
+    assert 33.9 < min(flat) and max(flat) < 35.7
+
+
+def test_tomato_picking_reports_each_tomato_against_the_truth():
+    """Picked at 62 kPa; slipped into the palm (detected, picked but missed); left on the
+    stem at 62 kPa and picked at 70 kPa."""
+    s = run_file("picking.yaml")
+    t1, t2, t3 = s["tomatoes"]
+    assert t1["outcome"] == "picked_recognised" and len(t1["attempts"]) == 1
+    assert t2["outcome"] == "picked_missed" and t2["truth"]["slipped"]
+    assert t2["attempts"][0]["slip_detected"] and t2["decision"] == "slipped"
+    assert 0.0 < t2["attempts"][0]["dp_carried_kpa"] - t2["attempts"][0]["dp_kpa"]
+    assert t3["outcome"] == "picked_recognised" and [a["p0_kpa"] for a in t3["attempts"]] == [62.0, 70.0]
+    assert t3["attempts"][0]["left_on_stem"] and not t3["attempts"][0]["slip_detected"]
+    assert s["counts"] == {"picked_recognised": 2, "picked_missed": 1, "not_picked": 0}
+    refs = s["references_kpa"]
+    assert refs[62.0] < refs[70.0] < refs[78.0]
+
+
+def test_a_tomato_too_heavy_for_every_step_is_not_picked():
+    task = load_task(TASKS / "picking.yaml")
+    heavy = [t.model_copy(update={"min_grip_kpa": 40.0, "slip_after_s": None}) for t in task.tomatoes]
+    s = run_file("picking.yaml", edit={"tomatoes": heavy})
+    assert [t["outcome"] for t in s["tomatoes"]] == ["not_picked"] * 3
+    assert all(len(t["attempts"]) == 3 for t in s["tomatoes"])
+
+
+def test_ripeness_picks_out_the_overripe_tomato_in_every_round():
+    s = run_file("ripeness.yaml")
+    assert s["success_rate"] == 1.0 and len(s["rounds"]) == 5
+    for rnd in s["rounds"]:
+        assert rnd["flagged"] == ["overripe"]
+        dummy = next(o for o in rnd["objects"] if o["object"] == "dummy-50")
+        assert abs(dummy["mean_mm"]) < 2.0  # a rigid object is not squeezed
+    assert s["calibration"]["points"] == 15  # 5 dummies x 3 grips (the first only aligns)
+
+
+def test_task_file_errors_name_file_and_field(tmp_path):
+    data = yaml.safe_load((TASKS / "sorting.yaml").read_text())
+    data["input_slots"] = ["in1", "nowhere"]
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match=r"bad.yaml: \(top level\): .*nowhere"):
+        load_task(bad)
+    data = yaml.safe_load((TASKS / "sorting.yaml").read_text())
+    data["motion"]["speed_m_s"] = 7
+    bad.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match=r"bad.yaml: motion.speed_m_s: "):
+        load_task(bad)
+
+
+def test_task_command_with_order_and_json():
+    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "task", "run", str(TASKS / "sorting.yaml"),
+                          "--order", "100,40,60,80", "--json"], cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    s = json.loads(out.stdout)
+    assert s["success"] and s["input_order_mm"] == [100, 40, 60, 80]
+    assert s["final_order_mm"] == [100, 80, 60, 40] and s["duration_s"] > 60
+
+
+def test_task_started_through_the_command_socket(tmp_path, daemon_factory):
+    path = sim_config(tmp_path, profile=str(CONFIG / "profiles" / "sorting-gripper.yaml"))
+    d = daemon_factory(path, "--tasks-dir", str(TASKS))
+    d.wait_welcome()
+    outside = d.request({"cmd": "task", "file": "../cell-sim.yaml"})
+    assert outside["ok"] is False and "not a YAML file in" in outside["error"]
+    missing = d.request({"cmd": "task", "file": "nope.yaml"})
+    assert missing["ok"] is False
+    reply = d.request({"cmd": "task", "file": "sorting.yaml", "order_mm": [80, 40, 100, 60]})
+    assert reply == {"ok": True, "task": "sorting.yaml", "started": True}
+    assert d.request({"cmd": "task", "file": "sorting.yaml"})["error"].startswith("busy")
+    events = []
+    while not events or events[-1]["event"] != "finished":
+        _, m = d.next_message("task", timeout_s=120)
+        jsonschema.validate(m, SCHEMAS["task"])  # as documented
+        events.append(m)
+    assert events[0]["event"] == "started"
+    assert sum(e["event"] == "measured" for e in events) == 4
+    summary = events[-1]["summary"]
+    assert summary["success"] and summary["final_order_mm"] == [100, 80, 60, 40]
+    assert d.request({"cmd": "status"})["task"] == {"file": "sorting.yaml", "running": False}

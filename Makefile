@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test install clean lint-imports report
+.PHONY: demo test install clean lint-imports report speed-accuracy
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -24,6 +24,10 @@ test: $(STAMP)
 # Regenerates docs/reproduction (the paper's numbers beside ours; a few minutes).
 report: $(STAMP)
 	$(BIN)/fluidsense report --out docs/reproduction
+
+# Regenerates docs/speed-accuracy (accuracy against decision time, every method; ~2 minutes).
+speed-accuracy: $(STAMP)
+	$(BIN)/fluidsense bench speed-accuracy --out docs/speed-accuracy
 
 lint-imports: $(STAMP)
 	$(BIN)/lint-imports

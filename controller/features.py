@@ -199,3 +199,59 @@ def second_contact_time(t_rel: np.ndarray, dp: np.ndarray, t_c1: float, min_rise
     if slope_before <= 0 or best_coef[3] < min_jump * slope_before or y[-1] - y[best_k] < min_rise:
         return None
     return float(t[best_k])
+
+
+class EarlyEstimate:
+    """Equilibrium predicted from the transient, or the reason it cannot be yet."""
+
+    __slots__ = ("p_inf", "sd", "tau", "t_contact", "reason")
+
+    def __init__(self, p_inf: float | None, sd: float | None, tau: float | None, t_contact: float | None,
+                 reason: str | None = None):
+        self.p_inf, self.sd, self.tau, self.t_contact, self.reason = p_inf, sd, tau, t_contact, reason
+
+    @property
+    def ready(self) -> bool:
+        return self.p_inf is not None
+
+    def __repr__(self) -> str:  # pragma: no cover - debugging aid
+        return f"EarlyEstimate(p_inf={self.p_inf}, sd={self.sd}, tau={self.tau}, reason={self.reason})"
+
+
+def early_equilibrium(t_rel: np.ndarray, p: np.ndarray, t_contact: float | None, t_decision: float,
+                      min_after_s: float = 0.01, max_sd: float | None = None) -> EarlyEstimate:
+    """Predict the equilibrium pressure from the transient up to ``t_decision``.
+
+    After contact, tank, resistor and actuator form a first-order circuit (one resistor
+    between two capacities, the total gas fixed), so the pressure approaches its
+    equilibrium as ``P_inf - A*exp(-(t - t_c)/tau)``. That is fitted to the samples from
+    contact to the decision time; the sd of P_inf comes from the fit's covariance. Before
+    contact there is nothing to say ("not yet": the free actuator carries no information
+    about the object); so too with fewer than ``min_after_s`` of data after contact, or
+    when the sd exceeds ``max_sd``.
+    """
+    from scipy.optimize import curve_fit
+
+    if t_contact is None or t_contact >= t_decision:
+        return EarlyEstimate(None, None, None, t_contact, "no contact yet")
+    sel = (t_rel >= t_contact) & (t_rel <= t_decision)
+    t, y = t_rel[sel] - t_contact, p[sel]
+    if len(t) < 8 or t[-1] < min_after_s:
+        return EarlyEstimate(None, None, None, t_contact, "too little data after contact")
+    span = t[-1]
+    slope_end = np.polyfit(t[-min(len(t), 20):], y[-min(len(t), 20):], 1)[0]
+    tau0 = max(span / 3, 1e-3)
+    guess = [y[-1] + slope_end * tau0, max(abs(y[-1] - y[0]), 1.0), tau0]
+
+    def model(x, p_inf, a, tau):
+        return p_inf - a * np.exp(-x / tau)
+
+    try:
+        (p_inf, a, tau), cov = curve_fit(model, t, y, p0=guess, bounds=([-np.inf, -np.inf, 1e-4], [np.inf, np.inf, 100.0]),
+                                         maxfev=2000)
+    except (RuntimeError, ValueError):
+        return EarlyEstimate(None, None, None, t_contact, "fit did not converge")
+    sd = float(np.sqrt(cov[0, 0])) if np.isfinite(cov[0, 0]) else float("inf")
+    if not np.isfinite(sd) or (max_sd is not None and sd > max_sd):
+        return EarlyEstimate(None, sd, float(tau), t_contact, "interval still too wide")
+    return EarlyEstimate(float(p_inf), sd, float(tau), t_contact)

@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test install clean lint-imports report speed-accuracy
+.PHONY: demo test install clean lint-imports report speed-accuracy stability
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -28,6 +28,10 @@ report: $(STAMP)
 # Regenerates docs/speed-accuracy (accuracy against decision time, every method; ~2 minutes).
 speed-accuracy: $(STAMP)
 	$(BIN)/fluidsense bench speed-accuracy --out docs/speed-accuracy
+
+# Regenerates docs/stability (perturbations, failures, mitigations; ~4 minutes).
+stability: $(STAMP)
+	$(BIN)/fluidsense bench stability --out docs/stability
 
 lint-imports: $(STAMP)
 	$(BIN)/lint-imports

@@ -34,8 +34,9 @@ FEATURES: dict[str, tuple[str, str, float]] = {
     "t_c_slope": ("t_c_slope", "s", 1.0),
     "t_c_threshold": ("t_c_threshold", "s", 1.0),
     "t_c2": ("t_c2", "s", 1.0),
+    "t_c_onset": ("t_c_onset", "s", 1.0),
 }
-NEEDS_REFERENCE = {"dp_eq", "dp_max", "t_c_slope", "t_c_threshold", "t_c2"}
+NEEDS_REFERENCE = {"dp_eq", "dp_max", "t_c_slope", "t_c_threshold", "t_c2", "t_c_onset"}
 
 
 class CalibrationError(FluidsenseError, ValueError):

@@ -73,6 +73,8 @@ class SequenceConfig(StrictModel):
         None, gt=0, description="close the actuation valve this long after opening and hold the actuator "
         "isolated until VENT (needs a circuit with a separate vent valve)")
     contact_threshold_kpa: float = Field(0.5, gt=0, le=100, description="dP level for t_c by threshold")
+    onset_kpa: float = Field(0.15, gt=0, le=100, description="dP level taken as the first rise (t_c at onset): "
+                             "about five times the noise of a smoothed dP")
     smoothing_samples: int = Field(21, ge=3, le=1001, description="local quadratic regression span")
 
     @model_validator(mode="after")

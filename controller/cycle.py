@@ -80,6 +80,7 @@ class CycleResult:
     t_c_slope: float | None = None
     t_c_threshold: float | None = None
     t_c2: float | None = None
+    t_c_onset: float | None = None  # the first rise of dP out of its noise
     v_eq: float | None = None  # standard m^3 into the actuator over the flow window
     flow_offset: float | None = None
     samples: int = 0
@@ -109,6 +110,7 @@ class CycleResult:
             "is_reference": self.is_reference, "has_reference": self.has_reference,
             "dp_eq_kpa": _kpa(self.dp_eq), "dp_max_kpa": _kpa(self.dp_max), "t_dp_max_s": self.t_dp_max,
             "t_c_slope_s": self.t_c_slope, "t_c_threshold_s": self.t_c_threshold, "t_c2_s": self.t_c2,
+            "t_c_onset_s": self.t_c_onset,
             "v_eq_ml": None if self.v_eq is None else self.v_eq * 1e6,
             "samples": self.samples, "missed": self.missed,
         }
@@ -159,6 +161,7 @@ def analyse(cycle_id: int, p0: float, t_start: float, t_open: float | None, t_en
         res.dp_max, res.t_dp_max = sign * peak[0], peak[1]
     threshold = cfg.contact_threshold_kpa * KPA
     res.t_c_threshold = F.contact_time_threshold(t_rel, oriented, threshold)
+    res.t_c_onset = F.contact_time_threshold(t_rel, oriented, cfg.onset_kpa * KPA)
     res.t_c_slope = F.contact_time_slope(t_rel, oriented, min_rise=threshold)
     if res.t_c_slope is not None:
         res.t_c2 = F.second_contact_time(t_rel, oriented, res.t_c_slope, min_rise=threshold)

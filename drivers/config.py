@@ -15,6 +15,15 @@ from .models import StrictModel
 from .scenes import EmptyScene, Scene
 
 
+class Perturbations(StrictModel):
+    """Deviations of the simulated cell from its calibrated state (stability studies)."""
+
+    tank_warming_k: float = Field(
+        0.0, ge=-30, le=30, description="the isolated tank's gas warms by this much before the valve opens "
+        "(supply air at another temperature than the room)")
+    regulator_bias_kpa: float = Field(0.0, ge=-50, le=50, description="the regulator lands this far off its setpoint")
+
+
 class SimDriverConfig(StrictModel):
     """The simulated cell built from the paper's physics."""
 
@@ -25,6 +34,7 @@ class SimDriverConfig(StrictModel):
     block_size: int = Field(10, ge=1, le=10_000, description="samples per delivered block")
     seed: int = Field(0, ge=0, description="same seed, same samples")
     scene: Scene = EmptyScene()
+    perturb: Perturbations = Perturbations()
 
 
 DriverConfig = Annotated[SimDriverConfig, Field(discriminator="kind")]

@@ -27,12 +27,35 @@ class EmptyScene(StrictModel):
 class CylinderScene(StrictModel):
     """A cylinder of diameter D between a gripper's fingers (or around which a bending
     actuator wraps). ``offset_mm`` puts it off-centre; ``stiffness_n_per_mm`` makes it
-    soft (None: rigid)."""
+    soft (None: rigid). A viscoelastic object (a tomato) yields over time: its stiffness
+    relaxes from ``stiffness_n_per_mm`` towards ``relaxed_stiffness_n_per_mm`` with time
+    constant ``creep_s`` from the moment the grip closes."""
 
     kind: Literal["cylinder"] = "cylinder"
     diameter_mm: float = Field(gt=0, le=500)
     offset_mm: float = Field(0.0, ge=0, le=100)
     stiffness_n_per_mm: float | None = Field(None, gt=0, le=1e6)
+    relaxed_stiffness_n_per_mm: float | None = Field(None, gt=0, le=1e6)
+    creep_s: float = Field(0.0, ge=0, le=1e4)
+
+    @model_validator(mode="after")
+    def _creep_needs_stiffness(self) -> CylinderScene:
+        if self.relaxed_stiffness_n_per_mm is not None and self.stiffness_n_per_mm is None:
+            raise ValueError("relaxed_stiffness_n_per_mm needs stiffness_n_per_mm")
+        return self
+
+    @property
+    def creeps(self) -> bool:
+        return self.relaxed_stiffness_n_per_mm is not None and self.creep_s > 0
+
+    def stiffness_at(self, t_since_set_s: float) -> float | None:
+        """Stiffness (N/mm) at a time after the grip closed."""
+        if not self.creeps:
+            return self.stiffness_n_per_mm
+        import math
+
+        k0, k1 = self.stiffness_n_per_mm, self.relaxed_stiffness_n_per_mm
+        return k1 + (k0 - k1) * math.exp(-max(t_since_set_s, 0.0) / self.creep_s)
 
 
 class RectangleScene(StrictModel):

@@ -22,6 +22,8 @@ class WorldObject(StrictModel):
     name: str = Field(min_length=1, max_length=40)
     diameter_mm: float = Field(gt=0, le=500)
     stiffness_n_per_mm: float | None = Field(None, gt=0, le=1e6, description="None: rigid")
+    relaxed_stiffness_n_per_mm: float | None = Field(None, gt=0, le=1e6, description="viscoelastic: after creep")
+    creep_s: float = Field(0.0, ge=0, le=1e4, description="creep time constant (0: purely elastic)")
     offset_mm: float = Field(0.0, ge=0, le=100, description="off-centre in its slot; a grip centres it")
     min_grip_kpa: float = Field(
         0.0, ge=0, le=100, description="pressure above the contact pressure needed to hold it when the arm moves "

@@ -92,7 +92,8 @@ async def sorting(ctrl: Controller, task: SortingTask, report: Report, order_mm:
     if cell.simulated:
         if order is None:
             raise FluidsenseError("a simulated sorting run needs order_mm (or --order)")
-        objects = [WorldObject(name=f"D{d:g}-{i}", diameter_mm=d) for i, d in enumerate(order)]
+        objects = [WorldObject(name=f"D{d:g}-{i}", diameter_mm=d, offset_mm=task.object_offset_mm)
+                   for i, d in enumerate(order)]
         slots = [WorldSlot(name=s, pose=task.slots[s], object=objects[i].name if i < len(objects) else None)
                  for i, s in enumerate(task.input_slots)]
         slots += [WorldSlot(name=s, pose=task.slots[s]) for s in task.sorted_slots]
@@ -208,7 +209,8 @@ async def picking(ctrl: Controller, task: PickingTask, report: Report) -> dict:
 
 
 # ---------------------------------------------------------------------- ripeness
-_D0_FEATURE = {"t_c_threshold": "t_c_threshold", "t_c_slope": "t_c_slope", "dp_max": "dp_max"}
+_D0_FEATURE = {"t_c_threshold": "t_c_threshold", "t_c_onset": "t_c_onset", "t_c_slope": "t_c_slope",
+               "dp_max": "dp_max"}
 
 
 async def ripeness(ctrl: Controller, task: RipenessTask, report: Report) -> dict:
@@ -221,7 +223,8 @@ async def ripeness(ctrl: Controller, task: RipenessTask, report: Report) -> dict
     dummies = [WorldObject(name=f"dummy{d:g}", diameter_mm=d, offset_mm=task.misalignment_mm)
                for d in task.dummy_diameters_mm]
     objects = [WorldObject(name=o.name, diameter_mm=o.diameter_mm, stiffness_n_per_mm=o.stiffness_n_per_mm,
-                           ripe=o.ripe) for o in task.objects]
+                           relaxed_stiffness_n_per_mm=o.relaxed_stiffness_n_per_mm, creep_s=o.creep_s, ripe=o.ripe)
+               for o in task.objects]
 
     def layout(order: list[WorldObject], offsets: list[float]) -> WorldSpec:
         slots = [WorldSlot(name=s, pose=task.slots[s], object=d.name) for s, d in zip(task.dummy_slots, dummies)]

@@ -39,6 +39,7 @@ class SortingTask(_TaskBase):
     sorted_slots: list[str] = Field(min_length=1)
     order_mm: list[float] | None = Field(
         None, description="simulation: diameters placed in the input slots, in order (--order overrides)")
+    object_offset_mm: float = Field(0.0, ge=0, le=50, description="simulation: objects lie this far off-centre")
 
     @model_validator(mode="after")
     def _consistent(self) -> SortingTask:
@@ -88,6 +89,8 @@ class RipenessObject(StrictModel):
     name: str = Field(min_length=1, max_length=40)
     diameter_mm: float = Field(gt=0, le=200)
     stiffness_n_per_mm: float | None = Field(None, gt=0, le=1e6, description="None: rigid dummy")
+    relaxed_stiffness_n_per_mm: float | None = Field(None, gt=0, le=1e6, description="after creep")
+    creep_s: float = Field(0.0, ge=0, le=1e4)
     ripe: bool | None = Field(None, description="truth (None for dummies)")
 
 
@@ -104,7 +107,9 @@ class RipenessTask(_TaskBase):
     rounds: int = Field(5, ge=1, le=100)
     grips_per_object: int = Field(2, ge=1, le=10)
     calibration_grips: int = Field(4, ge=2, le=20, description="per dummy; the first only aligns it")
-    d0_from: Literal["t_c_threshold", "t_c_slope", "dp_max"] = "t_c_threshold"
+    d0_from: Literal["t_c_threshold", "t_c_onset", "t_c_slope", "dp_max"] = Field(
+        "t_c_threshold", description="t_c at a dP threshold (the paper's fix), t_c at the first rise of dP "
+        "(the paper's first attempt), t_c by change of slope, or dP_max")
     overripe_mm: float | None = Field(None, gt=0, description="D0 - D1 above this is overripe (default 3 mm, "
                                       "0.5 mm with dp_max as in the paper)")
     centering_grip: bool = Field(False, description="grip once before measuring to centre the object")

@@ -1,14 +1,32 @@
-"""Sampling polled sources in a dedicated process (design.md section 3).
+"""Polled sources sampled in a dedicated process (design.md section 3).
 
-A poller (Modbus analog input, RTDE receive, a synthetic signal) is read on a fixed grid
-of slots by a separate process that sleeps to just before each deadline, spins to it,
-reads and timestamps the sample with when it was really read. Every slot is accounted
-for: on time, late (its lateness recorded), missed (the process woke after the next
-slot's deadline), or failed (the read raised). Blocks go to the daemon over ZeroMQ
-PUSH/ipc. ``SampledSource`` is the daemon side.
+- :mod:`.poller`: the interface a device reader implements (built inside the process);
+- :mod:`.synthetic`: a synthetic poller for tests and benchmarks;
+- :mod:`.loop`: the slot loop (absolute deadlines, sleep then spin, on time / late /
+  missed / failed accounting), with an injectable clock;
+- :mod:`.process`: the process entry point (real-time settings, ZeroMQ PUSH);
+- :mod:`.source`: ``SampledSource``, the daemon's side;
+- :mod:`.config`: ``SamplerConfig``.
+
+The daemon-side names are imported lazily so that the sampler process, which imports
+this package on its way to ``.process``, loads neither pydantic nor zmq.asyncio.
 """
 
-from .config import PollerSpec, SamplerConfig
-from .loop import Block, Clock, SlotLoop
+from __future__ import annotations
 
-__all__ = ["Block", "Clock", "PollerSpec", "SamplerConfig", "SlotLoop"]
+from typing import Any
+
+__all__ = ["Poller", "PollerSpec", "SampledSource", "SamplerConfig", "SyntheticPoller", "load_poller"]
+
+_LAZY = {
+    "Poller": ".poller", "load_poller": ".poller", "SyntheticPoller": ".synthetic",
+    "SampledSource": ".source", "SamplerConfig": ".config", "PollerSpec": ".config",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name], __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,51 +1,63 @@
-"""Sampler settings and the spec of the poller it builds in its own process."""
+"""Configuration of a polled source sampled in its own process (design.md section 3)."""
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from typing import Annotated, Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, JsonValue, model_validator
 
-from ..errors import ConfigError
 from ..models import StrictModel
+from .poller import SPEC_PATTERN
+
+ChannelName = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$", max_length=64)]
 
 
 class PollerSpec(StrictModel):
-    """``target`` is ``"module:Class"``; the class is built in the sampler process with
-    ``kwargs`` (JSON values only: the spec crosses a process boundary as JSON)."""
+    """Which poller the sampler process builds: ``Class(**kwargs)`` from ``module:Class``."""
 
-    target: str = Field(pattern=r"^[A-Za-z_][\w.]*:[A-Za-z_]\w*$")
-    kwargs: dict[str, Any] = Field(default_factory=dict)
-
-    def build(self):
-        module, _, name = self.target.partition(":")
-        try:
-            cls = getattr(importlib.import_module(module), name)
-        except (ImportError, AttributeError) as exc:
-            raise ConfigError(f"poller {self.target!r} cannot be imported: {exc}") from exc
-        return cls(**self.kwargs)
+    factory: str = Field(pattern=SPEC_PATTERN, description="'module:Class', imported inside the sampler process",
+                         examples=["drivers.sampler.synthetic:SyntheticPoller"])
+    kwargs: dict[str, JsonValue] = Field(default_factory=dict, description="JSON keyword arguments")
 
 
 class SamplerConfig(StrictModel):
-    rate_hz: float = Field(1000.0, gt=0, le=5000)
-    block_size: int = Field(10, ge=1, le=1000)
-    late_threshold_us: float = Field(
-        100.0, gt=0, le=1e6, description="a read that starts later than this after its slot is late (its "
-        "timestamp stays exact; late only means off the grid). 100 us is a tenth of a 1 kHz period")
-    spin_us: float = Field(200.0, ge=0, le=10_000, description="sleep until this long before a deadline, then spin")
-    cpu: int | None = Field(None, ge=0, le=1023, description="pin the sampler to this CPU")
-    realtime_priority: int | None = Field(
-        None, ge=1, le=99, description="SCHED_FIFO priority; applied when permitted (else a log line says why not)")
-    silence_timeout_s: float = Field(1.0, gt=0, le=60, description="no block for this long: the link is lost")
-    max_consecutive_failures: int = Field(10, ge=1, le=100_000)
-    start_timeout_s: float = Field(10.0, gt=0, le=120)
+    """A polled source: one read of every channel per slot, in a dedicated process."""
 
-    @field_validator("rate_hz")
-    @classmethod
-    def _block_rate(cls, v: float) -> float:
-        return float(v)
+    poller: PollerSpec
+    channels: tuple[ChannelName, ...] = Field(min_length=1, max_length=64,
+                                              description="names of the values read() returns, in order")
+    rate_hz: float = Field(1000.0, gt=0, le=10_000, description="slots per second")
+    block_size: int = Field(10, ge=1, le=10_000, description="samples per block handed to the daemon")
+    late_threshold_us: float = Field(
+        50.0, gt=0, description="a read that starts more than this after its slot's deadline counts as late")
+    spin_us: float = Field(200.0, ge=0, le=10_000,
+                           description="sleep until this long before a deadline, then spin to it")
+    max_consecutive_failures: int = Field(10, ge=1, le=1_000_000,
+                                          description="failed reads in a row that mean the link is lost")
+    cpu: Literal["auto", "none"] | Annotated[int, Field(ge=0, le=4095)] = Field(
+        "auto", description="CPU to pin the sampler thread to; auto: the last allowed CPU; none: do not pin")
+    rt_priority: Annotated[int, Field(ge=1, le=99)] | None = Field(
+        40, description="SCHED_FIFO priority when permitted (null: normal scheduling). 40 stays below "
+        "the kernel's threaded interrupt handlers (50), which a network poller depends on")
+    silence_timeout_s: float = Field(1.0, gt=0, le=600,
+                                     description="no message from the sampler for this long means it is gone")
+    start_timeout_s: float = Field(30.0, gt=0, le=600,
+                                   description="time allowed to spawn the process and open the poller")
+    stop_timeout_s: float = Field(2.0, gt=0, le=60, description="time allowed for a clean stop before SIGTERM")
 
     @property
-    def period_ns(self) -> int:
-        return int(round(1e9 / self.rate_hz))
+    def period_s(self) -> float:
+        return 1.0 / self.rate_hz
+
+    @model_validator(mode="after")
+    def _fits_the_period(self) -> SamplerConfig:
+        period_us = 1e6 / self.rate_hz
+        if self.late_threshold_us >= period_us:
+            raise ValueError(f"late_threshold_us ({self.late_threshold_us:g}) must be below the period "
+                             f"({period_us:g} us at {self.rate_hz:g} Hz): a read started one period late is missed")
+        if self.spin_us >= period_us:
+            raise ValueError(f"spin_us ({self.spin_us:g}) must be below the period ({period_us:g} us): "
+                             "the loop would never sleep")
+        if len(set(self.channels)) != len(self.channels):
+            raise ValueError(f"channel names must be unique, got {list(self.channels)}")
+        return self

@@ -1,129 +1,270 @@
-"""The slot loop: deadlines on a fixed grid, exact accounting, no catching up.
+"""The slot loop: one read per slot on an absolute time grid, every slot accounted once.
 
-Written against a ``Clock`` so that tests can inject lateness and missed slots and check
-the accounting exactly; the process runs it with the real clock.
+Slot k has the deadline ``t0 + k * period`` (absolute: errors never accumulate). The
+loop waits for the deadline (the clock sleeps to about 200 us before it, then spins),
+stamps the time, reads the poller and files the slot in exactly one of four bins:
+
+- on time: the read started at most ``late_threshold`` after the deadline;
+- late: it started later than that, but before the next slot's deadline; the
+  lateness is recorded with the sample;
+- missed: the loop only got to it after the *next* slot's deadline had passed. A
+  missed slot produces no sample. The loop re-aligns to the grid (it serves the
+  newest slot whose deadline has passed) and never reads twice in a row to catch up;
+- failed: the read raised. After ``max_consecutive_failures`` failed slots in a row
+  the loop reports link loss and ends.
+
+Each sample carries the time its read started (never its deadline, never an
+interpolation), so ``t - deadline == lateness`` exactly and a consumer can always
+tell which slot a sample belongs to. Samples are handed over in blocks of
+``block_size``; a block also carries the counts of every slot since the previous
+block, so ``on_time + late + missed + failed == slot_end - slot_begin`` per block.
+
+Nothing here knows about processes or sockets: the clock and the sink are injected,
+which is how the tests drive the loop in virtual time.
 """
 
 from __future__ import annotations
 
+import gc
+import logging
 import time
+from array import array
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
-import numpy as np
+from ..errors import ConfigError
+from .poller import Poller
+
+log = logging.getLogger(__name__)
 
 
 class Clock(Protocol):
+    """Time source of the loop, in integer nanoseconds of a monotonic clock."""
+
     def now_ns(self) -> int: ...
 
-    def sleep_until(self, deadline_ns: int) -> None: ...
+    def wait_until_ns(self, deadline_ns: int) -> None:
+        """Return at or after ``deadline_ns`` (never before)."""
 
 
-class RealClock:
-    """``time.monotonic_ns``; sleep until ``spin_ns`` before the deadline, then spin: the
-    kernel's sleep wakes late by tens of microseconds, the spin does not."""
+class SpinClock:
+    """CLOCK_MONOTONIC. Sleeps until ``spin_ns`` before the deadline, then spins to it:
+    the kernel's wake-up latency (about 100 us here without SCHED_FIFO) is absorbed by
+    the spin instead of landing on the sample."""
 
-    def __init__(self, spin_ns: int = 200_000):
-        self.spin_ns = spin_ns
+    def __init__(self, spin_ns: int = 200_000, now_ns: Callable[[], int] = time.monotonic_ns,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
+        self.spin_ns = int(spin_ns)
+        self._now = now_ns
+        self._sleep = sleep
+        # the clock function itself, not a method around it: the loop stamps samples
+        # with it right after the spin, where every call level costs ~100 ns
+        self.now_ns = now_ns
 
-    def now_ns(self) -> int:
-        return time.monotonic_ns()
-
-    def sleep_until(self, deadline_ns: int) -> None:
-        gap = deadline_ns - self.spin_ns - time.monotonic_ns()
-        if gap > 0:
-            time.sleep(gap / 1e9)
-        while time.monotonic_ns() < deadline_ns:
+    def wait_until_ns(self, deadline_ns: int) -> None:
+        remaining = deadline_ns - self.spin_ns - self._now()
+        if remaining > 0:
+            self._sleep(remaining / 1e9)
+        now = self._now
+        while now() < deadline_ns:
             pass
 
 
 @dataclass
-class Block:
-    """Samples and the slot accounting since the previous block."""
+class Counts:
+    """How slots were filed. ``slots`` is their sum: every slot lands in one bin."""
 
-    t_ns: list[int] = field(default_factory=list)
-    values: list[tuple[float, ...]] = field(default_factory=list)
-    lateness_ns: list[int] = field(default_factory=list)
     on_time: int = 0
     late: int = 0
     missed: int = 0
     failed: int = 0
-    link_lost: str | None = None
 
     @property
     def slots(self) -> int:
         return self.on_time + self.late + self.missed + self.failed
 
-    def arrays(self, n_channels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        t = np.asarray(self.t_ns, dtype=np.int64)
-        v = np.asarray(self.values, dtype=float).reshape(len(self.values), n_channels)
-        return t, v, np.asarray(self.lateness_ns, dtype=np.int64)
+    def add(self, other: Counts) -> None:
+        self.on_time += other.on_time
+        self.late += other.late
+        self.missed += other.missed
+        self.failed += other.failed
+
+    def as_dict(self) -> dict[str, int]:
+        return {"on_time": self.on_time, "late": self.late, "missed": self.missed,
+                "failed": self.failed, "slots": self.slots}
+
+
+@dataclass
+class Block:
+    """Samples of the slots ``[slot_begin, slot_end)`` that were read, with the counts of
+    all those slots. ``t_s`` is the read time relative to slot 0's deadline (s),
+    ``values`` is row-major (sample, channel) in SI units, ``lateness_s`` is
+    ``t - deadline`` per sample. A block can be empty (only counts) when the loop ends
+    after failed or missed slots."""
+
+    seq: int
+    slot_begin: int
+    slot_end: int
+    counts: Counts
+    t_s: array
+    values: array
+    lateness_s: array
+    read_max_s: float
+    last_error: str | None = None
+    #: (slot served, ns) for each re-alignment: how late the loop woke for the slot it
+    #: was waiting for, the first of those it then missed (a stall, always >= 1 period)
+    stalls: list[tuple[int, int]] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+
+@dataclass
+class LoopResult:
+    """Why the loop ended, with the totals over every slot it went through."""
+
+    reason: str  # "stopped" or "link_lost"
+    totals: Counts
+    slots: int
+    detail: str = ""
+    blocks: int = 0
+
+
+@dataclass
+class _Accumulator:
+    slot_begin: int
+    counts: Counts = field(default_factory=Counts)
+    t_s: array = field(default_factory=lambda: array("d"))
+    values: array = field(default_factory=lambda: array("d"))
+    lateness_s: array = field(default_factory=lambda: array("d"))
+    read_max_ns: int = 0
+    last_error: str | None = None
+    stalls: list[tuple[int, int]] = field(default_factory=list)
 
 
 class SlotLoop:
-    def __init__(self, clock: Clock, period_ns: int, read: Callable[[], tuple[float, ...]],
-                 emit: Callable[[Block], None], block_size: int, late_threshold_ns: int,
-                 max_consecutive_failures: int = 10):
+    """Reads ``poller`` once per slot and hands blocks to ``emit``.
+
+    ``emit`` is called synchronously from the loop and must return quickly (the next
+    deadline is at most one period away); it receives a fresh Block each time.
+    """
+
+    def __init__(self, poller: Poller, clock: Clock, emit: Callable[[Block], None], *,
+                 rate_hz: float, block_size: int, n_channels: int, late_threshold_ns: int,
+                 max_consecutive_failures: int) -> None:
+        if rate_hz <= 0 or block_size < 1 or n_channels < 1 or max_consecutive_failures < 1:
+            raise ConfigError("slot loop: rate_hz > 0, block_size >= 1, n_channels >= 1 and "
+                              "max_consecutive_failures >= 1 are required")
+        self.poller = poller
         self.clock = clock
-        self.period = int(period_ns)
-        self.read = read
         self.emit = emit
+        self.period_ns = 1e9 / rate_hz
         self.block_size = block_size
-        self.late_threshold = int(late_threshold_ns)
+        self.n_channels = n_channels
+        self.late_threshold_ns = late_threshold_ns
         self.max_failures = max_consecutive_failures
-        self.stop = False
-        self.totals = Block()
+        self.t0_ns = 0
+        self.next_slot = 0
+        self.totals = Counts()
+        self._consecutive_failures = 0
+        self._lost: str | None = None
+        self._seq = 0
+        self._acc = _Accumulator(0)
 
-    def run(self, max_slots: int | None = None, t0_ns: int | None = None) -> None:
-        """Run until ``stop`` is set (or ``max_slots`` slots have been accounted for)."""
-        t0 = (self.clock.now_ns() + self.period) if t0_ns is None else t0_ns
+    def deadline_ns(self, k: int) -> int:
+        # t0 + round(k * period): exact for integral periods, no drift for the others
+        return self.t0_ns + round(k * self.period_ns)
+
+    def run(self, should_stop: Callable[[], bool], t0_ns: int) -> LoopResult:
+        """Serve slots from slot 0 at ``t0_ns`` until ``should_stop()`` is true (asked once
+        per slot, right after the previous read) or the link is lost. The partial block
+        is flushed before returning, so every slot gone through is in some block."""
+        self.t0_ns = t0_ns
+        # The stretch from the end of the wait to the read is the timing-critical one:
+        # hot names are locals and the common case calls nothing but the clock.
+        wait, now, read = self.clock.wait_until_ns, self.clock.now_ns, self.poller.read
         k = 0
-        block = Block()
-        failures = 0
-        while not self.stop and (max_slots is None or k < max_slots):
-            deadline = t0 + k * self.period
-            self.clock.sleep_until(deadline)
-            now = self.clock.now_ns()
-            behind = (now - deadline) // self.period
-            if behind > 0:  # woke after later slots' deadlines: those are gone
-                skipped = behind if max_slots is None else min(behind, max_slots - k)
-                block.missed += skipped
-                k += skipped
-                if max_slots is not None and k >= max_slots:
-                    break
-                deadline = t0 + k * self.period
-            lateness = now - deadline
+        while not self._lost and not should_stop():
+            deadline = self.deadline_ns(k)
+            next_deadline = self.deadline_ns(k + 1)
+            wait(deadline)
+            t = now()
+            if t >= next_deadline:
+                k = self._realign(t, k)
+                deadline = self.deadline_ns(k)
             try:
-                values = self.read()
-            except Exception as exc:  # noqa: BLE001 - a failed slot is data, not a crash
-                block.failed += 1
-                failures += 1
-                k += 1
-                if failures >= self.max_failures:
-                    block.link_lost = f"{failures} reads failed in a row; last: {type(exc).__name__}: {exc}"
-                    self._emit(block)
-                    return
-                continue
-            failures = 0
-            block.t_ns.append(now)
-            block.values.append(tuple(values))
-            block.lateness_ns.append(lateness)
-            if lateness > self.late_threshold:
-                block.late += 1
+                raw = read()
+                row = [float(x) for x in raw]
+            except Exception as exc:  # noqa: BLE001 - any read failure is a failed slot
+                self._failed(k, exc)
             else:
-                block.on_time += 1
+                self._sample(k, t, t - deadline, row, now() - t)
             k += 1
-            if len(block.t_ns) >= self.block_size:
-                self._emit(block)
-                block = Block()
-        if block.slots:
-            self._emit(block)
+            self.next_slot = k
+            if len(self._acc.t_s) >= self.block_size:
+                self._emit(k)
+        self._flush()
+        if self._lost:
+            return LoopResult("link_lost", self.totals, self.next_slot, self._lost, self._seq)
+        return LoopResult("stopped", self.totals, self.next_slot, "", self._seq)
 
-    def _emit(self, block: Block) -> None:
-        tot = self.totals
-        tot.on_time += block.on_time
-        tot.late += block.late
-        tot.missed += block.missed
-        tot.failed += block.failed
+    def _realign(self, t: int, k: int) -> int:
+        """The loop woke after slot k+1's deadline: slots k..j-1 are missed, and j, the
+        newest slot whose deadline has passed, is served now (late, never twice)."""
+        j = max(k + 1, int((t - self.t0_ns) // self.period_ns))
+        while self.deadline_ns(j + 1) <= t:
+            j += 1
+        while j > k + 1 and self.deadline_ns(j) > t:
+            j -= 1
+        self._acc.counts.missed += j - k
+        self._acc.stalls.append((j, t - self.deadline_ns(k)))
+        return j
+
+    def _sample(self, k: int, t: int, lateness_ns: int, row: list[float], read_ns: int) -> None:
+        if len(row) != self.n_channels:
+            raise ConfigError(f"poller {type(self.poller).__name__} returned {len(row)} values, "
+                              f"the config names {self.n_channels} channel(s)")
+        if self._consecutive_failures:
+            log.info("reads recovered at slot %d after %d failed", k, self._consecutive_failures)
+            self._consecutive_failures = 0
+            # A poller's exceptions can hold cycles (chained exceptions, tracebacks and
+            # frames) that nothing collects while gc is disabled: collect the young
+            # generation once per failure episode, after this slot's read.
+            gc.collect(0)
+        acc = self._acc
+        if lateness_ns > self.late_threshold_ns:
+            acc.counts.late += 1
+        else:
+            acc.counts.on_time += 1
+        acc.t_s.append((t - self.t0_ns) / 1e9)
+        acc.values.extend(row)
+        acc.lateness_s.append(lateness_ns / 1e9)
+        if read_ns > acc.read_max_ns:
+            acc.read_max_ns = read_ns
+
+    def _failed(self, k: int, exc: Exception) -> None:
+        # Keep only text: an exception object holds its traceback, whose frames hold
+        # the loop, a reference cycle that nothing collects while gc is disabled.
+        error = f"{type(exc).__name__}: {exc}"
+        self._acc.counts.failed += 1
+        self._acc.last_error = error
+        self._consecutive_failures += 1
+        if self._consecutive_failures == 1:
+            log.warning("read failed at slot %d: %s", k, error)
+        if self._consecutive_failures >= self.max_failures:
+            self._lost = f"{self._consecutive_failures} consecutive failed reads, last: {error}"
+            log.error("link lost at slot %d: %s", k, self._lost)
+
+    def _flush(self) -> None:
+        if self.next_slot > self._acc.slot_begin:
+            self._emit(self.next_slot)
+
+    def _emit(self, slot_end: int) -> None:
+        acc = self._acc
+        self._acc = _Accumulator(slot_end)
+        self.totals.add(acc.counts)
+        block = Block(self._seq, acc.slot_begin, slot_end, acc.counts, acc.t_s, acc.values,
+                      acc.lateness_s, acc.read_max_ns / 1e9, acc.last_error, acc.stalls)
+        self._seq += 1
         self.emit(block)

@@ -1,123 +1,240 @@
-"""The sampler process: ``python -m drivers.sampler.process CONFIG_JSON``.
+"""Entry point of the sampler process: ``python -m drivers.sampler.process ARGS_JSON``.
 
-Applies what it may of the real-time settings (each refusal logged once, with the
-reason), builds the poller, connects a PUSH socket to the daemon and runs the slot loop
-until SIGTERM, a stop message, or its parent going away.
+Started (spawned, never forked) by :class:`drivers.sampler.source.SampledSource`.
+ARGS_JSON is the validated SamplerConfig dumped to JSON plus ``data`` and ``control``
+(ipc endpoints bound by the daemon), ``parent_pid`` and ``heartbeat_s``.
 
-Wire format, per block: frame 0 a JSON header (seq, n, channels, t0_ns, on_time, late,
-missed, failed, link_lost); frames 1-3 raw little-endian int64 read times (ns, the
-process's monotonic clock), float64 values (n x channels, row-major) and int64 lateness
-(ns). Never pickle.
+Order of start-up, and why:
+1. ZeroMQ sockets first, so the I/O thread exists before the real-time settings and
+   keeps the normal policy on any CPU (the settings are per thread);
+2. the poller is built and opened (this may block on a network connect);
+3. real-time settings, then ``hello`` (with what was applied), then the slot loop.
+
+The process ends on a ``stop`` message, on SIGTERM (SIGINT is ignored: a Ctrl-C in
+the daemon's terminal reaches the whole process group and the daemon stops us itself),
+when its parent is gone (re-parented), or when the poller's link is lost.
 """
 
 from __future__ import annotations
 
-import ctypes
-import gc
 import json
 import logging
 import os
+import resource
 import signal
 import sys
+import time
 from typing import Any
 
 import zmq
 
-from .config import PollerSpec, SamplerConfig
-from .loop import Block, RealClock, SlotLoop
+from ..errors import ConfigError
+from . import realtime, wire
+from .loop import Block, SlotLoop, SpinClock
+from .poller import load_poller
 
-log = logging.getLogger("fluidsense.sampler")
+log = logging.getLogger("drivers.sampler.process")
 
-PR_SET_TIMERSLACK = 29
+START_LEAD_NS = 10_000_000  # slot 0 is this far after the hello: no late first slot
+HOUSEKEEPING_S = 0.01  # control socket, parent and heartbeat are checked this often
+FINAL_SEND_TIMEOUT_MS = 1000
+
+_terminate = False
 
 
-def apply_realtime(cfg: SamplerConfig) -> dict[str, Any]:
-    """What could be applied: pinning, SCHED_FIFO, timer slack, gc. Never fails."""
-    applied: dict[str, Any] = {}
-    if cfg.cpu is not None:
-        try:
-            os.sched_setaffinity(0, {cfg.cpu})
-            applied["cpu"] = cfg.cpu
-        except OSError as exc:
-            log.warning("sampler: could not pin to CPU %s: %s", cfg.cpu, exc.strerror or exc)
-    if cfg.realtime_priority is not None:
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(cfg.realtime_priority))
-            applied["sched_fifo"] = cfg.realtime_priority
-        except (OSError, AttributeError) as exc:
-            log.warning("sampler: SCHED_FIFO priority %s not permitted (%s): running SCHED_OTHER",
-                        cfg.realtime_priority, getattr(exc, "strerror", None) or exc)
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        if libc.prctl(PR_SET_TIMERSLACK, 1, 0, 0, 0) == 0:
-            applied["timer_slack_ns"] = 1
-        else:
-            log.warning("sampler: timer slack not set: %s", os.strerror(ctypes.get_errno()))
-    except (OSError, AttributeError) as exc:
-        log.warning("sampler: timer slack not available on this platform: %s", exc)
-    gc.freeze()
-    gc.disable()
-    applied["gc"] = "frozen, disabled"
-    return applied
+def _on_sigterm(signum: int, frame: Any) -> None:
+    global _terminate
+    _terminate = True
 
 
 class Sender:
-    def __init__(self, endpoint: str, channels: tuple[str, ...], t0_ns: int):
-        self.ctx = zmq.Context()
-        self.sock = self.ctx.socket(zmq.PUSH)
-        self.sock.setsockopt(zmq.LINGER, 1000)
-        self.sock.setsockopt(zmq.SNDHWM, 10_000)
-        self.sock.connect(endpoint)
-        self.channels = channels
-        self.t0_ns = t0_ns
-        self.seq = 0
-        self.parent = os.getppid()
-        self.loop: SlotLoop | None = None
+    """PUSHes messages without ever blocking the loop. When the daemon does not drain
+    (its queue and ours are full), a block is dropped: its samples are counted as
+    ``dropped`` and its slot counts travel with the next block that gets through, so
+    the daemon's accounting stays complete."""
 
-    def __call__(self, block: Block) -> None:
-        self.seq += 1
-        t, v, late = block.arrays(len(self.channels))
-        header = {"seq": self.seq, "n": len(t), "channels": list(self.channels), "t0_ns": self.t0_ns,
-                  "on_time": block.on_time, "late": block.late, "missed": block.missed, "failed": block.failed,
-                  "link_lost": block.link_lost}
-        self.sock.send_multipart([json.dumps(header).encode(), t.astype("<i8").tobytes(),
-                                  v.astype("<f8").tobytes(), late.astype("<i8").tobytes()], copy=False)
-        if os.getppid() != self.parent and self.loop is not None:  # orphaned: nobody reads us
-            self.loop.stop = True
+    def __init__(self, sock: zmq.Socket, heartbeat_ns: int) -> None:
+        self.sock = sock
+        self.heartbeat_ns = heartbeat_ns
+        self.last_sent_ns = time.monotonic_ns()
+        self.dropped_blocks = 0
+        self.dropped_samples = 0
+        self._carry: dict[str, int] | None = None
 
-    def close(self) -> None:
-        self.sock.close()
-        self.ctx.term()
+    def send(self, kind: str, fields: dict[str, Any] | None = None, arrays: tuple = ()) -> bool:
+        try:
+            self.sock.send_multipart(wire.encode(kind, fields, arrays), flags=zmq.NOBLOCK)
+        except zmq.Again:
+            return False
+        self.last_sent_ns = time.monotonic_ns()
+        return True
+
+    def block(self, b: Block) -> None:
+        c = b.counts
+        carry = self._carry or {"slot_begin": b.slot_begin, "missed": 0, "failed": 0, "dropped": 0}
+        fields = {"seq": b.seq, "n": len(b), "dtype": wire.DTYPE,
+                  "slot_begin": carry["slot_begin"], "slot_end": b.slot_end,
+                  "on_time": c.on_time, "late": c.late, "missed": c.missed + carry["missed"],
+                  "failed": c.failed + carry["failed"], "dropped": carry["dropped"],
+                  "read_max_s": b.read_max_s, "last_error": b.last_error,
+                  "stalls": [[slot, ns / 1e9] for slot, ns in b.stalls]}
+        if self.send("block", fields, (b.t_s, b.values, b.lateness_s)):
+            if self._carry is not None:
+                log.info("daemon draining again after %d dropped blocks", self.dropped_blocks)
+            self._carry = None
+            return
+        if self._carry is None:
+            log.warning("daemon is not draining: dropping blocks (their slots are reported as dropped)")
+        self.dropped_blocks += 1
+        self.dropped_samples += len(b)
+        carry.update(missed=fields["missed"], failed=fields["failed"], dropped=carry["dropped"] + len(b))
+        self._carry = carry
+
+    def heartbeat_if_idle(self, slot: int) -> None:
+        if time.monotonic_ns() - self.last_sent_ns >= self.heartbeat_ns:
+            self.send("heartbeat", {"slot": slot})
+
+    def final(self, kind: str, fields: dict[str, Any]) -> None:
+        """The last message: worth waiting a little for the queue to make room."""
+        self.sock.setsockopt(zmq.SNDTIMEO, FINAL_SEND_TIMEOUT_MS)
+        try:
+            self.sock.send_multipart(wire.encode(kind, fields))
+        except zmq.Again:
+            log.warning("could not send %s to the daemon (queue full)", kind)
+
+
+class Housekeeper:
+    """``should_stop`` of the loop: SIGTERM every slot; parent, control socket and
+    heartbeat every ``every`` slots (cheap, but not free)."""
+
+    def __init__(self, ctl: zmq.Socket, sender: Sender, parent_pid: int, every: int, loop: SlotLoop) -> None:
+        self.ctl = ctl
+        self.sender = sender
+        self.parent_pid = parent_pid
+        self.every = every
+        self.loop = loop
+        self.reason: str | None = None
+        self._n = 0
+
+    def __call__(self) -> bool:
+        if _terminate:
+            self.reason = "SIGTERM"
+            return True
+        self._n += 1
+        if self._n < self.every:
+            return False
+        self._n = 0
+        if os.getppid() != self.parent_pid:
+            self.reason = "parent gone"
+            return True
+        if self.ctl.poll(0):
+            header, _ = wire.decode(self.ctl.recv_multipart())
+            if header["type"] == "stop":
+                self.reason = "stop requested"
+                return True
+            log.warning("ignoring control message %r", header["type"])
+        self.sender.heartbeat_if_idle(self.loop.next_slot)
+        return False
+
+
+def _cpu_snapshot() -> tuple[float, float, resource.struct_rusage]:
+    return time.process_time(), time.thread_time(), resource.getrusage(resource.RUSAGE_SELF)
+
+
+def _cpu_report(start: tuple[float, float, resource.struct_rusage], wall_s: float) -> dict[str, Any]:
+    p0, t0, r0 = start
+    p1, t1, r1 = _cpu_snapshot()
+    return {"wall_s": wall_s, "process_cpu_s": p1 - p0, "loop_thread_cpu_s": t1 - t0,
+            "voluntary_switches": r1.ru_nvcsw - r0.ru_nvcsw,
+            "involuntary_switches": r1.ru_nivcsw - r0.ru_nivcsw,
+            "minor_faults": r1.ru_minflt - r0.ru_minflt, "major_faults": r1.ru_majflt - r0.ru_majflt}
+
+
+def run(args: dict[str, Any], poller: Any, sender: Sender, ctl: zmq.Socket) -> int:
+    rate_hz = float(args["rate_hz"])
+    clock = SpinClock(spin_ns=int(args["spin_us"] * 1000))
+    loop = SlotLoop(poller, clock, sender.block, rate_hz=rate_hz, block_size=int(args["block_size"]),
+                    n_channels=len(args["channels"]), late_threshold_ns=int(args["late_threshold_us"] * 1000),
+                    max_consecutive_failures=int(args["max_consecutive_failures"]))
+    keeper = Housekeeper(ctl, sender, int(args["parent_pid"]), max(1, round(rate_hz * HOUSEKEEPING_S)), loop)
+    report = realtime.apply(args["rt_priority"], args["cpu"])
+    t0 = clock.now_ns() + START_LEAD_NS
+    sender.send("hello", {"pid": os.getpid(), "t0_monotonic_ns": t0, "period_ns": loop.period_ns,
+                          "realtime": report})
+    cpu0 = _cpu_snapshot()
+    try:
+        result = loop.run(keeper, t0)
+    except ConfigError as exc:
+        sender.final("fatal", {"stage": "read", "error": str(exc)})
+        log.error("%s", exc)
+        return wire.EXIT_CONFIG
+    end = clock.now_ns()
+    fields = {"totals": result.totals.as_dict(), "slots": result.slots, "blocks": result.blocks,
+              "t_end_s": (end - t0) / 1e9, "dropped_blocks": sender.dropped_blocks,
+              "dropped_samples": sender.dropped_samples, "cpu": _cpu_report(cpu0, (end - t0) / 1e9)}
+    if result.reason == "link_lost":
+        sender.final("link_lost", {**fields, "error": result.detail})
+        return wire.EXIT_LINK_LOST
+    log.info("stopping (%s) after %d slots: %s", keeper.reason, result.slots, result.totals.as_dict())
+    if keeper.reason != "parent gone":
+        sender.final("stopped", {**fields, "reason": keeper.reason})
+    return wire.EXIT_STOPPED
 
 
 def main(argv: list[str] | None = None) -> int:
-    logging.basicConfig(level=logging.INFO, stream=sys.stderr,
-                        format="%(asctime)s %(levelname)-7s %(name)s: %(message)s")
-    args = json.loads((argv or sys.argv[1:])[0])
-    cfg = SamplerConfig.model_validate(args["sampler"])
-    poller = PollerSpec.model_validate(args["poller"]).build()
-    applied = apply_realtime(cfg)
-    poller.open()
-    clock = RealClock(int(cfg.spin_us * 1000))
-    sender = Sender(args["endpoint"], tuple(poller.channels), clock.now_ns())
-    loop = SlotLoop(clock, cfg.period_ns, poller.read, sender, cfg.block_size, int(cfg.late_threshold_us * 1000),
-                    cfg.max_consecutive_failures)
-    sender.loop = loop
-
-    def stop(*_: object) -> None:
-        loop.stop = True
-
-    signal.signal(signal.SIGTERM, stop)
-    signal.signal(signal.SIGINT, stop)
-    log.info("sampler: %s at %.0f Hz, blocks of %d, applied %s", poller.__class__.__name__, cfg.rate_hz,
-             cfg.block_size, applied)
+    argv = sys.argv[1:] if argv is None else argv
+    args = json.loads(argv[0])
+    logging.basicConfig(level=int(args.get("log_level", logging.INFO)), stream=sys.stderr,
+                        format="%(asctime)s sampler[%(process)d] %(levelname)s %(name)s: %(message)s")
+    signal.signal(signal.SIGTERM, _on_sigterm)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    ctx = zmq.Context(io_threads=1)
+    data = ctx.socket(zmq.PUSH)
+    data.setsockopt(zmq.SNDHWM, 1000)
+    data.setsockopt(zmq.LINGER, FINAL_SEND_TIMEOUT_MS)
+    data.connect(args["data"])
+    ctl = ctx.socket(zmq.PULL)
+    ctl.setsockopt(zmq.LINGER, 0)
+    ctl.connect(args["control"])
+    sender = Sender(data, int(float(args["heartbeat_s"]) * 1e9))
     try:
-        loop.run()
+        return _with_poller(args, sender, ctl)
     finally:
+        if os.getppid() != int(args["parent_pid"]):
+            data.setsockopt(zmq.LINGER, 0)  # nobody left to read what is queued
+        data.close()
+        ctl.close()
+        ctx.term()
+
+
+def _with_poller(args: dict[str, Any], sender: Sender, ctl: zmq.Socket) -> int:
+    spec = args["poller"]
+    try:
+        poller = load_poller(spec["factory"], spec.get("kwargs") or {})
+    except ConfigError as exc:
+        log.error("%s", exc)
+        sender.final("fatal", {"stage": "construct", "error": str(exc)})
+        return wire.EXIT_CONFIG
+    try:
+        poller.open()
+    except Exception as exc:  # noqa: BLE001 - reported to the daemon, which raises
+        error = f"{type(exc).__name__}: {exc}"
+        log.error("poller %s did not open: %s", spec["factory"], error)
+        sender.final("fatal", {"stage": "open", "error": error})
+        _close(poller)
+        return wire.EXIT_OPEN
+    try:
+        return run(args, poller, sender, ctl)
+    finally:
+        _close(poller)
+
+
+def _close(poller: Any) -> None:
+    try:
         poller.close()
-        sender.close()
-    return 0
+    except Exception as exc:  # noqa: BLE001 - closing must not hide why we stopped
+        log.warning("poller close failed: %s: %s", type(exc).__name__, exc)
 
 
-if __name__ == "__main__":  # pragma: no cover - run as a process
+if __name__ == "__main__":
     sys.exit(main())

@@ -67,7 +67,7 @@ def _soft_ratio(ratio_rigid: float, force_area: float, k_object_n_per_mm: float 
     return min(1.0, ratio_rigid + force_area * (1 - ratio_rigid) / (k * travel) / compliance)
 
 
-def gripper_law(act: GripperActuator, scene, p_atm: float) -> VolumeLaw:
+def gripper_law(act: GripperActuator, scene, p_atm: float, t_since_set: float = 0.0) -> VolumeLaw:
     c = act.compliance
     vacuum = act.drive == "vacuum"
 
@@ -77,7 +77,7 @@ def gripper_law(act: GripperActuator, scene, p_atm: float) -> VolumeLaw:
     if isinstance(scene, EmptyScene):
         contacts: list[tuple[float, float]] = []
     elif isinstance(scene, CylinderScene):
-        ratio = _soft_ratio(act.wrap_ratio, act.force_area_mm2 * MM * MM, scene.stiffness_n_per_mm,
+        ratio = _soft_ratio(act.wrap_ratio, act.force_area_mm2 * MM * MM, scene.stiffness_at(t_since_set),
                             act.closing_mm_per_ml, c)
         contacts = []
         if scene.offset_mm > 0:
@@ -174,12 +174,12 @@ def contact_pressure(actuator, scene, p_atm: float) -> float | None:
 
 def is_dynamic(scene) -> bool:
     """Scenes whose contact law changes with time after they are set."""
-    return isinstance(scene, (ProfileScene, PullScene))
+    return isinstance(scene, (ProfileScene, PullScene)) or (isinstance(scene, CylinderScene) and scene.creeps)
 
 
 def volume_law(actuator, scene, p_atm: float, t_since_set: float = 0.0) -> VolumeLaw:
     if isinstance(actuator, GripperActuator):
-        return gripper_law(actuator, scene, p_atm)
+        return gripper_law(actuator, scene, p_atm, t_since_set)
     if isinstance(actuator, BendingActuator):
         return bending_law(actuator, scene, p_atm, t_since_set)
     if isinstance(actuator, SuctionCup):

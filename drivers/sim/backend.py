@@ -176,6 +176,11 @@ class SimCell:
         t_eff = max(t, self.t_last) + self.hw.circuit.valve_delay_s
         self._invalidate(t_eff)
         self.plant.schedule_valve(t_eff, valve, open_)
+        warming = self.cfg.perturb.tank_warming_k
+        if warming and valve == SUPPLY and not open_ and self.tank_node is not None:
+            # the freshly charged tank's air settles to another temperature (approximated
+            # as a step a second after isolation)
+            self.plant.schedule_scale(t_eff + 1.0, "tank", (293.15 + warming) / 293.15)
         if self.world is not None and valve == ACTUATE and open_ != self.world.closed:
             # the gripper closes (or opens) on whatever is under the tool
             pose = self.arm.pose_at(t_eff) if self.arm is not None else (0.0,) * 6
@@ -196,7 +201,8 @@ class SimCell:
         self.regulator_error_pa = float(self.rng_regulator.normal(0.0, sd)) if sd > 0 and pressure_pa else 0.0
         t_eff = max(t, self.t_last)
         self._invalidate(t_eff)
-        self.plant.schedule_regulator(t_eff, self.p_atm + self.setpoint_pa + self.regulator_error_pa)
+        bias = self.cfg.perturb.regulator_bias_kpa * KPA if pressure_pa else 0.0
+        self.plant.schedule_regulator(t_eff, self.p_atm + self.setpoint_pa + self.regulator_error_pa + bias)
 
     def command_flow_profile(self, times: np.ndarray, flows: np.ndarray, t: float) -> None:
         """Flow setpoint following (times, flows) piecewise linearly; 0 after the last point."""

@@ -98,6 +98,16 @@ class Plant:
 
         self.schedule(t, apply, f"law {node}")
 
+    def schedule_scale(self, t: float, node: str, factor: float) -> None:
+        """Multiply the gas in a node at time t: what warming a closed volume does to its
+        pressure (p*v = m*T/T0 with m fixed: scaling m is scaling T)."""
+        i = self.net.index[node]
+
+        def apply() -> None:
+            self._seg.y0[i] *= factor
+
+        self.schedule(t, apply, f"scale {node} x{factor:.4f}")
+
     def schedule_flow(self, t: float, flow_of_t: Callable[[float], float] | None) -> None:
         def apply() -> None:
             self.flow_of_t = flow_of_t

@@ -52,7 +52,8 @@ class World:
         if self.slipped:
             return CylinderScene(diameter_mm=obj.slip_diameter_mm)
         return CylinderScene(diameter_mm=obj.diameter_mm, offset_mm=obj.offset_mm,
-                             stiffness_n_per_mm=obj.stiffness_n_per_mm)
+                             stiffness_n_per_mm=obj.stiffness_n_per_mm,
+                             relaxed_stiffness_n_per_mm=obj.relaxed_stiffness_n_per_mm, creep_s=obj.creep_s)
 
     def _event(self, t: float, what: str, **info: Any) -> None:
         self.events.append({"t_s": t, "event": what, **info})

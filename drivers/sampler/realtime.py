@@ -1,0 +1,120 @@
+"""Real-time settings of the sampler thread, each applied when the system permits it.
+
+All of them concern the calling thread only (pid 0 in sched_* and prctl mean "this
+thread"), on purpose: the ZeroMQ I/O thread, started before these are applied, keeps
+the normal policy and may run on any CPU, so moving blocks to the daemon never
+competes with the slot loop at real-time priority.
+
+Each setting is reported as ``{"applied": bool, "requested": bool, "detail": str}``; when one is not
+applied the process logs one warning line saying what and why (e.g. EPERM).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import errno
+import gc
+import logging
+import os
+import sys
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+PR_SET_TIMERSLACK = 29  # <linux/prctl.h>
+PR_GET_TIMERSLACK = 30
+
+Report = dict[str, dict[str, Any]]
+
+
+def _result(applied: bool, detail: str, requested: bool = True) -> dict[str, Any]:
+    return {"applied": applied, "requested": requested, "detail": detail}
+
+
+def _os_reason(exc: OSError) -> str:
+    name = errno.errorcode.get(exc.errno or 0, "?")
+    return f"{exc.strerror or exc} ({name})"
+
+
+def _rt_runtime() -> str:
+    try:
+        with open("/proc/sys/kernel/sched_rt_runtime_us") as f:
+            return f.read().strip()
+    except OSError:
+        return "unknown"
+
+
+def set_fifo(priority: int | None) -> dict[str, Any]:
+    if priority is None:
+        return _result(False, "not requested (rt_priority: null)", requested=False)
+    if not hasattr(os, "sched_setscheduler"):
+        return _result(False, f"SCHED_FIFO is not available on {sys.platform}")
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except OSError as exc:
+        hint = ""
+        if exc.errno == errno.EPERM:
+            hint = (f": needs CAP_SYS_NICE or RLIMIT_RTPRIO >= {priority} (ulimit -r), and in a "
+                    "container a runtime that allows real-time scheduling")
+        return _result(False, f"SCHED_FIFO priority {priority} refused: {_os_reason(exc)}{hint}")
+    return _result(True, f"SCHED_FIFO priority {priority} (kernel RT budget sched_rt_runtime_us={_rt_runtime()})")
+
+
+def pin(cpu: int | str) -> dict[str, Any]:
+    if cpu == "none":
+        return _result(False, "not requested (cpu: none)", requested=False)
+    if not hasattr(os, "sched_setaffinity"):
+        return _result(False, f"CPU affinity is not available on {sys.platform}")
+    allowed = sorted(os.sched_getaffinity(0))
+    # CPU 0 usually takes most interrupts and housekeeping: by default take the last one
+    target = allowed[-1] if cpu == "auto" else int(cpu)
+    if target not in allowed:
+        return _result(False, f"CPU {target} is not in this process's allowed set {allowed}")
+    try:
+        os.sched_setaffinity(0, {target})
+    except OSError as exc:
+        return _result(False, f"pinning to CPU {target} refused: {_os_reason(exc)}")
+    return {**_result(True, f"pinned to CPU {target} of {allowed}"), "cpu": target}
+
+
+def set_timerslack(slack_ns: int = 1) -> dict[str, Any]:
+    if not sys.platform.startswith("linux"):
+        return _result(False, f"PR_SET_TIMERSLACK is Linux only (this is {sys.platform})")
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        rc = libc.prctl(PR_SET_TIMERSLACK, ctypes.c_ulong(slack_ns), ctypes.c_ulong(0),
+                        ctypes.c_ulong(0), ctypes.c_ulong(0))
+    except (OSError, AttributeError) as exc:
+        return _result(False, f"prctl unavailable: {exc}")
+    if rc != 0:
+        err = ctypes.get_errno()
+        return _result(False, f"prctl(PR_SET_TIMERSLACK, {slack_ns}) failed: {os.strerror(err)} "
+                       f"({errno.errorcode.get(err, '?')})")
+    now = libc.prctl(PR_GET_TIMERSLACK, 0, 0, 0, 0)
+    # the kernel ignores the slack of real-time threads; it matters when SCHED_FIFO is refused
+    return _result(True, f"timer slack {now} ns")
+
+
+def freeze_gc() -> dict[str, Any]:
+    # Objects alive now (modules, the poller) are moved out of the collector's reach;
+    # with collection off, no pause can land in the loop. The loop creates no cycles.
+    gc.collect()
+    gc.freeze()
+    gc.disable()
+    return _result(True, f"gc.freeze() ({gc.get_freeze_count()} objects) + gc.disable()")
+
+
+def apply(priority: int | None, cpu: int | str, timerslack_ns: int = 1) -> Report:
+    """Apply everything, in an order that lets each step still succeed after the others."""
+    report = {
+        "timerslack": set_timerslack(timerslack_ns),
+        "affinity": pin(cpu),
+        "sched_fifo": set_fifo(priority),
+        "gc": freeze_gc(),
+    }
+    for name, r in report.items():
+        if r["requested"] and not r["applied"]:
+            log.warning("%s not applied: %s", name, r["detail"])
+    applied = ", ".join(r["detail"] for r in report.values() if r["applied"])
+    log.info("real-time settings: %s", applied or "none applied")
+    return report

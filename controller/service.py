@@ -46,6 +46,20 @@ def _reference_key(p0_pa: float) -> float:
     return round(p0_pa / KPA, 3)
 
 
+class Sink:
+    """Something that keeps what the controller sees (a recorder, a test probe). Every
+    method is called from the sample loop and must return quickly; a sink that raises is
+    logged and dropped rather than allowed to stop the loop."""
+
+    def on_block(self, block: SampleBlock) -> None: ...
+
+    def on_event(self, topic: str, t_s: float, payload: dict[str, Any]) -> None: ...
+
+    def flush(self, t_s: float) -> None: ...
+
+    def close(self) -> None: ...
+
+
 class SampleClock:
     """The controller's clock as devices see it: ``now`` is the newest sample's time and
     ``wait_until`` returns once samples have reached a time (in virtual time it also
@@ -97,6 +111,7 @@ class Controller:
         self.task_runner: Callable[[str, list[float] | None], Awaitable[dict[str, Any]]] | None = None
         self._task_job: asyncio.Task | None = None
         self._task_name: str | None = None
+        self.sinks: list[Sink] = []
         self._measured: asyncio.Future[CycleResult] | None = None
         self._hold = False
 
@@ -137,6 +152,12 @@ class Controller:
         self._fail_waiters(CommandError("controller stopped"))
         await self.backend.stop(self.now)
         self._flush_pressure()
+        for sink in self.sinks:
+            try:
+                sink.flush(self.now)
+                sink.close()
+            except Exception as exc:  # noqa: BLE001 - closing the others matters more
+                log.error("closing sink %s: %s", type(sink).__name__, exc)
 
     async def __aenter__(self) -> Controller:
         await self.start()
@@ -269,7 +290,7 @@ class Controller:
             try:
                 await work
             except asyncio.CancelledError:
-                self.pub.send("task", self.now, {"task": file, "event": "aborted"})
+                self.emit("task", {"task": file, "event": "aborted"})
                 raise
             except Exception as exc:  # noqa: BLE001 - reported on the task topic; the daemon goes on
                 log.error("task %s failed: %s", file, exc)
@@ -377,6 +398,12 @@ class Controller:
         if self.sequencer.state == State.IDLE and self._recorder is not None:
             self._finish_cycle()
         self._batch_pressure(block)
+        for sink in list(self.sinks):
+            try:
+                sink.on_block(block)
+            except Exception as exc:  # noqa: BLE001 - a broken sink must not stop the loop
+                log.error("sink %s dropped: %s", type(sink).__name__, exc)
+                self.sinks.remove(sink)
         self._release_waiters()
         if self.now >= self._next_heartbeat:
             self._heartbeat()
@@ -413,8 +440,8 @@ class Controller:
             await self.backend.safe_state(self.now)
         except Exception as exc:  # noqa: BLE001 - report, keep going
             log.error("could not reach the safe state: %s", exc)
-        self.pub.send("fault", self.now, {"kind": fault.kind, "channel": fault.channel,
-                                          "fault_t_s": fault.t, "detail": fault.detail, "vented": True})
+        self.emit("fault", {"kind": fault.kind, "channel": fault.channel, "fault_t_s": fault.t,
+                             "detail": fault.detail, "vented": True})
         self._publish_transitions()
         if self._recorder is not None:
             self._finish_cycle()
@@ -451,14 +478,27 @@ class Controller:
             self.references[key] = make_reference(result)
             result.is_reference = True
         self.results.append(result)
-        self.pub.send("cycle", self.now, result.to_dict())
+        self.emit("cycle", result.to_dict())
         fut, self._cycle_future = self._cycle_future, None
         if fut is not None and not fut.done():
             fut.set_result(result)
 
+    def add_sink(self, sink: Sink) -> None:
+        self.sinks.append(sink)
+
+    def emit(self, topic: str, payload: dict[str, Any]) -> None:
+        """Publish an event and hand it to every sink."""
+        self.pub.send(topic, self.now, payload)
+        for sink in list(self.sinks):
+            try:
+                sink.on_event(topic, self.now, payload)
+            except Exception as exc:  # noqa: BLE001 - a broken sink must not stop the loop
+                log.error("sink %s dropped: %s", type(sink).__name__, exc)
+                self.sinks.remove(sink)
+
     def _publish_transitions(self) -> None:
         for tr in self.sequencer.drain_transitions():
-            self.pub.send("state", self.now, transition_dict(tr))
+            self.emit("state", transition_dict(tr))
 
     def _batch_pressure(self, block: SampleBlock) -> None:
         if self._batch_start is None:

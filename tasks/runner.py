@@ -20,7 +20,7 @@ async def run_task(ctrl: Controller, task, order_mm: list[float] | None = None) 
 
     def report(event: dict[str, Any]) -> None:
         seq["n"] += 1
-        ctrl.pub.send("task", ctrl.now, {"task": task.task, "step": seq["n"], **event})
+        ctrl.emit("task", {"task": task.task, "step": seq["n"], **event})
 
     report({"event": "started"})
     try:

@@ -14,11 +14,12 @@ from typing import Any
 import numpy as np
 
 from ..base import Backend, FlowController, Regulator, SampleBlock, SampleSource, SceneControl, ValveBank
+from ..errors import DeviceTimeoutError, LinkLostError
 from ..config import SimDriverConfig
 from ..hardware import ACTUATE, SUPPLY, VENT, FlowControlledCircuit, Hardware, RegulatedCircuit, TankCircuit
 from ..scenes import EmptyScene, PullScene
 from ..units import KPA
-from .actuators import contact_pressure, contact_truth, is_dynamic, volume_law
+from .actuators import contact_pressure, contact_truth, is_dynamic, update_step, volume_law
 from .arm import SimArm
 from .world import World
 from .gas import ATMOSPHERE, REGULATOR, FlowSource, Link, Network, VolumeLaw
@@ -28,7 +29,10 @@ from .sensor import SensorModel
 log = logging.getLogger(__name__)
 
 AIR = "_air"  # internal valve: the actuator open to the air (a suction cup that let go)
-_SCENE_STEP_S = 0.01  # how often a moving scene updates its contact law
+FAULT_LEAK = "_fault_leak"  # internal valves for fault injection: a leak, a supply stuck open
+FAULT_SUPPLY = "_fault_supply"
+FAULTS = ("over_pressure", "leak", "sensor_nan", "sensor_stuck", "sensor_range", "no_data", "link_lost",
+          "protective_stop")
 _AIR_RESISTANCE = 1e7
 
 
@@ -57,7 +61,9 @@ def _network(hw: Hardware, law: VolumeLaw) -> tuple[Network, dict[str, bool]]:
     if c.leak_resistance_pa_s_per_m3 is not None:
         links.append(Link(act, ATMOSPHERE, c.leak_resistance_pa_s_per_m3, None, True, "leak"))
     links.append(Link(act, ATMOSPHERE, _AIR_RESISTANCE, AIR, True, AIR))
-    valves = {**dict.fromkeys(c.safe_valves, False), AIR: False}
+    links.append(Link(act, ATMOSPHERE, 2e10, FAULT_LEAK, True, FAULT_LEAK))
+    links.append(Link(REGULATOR, act, c.valve_resistance_pa_s_per_m3, FAULT_SUPPLY, True, FAULT_SUPPLY))
+    valves = {**dict.fromkeys(c.safe_valves, False), AIR: False, FAULT_LEAK: False, FAULT_SUPPLY: False}
     return Network(names, laws, links, p_atm=p_atm, p_std=p_atm, flow_sources=sources), valves
 
 
@@ -95,6 +101,8 @@ class SimCell:
         self.world: World | None = None
         self.arm: SimArm | None = None
         self._pending_scenes: list[tuple[float, Any]] = []  # (time, scene) changes still to come
+        self._faults: list[tuple[float, str]] = []  # injected faults not yet acting
+        self.source_fault: str | None = None  # the source's next read fails this way
         self.dt = 1.0 / cfg.rate_hz
         self.k_next = 0  # index of the next sample to deliver
         # Samples are computed in chunks ahead of delivery; a command that lands inside
@@ -108,7 +116,7 @@ class SimCell:
         self._cache_pos = 0
         self._next_scene_update = float("inf")
         if is_dynamic(cfg.scene):
-            self._next_scene_update = _SCENE_STEP_S
+            self._next_scene_update = update_step(cfg.scene)
 
     @property
     def t_next(self) -> float:
@@ -120,6 +128,45 @@ class SimCell:
         return (self.k_next - 1) * self.dt
 
     # ------------------------------------------------------------- sampling
+    def inject(self, kind: str, t: float, over_pa: float = 150e3) -> None:
+        """Fault injection at sample time ``t`` (see FAULTS). over_pressure: the supply
+        sticks open into the actuator with the regulator at ``over_pa`` (gauge)."""
+        if kind not in FAULTS:
+            raise ValueError(f"unknown fault {kind!r}; known: {', '.join(FAULTS)}")
+        t = max(t, self.t_next)
+        self._invalidate(t)
+        if kind == "leak":
+            self.plant.schedule_valve(t, FAULT_LEAK, True)
+        elif kind == "over_pressure":
+            self.plant.schedule_regulator(t, self.p_atm + over_pa)
+            self.plant.schedule_valve(t, FAULT_SUPPLY, True)
+        elif kind.startswith("sensor_"):
+            self.sensors["p_act"].inject({"sensor_nan": "nan", "sensor_stuck": "stuck", "sensor_range": "rail"}[kind], t)
+        else:  # no_data, link_lost, protective_stop act when samples reach t
+            self._faults.append((t, kind))
+
+    def clear_faults(self) -> None:
+        """Undo every injected fault (the cell repaired)."""
+        t = self.t_next
+        self._invalidate(t)
+        self.plant.schedule_valve(t, FAULT_LEAK, False)
+        self.plant.schedule_valve(t, FAULT_SUPPLY, False)
+        self.plant.schedule_regulator(t, self.p_atm + self.setpoint_pa)
+        for sensor in self.sensors.values():
+            sensor.fault = None
+        self._faults, self.source_fault = [], None
+        if self.arm is not None:
+            self.arm.stopped = False
+
+    def _due_faults(self, t_end: float) -> None:
+        due = [f for f in self._faults if f[0] <= t_end]
+        self._faults = [f for f in self._faults if f[0] > t_end]
+        for _, kind in due:
+            if kind == "protective_stop" and self.arm is not None:
+                self.arm.stopped = True
+            elif kind in ("no_data", "link_lost"):
+                self.source_fault = kind
+
     def next_block(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """The next n samples: (t, readings[n, channels]) in SI units."""
         if len(self._cache_t) - self._cache_pos < n:
@@ -246,7 +293,7 @@ class SimCell:
         self._invalidate(t_eff)
         self.plant.schedule_law(t_eff, "actuator", law)
         self.plant.schedule_valve(t_eff, AIR, False)
-        self._next_scene_update = t_eff + _SCENE_STEP_S if is_dynamic(scene) else float("inf")
+        self._next_scene_update = t_eff + update_step(scene) if is_dynamic(scene) else float("inf")
 
     def _schedule_scene_updates(self, until: float) -> None:
         """Moving scenes change the contact law every few milliseconds; pending world
@@ -261,7 +308,7 @@ class SimCell:
             t = self._next_scene_update
             law = volume_law(self.hw.actuator, self.scene, self.p_atm, t - self.scene_set_t)
             self.plant.schedule_law(t, "actuator", law)
-            self._next_scene_update = t + _SCENE_STEP_S
+            self._next_scene_update = t + update_step(self.scene)
 
     def _check_detach(self, t: float, p_act_gauge: float) -> None:
         """A pulled suction cup lets go when the pull exceeds the suction force."""
@@ -302,6 +349,12 @@ class SimSource(SampleSource):
         self._wall_t0 = asyncio.get_running_loop().time() - self.cell.t_next
 
     async def _read_block(self) -> SampleBlock:
+        self.cell._due_faults(self.cell.t_next)
+        if self.cell.source_fault is not None:  # an injected failure: once, then it recovers
+            kind, self.cell.source_fault = self.cell.source_fault, None
+            if kind == "no_data":
+                raise DeviceTimeoutError("simulated cell: no samples (injected)")
+            raise LinkLostError("simulated cell: link lost (injected)")
         t, values = self.cell.next_block(self.cell.cfg.block_size)
         if not self.virtual:
             loop = asyncio.get_running_loop()

@@ -92,11 +92,15 @@ def parse(frames: list[bytes]) -> Any:
 
 class CommandServer:
     def __init__(self, endpoint: str, handler: Callable[[Any], Awaitable[dict[str, Any]]],
-                 context: zmq.asyncio.Context | None = None):
+                 context: zmq.asyncio.Context | None = None, curve: tuple[str, str] | None = None):
+        """``curve``: (server secret key file, directory of allowed client public keys)."""
         self.endpoint = endpoint
         self._handler = handler
         self._ctx = context or zmq.asyncio.Context.instance()
+        self._auth = None
         self._sock = self._ctx.socket(zmq.REP)
+        if curve is not None:
+            self._enable_curve(*curve)
         self._sock.setsockopt(zmq.LINGER, 0)
         self._sock.setsockopt(zmq.MAXMSGSIZE, 4 * MAX_REQUEST_BYTES)
         self._sock.bind(endpoint)
@@ -129,5 +133,23 @@ class CommandServer:
             log.exception("command %s failed", getattr(cmd, "cmd", "?"))
             return {"ok": False, "error": f"internal error: {type(exc).__name__}: {exc}"}
 
+    def _enable_curve(self, secret_file: str, clients_dir: str) -> None:
+        """Only clients whose public key is in ``clients_dir`` get in; traffic is encrypted."""
+        import zmq.auth
+        from zmq.auth.asyncio import AsyncioAuthenticator
+
+        public, secret = zmq.auth.load_certificate(secret_file)
+        if secret is None:
+            raise ValueError(f"{secret_file} holds no secret key")
+        self._auth = AsyncioAuthenticator(self._ctx)
+        self._auth.start()
+        self._auth.configure_curve(domain="*", location=clients_dir)
+        self._sock.curve_secretkey = secret
+        self._sock.curve_publickey = public
+        self._sock.curve_server = True
+        log.info("command socket: CURVE on, clients from %s", clients_dir)
+
     def close(self) -> None:
         self._sock.close()
+        if self._auth is not None:
+            self._auth.stop()

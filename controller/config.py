@@ -181,14 +181,46 @@ class Profile(StrictModel):
                         tank_sensor=self.tank_sensor, flow_sensor=self.flow_sensor)
 
 
-class PublisherConfig(StrictModel):
-    """ZeroMQ endpoints. The command socket stays on loopback unless keys are configured
-    (service hardening)."""
+class Supervision(StrictModel):
+    """Thresholds of the safety supervisor (controller/supervisor.py)."""
 
-    pub: str = Field("tcp://127.0.0.1:5560", min_length=6)
-    cmd: str = Field("tcp://127.0.0.1:5561", min_length=6)
+    stuck_s: float = Field(0.25, gt=0, le=60, description="a pressure reading that does not change for this long is stuck")
+    leak_kpa_per_s: float = Field(0.1, gt=0, le=100, description="decay towards atmosphere while held that is a leak")
+    no_data_s: float = Field(0.5, gt=0, le=60, description="real time: no block for this long is a fault")
+    overrun_s: float = Field(0.25, gt=0, le=60, description="real time: the loop this far behind the samples is a fault")
+
+
+class CurveKeys(StrictModel):
+    """ZeroMQ CURVE for the command socket: the server's secret key file and a directory
+    of the public keys of the clients allowed in (``fluidsense keys`` makes both)."""
+
+    server_secret_file: str = Field(min_length=1)
+    clients_dir: str = Field(min_length=1)
+
+
+def _is_local(endpoint: str) -> bool:
+    if endpoint.startswith(("ipc://", "inproc://")):
+        return True
+    host = endpoint.removeprefix("tcp://").rsplit(":", 1)[0]
+    return host in ("127.0.0.1", "localhost", "[::1]") or host.startswith("127.")
+
+
+class PublisherConfig(StrictModel):
+    """ZeroMQ endpoints. The command socket stays on loopback unless CURVE keys are
+    configured: whoever can reach it can move the gripper."""
+
+    pub: str = Field("tcp://127.0.0.1:5560", min_length=6, pattern=r"^(tcp|ipc|inproc)://")
+    cmd: str = Field("tcp://127.0.0.1:5561", min_length=6, pattern=r"^(tcp|ipc|inproc)://")
+    cmd_curve: CurveKeys | None = None
     pressure_batch_s: float = Field(0.1, gt=0, le=10, description="pressure samples are sent in batches this long")
     heartbeat_s: float = Field(1.0, gt=0, le=60)
+
+    @model_validator(mode="after")
+    def _remote_needs_keys(self) -> PublisherConfig:
+        if not _is_local(self.cmd) and self.cmd_curve is None:
+            raise ValueError(f"cmd {self.cmd!r} is not loopback: a command socket reachable from the network "
+                             "needs cmd_curve keys (fluidsense keys makes them)")
+        return self
 
 
 class CellConfig(StrictModel):
@@ -197,6 +229,7 @@ class CellConfig(StrictModel):
     driver: DriverConfig
     profile: Profile
     publisher: PublisherConfig = PublisherConfig()
+    supervision: Supervision = Supervision()
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
 
 

@@ -20,7 +20,8 @@ from typing import Any
 import numpy as np
 
 from drivers.base import Backend, SampleBlock
-from drivers.errors import CommandError, FaultError, NotSupportedError, SafetyError, SequenceError
+from drivers.errors import (CommandError, DeviceTimeoutError, FaultError, LinkLostError, NotSupportedError,
+                            SafetyError, SequenceError)
 
 from .commands import AbortCmd, CycleCmd, ResetCmd, SceneCmd, ShutdownCmd, StatusCmd, TaskCmd
 from .config import CellConfig
@@ -83,11 +84,13 @@ class Controller:
         self.backend = backend
         self.pub = publisher or NullPublisher()
         self.sequencer = Sequencer(self.profile.sequence, backend.valves.safe_positions)
-        self.supervisor = Supervisor(self.profile)
+        self.supervisor = Supervisor(self.profile, cfg.supervision)
+        self._wall_lag0: float | None = None  # wall-clock minus sample time of the earliest block
         self.now = 0.0
         self.references: dict[float, Reference] = {}
         self.results: deque[CycleResult] = deque(maxlen=100)
         self.fault: Fault | None = None
+        self.last_vent: tuple[Fault, float] | None = None  # the last fault and when the vent was commanded
         self._recorder: Recorder | None = None
         self._cycle_future: asyncio.Future[CycleResult] | None = None
         self._cycle_opts: dict[str, Any] = {}
@@ -361,22 +364,56 @@ class Controller:
         return False
 
     async def _loop(self) -> None:
-        try:
-            while True:
-                if self.virtual and not self._has_demand():
-                    self._demand.clear()
-                    await self._demand.wait()
-                    continue
-                block = await self.backend.source.read_block()
-                t0 = time.perf_counter()
-                await self._on_block(block)
-                self._proc_s.append(time.perf_counter() - t0)
-        except asyncio.CancelledError:
-            raise
-        except Exception as exc:  # a driver failure: vent and latch the fault
-            log.exception("sample loop stopped")
-            await self._enter_fault(Fault("driver", None, self.now, f"{type(exc).__name__}: {exc}"))
-            self._fail_waiters(FaultError(f"sample loop stopped: {exc}"))
+        """Pull blocks for ever. A source that fails or goes silent faults the cell (vent)
+        and the loop keeps trying: the daemon outlives its devices."""
+        failures = 0
+        while True:
+            if self.virtual and not self._has_demand():
+                self._demand.clear()
+                await self._demand.wait()
+                continue
+            try:
+                block = await self._read()
+            except asyncio.CancelledError:
+                raise
+            except Exception as exc:  # noqa: BLE001 - every device failure is a fault, none ends the loop
+                failures += 1
+                if self.fault is None:
+                    await self._enter_fault(self._read_fault(exc))
+                self._fail_waiters(FaultError(f"no samples: {exc}"))
+                # pace the retries (the driver reconnects); wall time, but no control decision
+                await asyncio.sleep(min(0.05 * 2 ** min(failures, 5), 1.0) if not self.virtual else 0)
+                continue
+            failures = 0
+            t0 = time.perf_counter()
+            await self._on_block(block)
+            self._proc_s.append(time.perf_counter() - t0)
+
+    async def _read(self) -> SampleBlock:
+        if self.virtual:
+            return await self.backend.source.read_block()
+        return await asyncio.wait_for(self.backend.source.read_block(), self.cfg.supervision.no_data_s)
+
+    def _read_fault(self, exc: Exception) -> Fault:
+        if isinstance(exc, (asyncio.TimeoutError, DeviceTimeoutError)):
+            return Fault("no_data", None, self.now, f"no samples for {self.cfg.supervision.no_data_s} s")
+        if isinstance(exc, LinkLostError):
+            return Fault("link_lost", None, self.now, str(exc))
+        log.error("sample source failed: %s", exc, exc_info=exc)
+        return Fault("driver", None, self.now, f"{type(exc).__name__}: {exc}")
+
+    def _overrun(self, block: SampleBlock) -> Fault | None:
+        """Real time only: how far the loop is behind its samples."""
+        if self.virtual:
+            return None
+        lag = asyncio.get_running_loop().time() - block.t_end
+        if self._wall_lag0 is None or lag < self._wall_lag0:
+            self._wall_lag0 = lag
+            return None
+        behind = lag - self._wall_lag0
+        if behind > self.cfg.supervision.overrun_s:
+            return Fault("overrun", None, block.t_end, f"the loop is {behind:.3f} s behind its samples")
+        return None
 
     async def _on_block(self, block: SampleBlock) -> None:
         self.now = block.t_end
@@ -384,7 +421,9 @@ class Controller:
         self.blocks += 1
         self.missed += block.missed
         self.late += block.late
-        fault = self.supervisor.check(block)
+        arm = self.backend.arm
+        fault = self.supervisor.check(block, holding=self._holding(),
+                                      arm_stopped=arm is not None and arm.protective_stopped) or self._overrun(block)
         if self._recorder is not None:
             self._recorder.add(block)
         if fault is not None and self.fault is None:
@@ -436,15 +475,23 @@ class Controller:
         self.fault = fault
         log.error("FAULT %s at t=%.3f: %s", fault.kind, fault.t, fault.detail)
         self.sequencer.fault(self.now, f"fault: {fault.kind}")
+        vented = True
         try:
             await self.backend.safe_state(self.now)
         except Exception as exc:  # noqa: BLE001 - report, keep going
-            log.error("could not reach the safe state: %s", exc)
+            vented = False
+            log.error("could not reach the safe state: %s (a real cell must vent on its own: "
+                      "normally-open vent path)", exc)
         self.emit("fault", {"kind": fault.kind, "channel": fault.channel, "fault_t_s": fault.t,
-                             "detail": fault.detail, "vented": True})
+                            "vent_t_s": self.now, "detail": fault.detail, "vented": vented})
+        self.last_vent = (fault, self.now)
         self._publish_transitions()
         if self._recorder is not None:
             self._finish_cycle()
+
+    def _holding(self) -> bool:
+        """Inflated, measured, waiting: where a leak shows as a steady decay."""
+        return self.sequencer.state == State.HOLD and self._measured is not None and self._measured.done()
 
     def _measurement_due(self) -> bool:
         seq = self.sequencer

@@ -83,8 +83,10 @@ async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None) -> int:
     async with controller(cfg, publish=True) as ctrl:
         ctrl.task_runner = _task_runner(ctrl, tasks_dir)
         try:
-            server = CommandServer(cfg.publisher.cmd, ctrl.handle_command)
-        except zmq.ZMQError as exc:
+            curve = cfg.publisher.cmd_curve
+            server = CommandServer(cfg.publisher.cmd, ctrl.handle_command,
+                                   curve=None if curve is None else (curve.server_secret_file, curve.clients_dir))
+        except (zmq.ZMQError, OSError, ValueError) as exc:
             raise ConfigError(f"publisher.cmd: cannot bind {cfg.publisher.cmd}: {exc}") from exc
         serve = asyncio.create_task(server.serve(), name="command-socket")
         stopper = asyncio.create_task(stop.wait())

@@ -7,6 +7,7 @@ import sys
 from typing import Any, TextIO
 
 import zmq
+import zmq.auth
 
 from controller.publisher import WELCOME
 
@@ -83,11 +84,17 @@ def monitor(endpoint: str, topics: list[str], count: int | None, timeout_s: floa
     return 0
 
 
-def send_command(endpoint: str, request: dict[str, Any], timeout_s: float = 5.0) -> dict[str, Any]:
-    """One request on the command socket; raises TimeoutError if no reply comes."""
+def send_command(endpoint: str, request: dict[str, Any], timeout_s: float = 5.0,
+                 curve: tuple[str, str] | None = None) -> dict[str, Any]:
+    """One request on the command socket; raises TimeoutError if no reply comes.
+    ``curve``: (client secret key file, server public key file) for a CURVE socket."""
     ctx = zmq.Context.instance()
     sock = ctx.socket(zmq.REQ)
     sock.setsockopt(zmq.LINGER, 0)
+    if curve is not None:
+        public, secret = zmq.auth.load_certificate(curve[0])
+        server_public, _ = zmq.auth.load_certificate(curve[1])
+        sock.curve_secretkey, sock.curve_publickey, sock.curve_serverkey = secret, public, server_public
     sock.connect(endpoint)
     try:
         sock.send(json.dumps(request).encode())

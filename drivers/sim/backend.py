@@ -152,6 +152,8 @@ class SimCell:
         self.plant.schedule_valve(t, FAULT_LEAK, False)
         self.plant.schedule_valve(t, FAULT_SUPPLY, False)
         self.plant.schedule_regulator(t, self.p_atm + self.setpoint_pa)
+        if self.tank_node is not None:  # an over-pressured tank is bled back to the regulator's pressure
+            self.plant.schedule_pressure(t, "tank", self.p_atm + self.setpoint_pa)
         for sensor in self.sensors.values():
             sensor.fault = None
         self._faults, self.source_fault = [], None

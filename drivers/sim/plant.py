@@ -108,6 +108,15 @@ class Plant:
 
         self.schedule(t, apply, f"scale {node} x{factor:.4f}")
 
+    def schedule_pressure(self, t: float, node: str, p_abs: float) -> None:
+        """Set a node's pressure at time t (an operator bleeding or topping up a volume)."""
+        i = self.net.index[node]
+
+        def apply() -> None:
+            self._seg.y0[i] = self.laws[i].amount_at(p_abs - self.net.p_atm)
+
+        self.schedule(t, apply, f"set {node} to {p_abs:.0f} Pa")
+
     def schedule_flow(self, t: float, flow_of_t: Callable[[float], float] | None) -> None:
         def apply() -> None:
             self.flow_of_t = flow_of_t

@@ -19,6 +19,9 @@ class SensorModel:
         self.noise_sd = noise_sd
         self.quantum = quantum
         self.rng = rng
+        self.fault: str | None = None  # injected: "nan", "stuck", "rail"
+        self.fault_from = float("inf")
+        self._stuck_value: float | None = None
 
     @classmethod
     def pressure(cls, spec: Sensor, rng: np.random.Generator) -> SensorModel:
@@ -38,4 +41,20 @@ class SensorModel:
         if self.quantum > 0:
             out = np.round(out / self.quantum) * self.quantum
         # a saturated sensor reports its rail; the supervisor treats the rail as a fault
-        return np.clip(out, self.lo, self.hi)
+        out = np.clip(out, self.lo, self.hi)
+        if self.fault is not None:
+            bad = t >= self.fault_from
+            if bad.any():
+                first = int(np.argmax(bad))
+                if self.fault == "nan":
+                    out[bad] = np.nan
+                elif self.fault == "rail":
+                    out[bad] = self.hi
+                elif self.fault == "stuck":
+                    if self._stuck_value is None:
+                        self._stuck_value = float(out[first - 1]) if first > 0 else float(out[first])
+                    out[bad] = self._stuck_value
+        return out
+
+    def inject(self, kind: str, t: float) -> None:
+        self.fault, self.fault_from, self._stuck_value = kind, t, None

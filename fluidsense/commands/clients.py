@@ -29,6 +29,8 @@ def register(sub) -> None:
     p.add_argument("--config", "-c", help="cell config naming the endpoint (default: config/cell-sim.yaml)")
     p.add_argument("--endpoint", help="command endpoint, e.g. tcp://127.0.0.1:5561")
     p.add_argument("--timeout", type=float, default=5.0)
+    p.add_argument("--client-key", help="CURVE: this client's secret key file (with --server-key)")
+    p.add_argument("--server-key", help="CURVE: the daemon's public key file")
     p.set_defaults(func=cmd_cmd)
 
 
@@ -48,6 +50,7 @@ def cmd_cmd(args: argparse.Namespace) -> int:
         request = json.loads(args.request)
     except json.JSONDecodeError:
         request = {"cmd": args.request}
-    reply = send_command(endpoint, request, args.timeout)
+    curve = (args.client_key, args.server_key) if args.client_key and args.server_key else None
+    reply = send_command(endpoint, request, args.timeout, curve=curve)
     print(json.dumps(reply, indent=2))
     return 0 if reply.get("ok") else 1

@@ -1,0 +1,118 @@
+"""Every configuration model refuses bad input with FILE: field: reason (missing field,
+wrong type, out of range, unknown field), through the same loader the YAML files use."""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+import annotated_types as at
+import pytest
+
+from controller.config import validate
+from drivers.errors import ConfigError
+from drivers.models import StrictModel
+
+MODULES = ["drivers.hardware", "drivers.scenes", "drivers.world", "drivers.config", "drivers.sampler.config",
+           "controller.config", "controller.commands", "tasks.config"]
+for m in MODULES:
+    importlib.import_module(m)
+
+# a valid instance for the models that have required fields
+EXAMPLES = {
+    "Window": {"name": "eq", "start_s": 4, "end_s": 5},
+    "Limits": {"max_kpa": 90, "min_kpa": -5},
+    "Profile": {"name": "p"},
+    "CellConfig": {"driver": {"kind": "sim"}, "profile": {"name": "p"}},
+    "CylinderScene": {"diameter_mm": 60},
+    "RectangleScene": {"width_mm": 60},
+    "PlateScene": {"height_mm": 10},
+    "StopperScene": {"angle_deg": 10},
+    "WallScene": {"distance_mm": 10},
+    "CalibrationPlan": {"scene": {"kind": "plate", "height_mm": 0}, "target": "height_mm", "values": [0, 10]},
+    "CurveKeys": {"server_secret_file": "s", "clients_dir": "c"},
+    "WorldObject": {"name": "o", "diameter_mm": 60},
+    "WorldSlot": {"name": "s", "pose": [0, 0, 0, 0, 0, 0]},
+    "WorldSpec": {"slots": [{"name": "s", "pose": [0, 0, 0, 0, 0, 0]}]},
+    "PollerSpec": {"factory": "drivers.sampler.synthetic:SyntheticPoller"},
+    "SamplerConfig": {"poller": {"factory": "drivers.sampler.synthetic:SyntheticPoller"}, "channels": ["p_act"]},
+    "StatusCmd": {"cmd": "status"}, "CycleCmd": {"cmd": "cycle"}, "AbortCmd": {"cmd": "abort"},
+    "ResetCmd": {"cmd": "reset"}, "SceneCmd": {"cmd": "scene", "scene": {"kind": "none"}},
+    "TaskCmd": {"cmd": "task", "file": "x.yaml"}, "ShutdownCmd": {"cmd": "shutdown"},
+    "RipenessObject": {"name": "o", "diameter_mm": 55},
+    "SortingTask": {"task": "sorting", "cell": "c.yaml", "slots": {"a": [0, 0, 0, 0, 0, 0], "b": [0, 0, 0, 0, 0, 0]},
+                    "input_slots": ["a"], "sorted_slots": ["b"]},
+    "PickingTask": {"task": "picking", "cell": "c.yaml", "slots": {"a": [0, 0, 0, 0, 0, 0], "b": [0, 0, 0, 0, 0, 0]},
+                    "tomato_slots": ["a"], "place_slots": ["b"]},
+    "RipenessTask": {"task": "ripeness", "cell": "c.yaml",
+                     "slots": {"a": [0, 0, 0, 0, 0, 0], "b": [0, 0, 0, 0, 0, 0], "c": [0, 0, 0, 0, 0, 0]},
+                     "dummy_slots": ["a", "b"], "dummy_diameters_mm": [45, 65], "object_slots": ["c"],
+                     "objects": [{"name": "o", "diameter_mm": 55}]},
+}
+
+
+def all_models():
+    seen, todo = [], list(StrictModel.__subclasses__())
+    while todo:
+        cls = todo.pop()
+        if cls not in seen and cls.__module__.split(".")[0] in ("drivers", "controller", "tasks") \
+                and not cls.__name__.startswith("_"):  # private bases are never configured alone
+            seen.append(cls)
+        todo.extend(cls.__subclasses__())
+    return sorted(seen, key=lambda c: c.__name__)
+
+
+MODELS = all_models()
+PATH = Path("config/example.yaml")
+
+
+def test_every_model_is_covered():
+    names = {m.__name__ for m in MODELS}
+    assert len(MODELS) >= 40
+    assert {"CellConfig", "Profile", "SequenceConfig", "TankCircuit", "GripperActuator", "SortingTask"} <= names
+
+
+def example(model) -> dict:
+    data = dict(EXAMPLES.get(model.__name__, {}))
+    validate(model, data, PATH)  # the example itself is valid
+    return data
+
+
+def _bound(field):
+    for meta in field.metadata:
+        if isinstance(meta, (at.Gt, at.Ge)):
+            return "low", meta.gt if isinstance(meta, at.Gt) else meta.ge
+        if isinstance(meta, (at.Lt, at.Le)):
+            return "high", meta.lt if isinstance(meta, at.Lt) else meta.le
+    return None
+
+
+@pytest.mark.parametrize("model", MODELS, ids=lambda m: m.__name__)
+def test_unknown_field(model):
+    data = {**example(model), "colour_mm": 3}
+    with pytest.raises(ConfigError, match=rf"^{PATH}: colour_mm: unknown field"):
+        validate(model, data, PATH)
+
+
+@pytest.mark.parametrize("model", MODELS, ids=lambda m: m.__name__)
+def test_missing_required_fields(model):
+    required = [n for n, f in model.model_fields.items() if f.is_required()]
+    for name in required:
+        data = {k: v for k, v in example(model).items() if k != name}
+        with pytest.raises(ConfigError, match=rf"{PATH}: {name}: required field is missing"):
+            validate(model, data, PATH)
+
+
+@pytest.mark.parametrize("model", MODELS, ids=lambda m: m.__name__)
+def test_wrong_type_and_out_of_range(model):
+    numeric = [(n, f) for n, f in model.model_fields.items() if f.annotation in (float, int, float | None, int | None)]
+    for name, field in numeric:
+        data = {**example(model), name: "lots"}
+        with pytest.raises(ConfigError, match=rf"{PATH}: {name}: .*valid (number|integer)"):
+            validate(model, data, PATH)
+        bound = _bound(field)
+        if bound is not None:
+            side, edge = bound
+            bad = edge - 1e6 if side == "low" else edge + 1e6
+            with pytest.raises(ConfigError, match=rf"{PATH}: {name}: .*(greater|less) than"):
+                validate(model, {**example(model), name: bad}, PATH)

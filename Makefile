@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test install clean lint-imports report speed-accuracy stability
+.PHONY: demo test install clean lint-imports report speed-accuracy stability timing
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -32,6 +32,15 @@ speed-accuracy: $(STAMP)
 # Regenerates docs/stability (perturbations, failures, mitigations; ~4 minutes).
 stability: $(STAMP)
 	$(BIN)/fluidsense bench stability --out docs/stability
+
+# 1 kHz timing figures of docs/performance.md (TIMING_S seconds per run; 600 in the doc).
+TIMING_S ?= 600
+timing: $(STAMP)
+	mkdir -p docs/performance
+	$(BIN)/fluidsense bench sim --json > docs/performance/sim.json
+	$(BIN)/fluidsense bench timing --source sim --seconds $(TIMING_S) --json > docs/performance/timing-sim.json
+	$(BIN)/fluidsense bench timing --source modbus --seconds $(TIMING_S) --json > docs/performance/timing-modbus.json
+	$(BIN)/fluidsense bench sampler --seconds 60 --json > docs/performance/sampler.json
 
 lint-imports: $(STAMP)
 	$(BIN)/lint-imports

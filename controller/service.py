@@ -562,6 +562,7 @@ class Controller:
         v = np.vstack([b.values for b in self._batch]) / np.array([_EDGE_SCALE[_unit(c)] for c in channels])
         self.pub.send("pressure", self.now, {
             "t0_s": float(t[0]), "rate_hz": self.backend.source.rate_hz, "n": len(t),
+            "clock_origin_s": self.backend.source.clock_origin_s,
             "channels": list(channels), "units": [_unit(c) for c in channels],
             "times_s": t.tolist(), "values": np.round(v, 5).T.tolist()})
         self._batch, self._batch_start = [], None

@@ -118,6 +118,13 @@ class SampleSource(Device):
     #: arrive at the device's pace
     virtual: bool = False
 
+    @property
+    def clock_origin_s(self) -> float | None:
+        """``time.monotonic()`` of sample time 0, when samples are taken in real time (the
+        monotonic clock is shared by every process of the machine: other processes can
+        turn sample times into their own clock). None in virtual time."""
+        return None
+
     async def read_block(self) -> SampleBlock:
         """The next block. Raises LinkLostError when the source is gone."""
         self._require_connected()

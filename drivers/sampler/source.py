@@ -82,6 +82,10 @@ class SampledSource(SampleSource):
         return self.proc.pid if self.proc is not None else None
 
     @property
+    def clock_origin_s(self) -> float | None:
+        return self.t0_monotonic_s
+
+    @property
     def t0_monotonic_s(self) -> float | None:
         """CLOCK_MONOTONIC time of slot 0: add it to a block's ``t`` for an absolute time."""
         return self.hello["t0_monotonic_ns"] / 1e9 if self.hello else None

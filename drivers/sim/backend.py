@@ -347,6 +347,10 @@ class SimSource(SampleSource):
         self._seq = 0
         self._wall_t0: float | None = None
 
+    @property
+    def clock_origin_s(self) -> float | None:
+        return None if self.virtual else self._wall_t0  # the event loop's clock is time.monotonic
+
     async def _setup(self) -> None:
         self._wall_t0 = asyncio.get_running_loop().time() - self.cell.t_next
 

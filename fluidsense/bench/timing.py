@@ -1,0 +1,184 @@
+"""``fluidsense bench timing``: the daemon at 1 kHz, measured from another process.
+
+Starts ``fluidsense run`` (real time) on the simulated cell (``--source sim``: hardware-
+timed, exact timestamps) or on a polled Modbus analog input served by the emulated UR
+control box (``--source modbus``: the sampler process polls it), attaches a ZeroMQ
+subscriber in this process and reports, for the samples it received:
+- lost and duplicated samples (every slot of the grid accounted for),
+- lateness of each sample's timestamp against its slot (0 for a hardware-timed source),
+- end-to-end latency from a sample's timestamp to its arrival here (CLOCK_MONOTONIC is
+  shared by the processes of a machine): the newest sample of each published block,
+- CPU used by the daemon and its sampler process.
+Blocks are published as they come (``pressure_batch_s`` = one block).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+import zmq
+
+NAME = "timing"
+HELP = "1 kHz end to end: lost samples, lateness, latency to a subscriber, CPU"
+DESCRIPTION = __doc__
+
+
+def register(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--seconds", type=float, default=60.0, help="measurement length (default 60)")
+    p.add_argument("--source", choices=["sim", "modbus"], default="sim")
+    p.add_argument("--rate-hz", type=float, default=1000.0)
+    p.add_argument("--load", nargs="?", const=-1, type=int, default=0,
+                   help="competing CPU load: N busy processes (default: one per CPU)")
+    p.add_argument("--late-us", type=float, default=50.0, help="a sample this late is late (default 50 us)")
+    p.add_argument("--json", action="store_true")
+
+
+def _burn(stop_at: float) -> None:  # pragma: no cover - runs in a load process
+    x = 0
+    while time.monotonic() < stop_at:
+        x += 1
+
+
+def _cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process and its live children (Linux /proc)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    total = 0.0
+    pids = [pid]
+    try:
+        for task in Path(f"/proc/{pid}/task").iterdir():
+            kids = (task / "children").read_text().split()
+            pids += [int(k) for k in kids]
+    except OSError:
+        pass
+    for p in pids:
+        try:
+            fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
+            total += (int(fields[11]) + int(fields[12])) / tick
+        except (OSError, IndexError, ValueError):
+            pass
+    return total
+
+
+def _cell_config(tmp: Path, source: str, rate: float) -> Path:
+    from ..app import REPO_ROOT
+
+    block = 10
+    data: dict[str, Any] = {
+        "profile": str(REPO_ROOT / "config" / "profiles" / "pneunet-gripper.yaml"),
+        "publisher": {"pub": f"ipc://{tmp}/pub", "cmd": f"ipc://{tmp}/cmd", "pressure_batch_s": block / rate},
+        "log_level": "WARNING",
+    }
+    if source == "sim":
+        data["driver"] = {"kind": "sim", "clock": "realtime", "rate_hz": rate, "block_size": block, "seed": 1}
+    else:
+        modbus = REPO_ROOT / "config" / "cell-modbus-sim.yaml"
+        if not modbus.exists():
+            raise SystemExit("--source modbus needs the Modbus driver (config/cell-modbus-sim.yaml)")
+        cell = yaml.safe_load(modbus.read_text())
+        data["driver"] = cell["driver"]
+        data["profile"] = str((modbus.parent / cell["profile"]).resolve()) if isinstance(cell["profile"], str) \
+            else cell["profile"]
+    path = tmp / "cell.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def run_bench(seconds: float = 60.0, source: str = "sim", rate: float = 1000.0, load: int = 0,
+              late_us: float = 50.0) -> dict[str, Any]:
+    tmp = Path(tempfile.mkdtemp(prefix="fluidsense-timing-"))
+    cfg = _cell_config(tmp, source, rate)
+    extra: list[subprocess.Popen] = []
+    if source == "modbus":
+        extra.append(subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "simcell", "--config",
+                                       str(Path(cfg).parent / "cell.yaml")], stdout=subprocess.PIPE))
+    daemon = subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "run", "--config", str(cfg)],
+                              stderr=subprocess.PIPE)
+    ctx = zmq.Context()
+    sub = ctx.socket(zmq.SUB)
+    sub.setsockopt(zmq.RCVHWM, 100_000)
+    for topic in (b"pressure", b"hello"):
+        sub.setsockopt(zmq.SUBSCRIBE, topic)
+    sub.connect(f"ipc://{tmp}/pub")
+    burners: list[multiprocessing.Process] = []
+    try:
+        if not sub.poll(30_000) or sub.recv_multipart() != [b"hello"]:
+            raise RuntimeError(f"the daemon did not come up: {daemon.stderr.read().decode()[-2000:]}")
+        n_load = (os.cpu_count() or 1) if load == -1 else load
+        stop_at = time.monotonic() + seconds
+        for _ in range(n_load):
+            pr = multiprocessing.Process(target=_burn, args=(stop_at,))
+            pr.start()
+            burners.append(pr)
+        cpu0, wall0 = _cpu_s(daemon.pid), time.monotonic()
+        times, newest_age, oldest_age = [], [], []
+        while time.monotonic() < stop_at:
+            if not sub.poll(1000):
+                continue
+            frames = sub.recv_multipart()
+            arrival = time.monotonic()
+            if frames[0] != b"pressure":
+                continue
+            msg = json.loads(frames[1])
+            origin = msg["clock_origin_s"]
+            t = msg["times_s"]
+            times.extend(t)
+            newest_age.append(arrival - (origin + t[-1]))
+            oldest_age.append(arrival - (origin + t[0]))
+        cpu = (_cpu_s(daemon.pid) - cpu0) / (time.monotonic() - wall0)
+    finally:
+        for pr in burners:
+            pr.join(5)
+        daemon.send_signal(signal.SIGTERM)
+        try:
+            daemon.wait(30)
+        except subprocess.TimeoutExpired:
+            daemon.kill()
+        for p in extra:
+            p.terminate()
+            p.wait(30)
+        sub.close()
+        ctx.term()
+    t = np.array(times)
+    k = np.round((t - t[0]) * rate).astype(np.int64)
+    grid = t[0] + k / rate
+    lateness = (t - grid) * 1e6
+    lateness -= lateness.min()  # the first sample may itself have been late: measure from the earliest
+    uniq = np.unique(k)
+    pct = np.percentile
+    return {
+        "source": source, "rate_hz": rate, "seconds": seconds, "load_processes": n_load, "samples": int(len(t)),
+        "lost": int(uniq[-1] - uniq[0] + 1 - len(uniq)), "duplicated": int(len(k) - len(uniq)),
+        "late_fraction": float(np.mean(lateness > late_us)), "late_threshold_us": late_us,
+        "lateness_us": {"p50": float(pct(lateness, 50)), "p99": float(pct(lateness, 99)),
+                        "p999": float(pct(lateness, 99.9)), "max": float(lateness.max())},
+        "e2e_latency_ms": {"p50": float(pct(newest_age, 50) * 1e3), "p99": float(pct(newest_age, 99) * 1e3),
+                           "max": float(np.max(newest_age) * 1e3)},
+        "e2e_latency_oldest_ms": {"p50": float(pct(oldest_age, 50) * 1e3), "p99": float(pct(oldest_age, 99) * 1e3)},
+        "cpu_percent": 100.0 * cpu,
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    res = run_bench(args.seconds, args.source, args.rate_hz, args.load, args.late_us)
+    if args.json:
+        print(json.dumps(res, indent=1))
+        return 0
+    lat, e2e = res["lateness_us"], res["e2e_latency_ms"]
+    print(f"{res['source']} at {res['rate_hz']:.0f} Hz for {res['seconds']:.0f} s ({res['load_processes']} load "
+          f"processes): {res['samples']} samples, {res['lost']} lost, {res['duplicated']} duplicated, "
+          f"{100 * res['late_fraction']:.3f} % late; lateness p50/p99/p99.9/max {lat['p50']:.1f}/{lat['p99']:.1f}/"
+          f"{lat['p999']:.1f}/{lat['max']:.1f} us; latency to subscriber p50/p99/max {e2e['p50']:.2f}/"
+          f"{e2e['p99']:.2f}/{e2e['max']:.2f} ms; CPU {res['cpu_percent']:.1f} % of one core")
+    return 0

@@ -18,7 +18,7 @@ import zmq.asyncio
 from pydantic import Field, TypeAdapter, ValidationError
 
 from drivers.errors import FluidsenseError
-from drivers.models import StrictModel
+from drivers.models import StrictModel, first_error
 from drivers.scenes import Scene
 
 log = logging.getLogger(__name__)
@@ -85,9 +85,7 @@ def parse(frames: list[bytes]) -> Any:
     try:
         return _ADAPTER.validate_python(data)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        loc = ".".join(str(p) for p in first["loc"][1:]) or "request"
-        raise ValueError(f"{loc}: {first['msg']}") from None
+        raise ValueError(first_error(exc, "request", skip=1)) from None
 
 
 class CommandServer:

@@ -11,6 +11,7 @@ from pydantic import TypeAdapter, ValidationError
 from controller.config import CellConfig, Profile, load_cell_config, load_profile
 from drivers.config import SimDriverConfig
 from drivers.errors import ConfigError
+from drivers.models import first_error
 from drivers.scenes import Scene
 
 from . import app
@@ -87,6 +88,4 @@ def scene_from_args(args: argparse.Namespace, base: Any | None = None) -> Any | 
     try:
         return _SCENE.validate_python(data)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        loc = ".".join(str(x) for x in err["loc"][1:]) or "scene"
-        raise ConfigError(f"--scene/--set: {loc}: {err['msg']}") from None
+        raise ConfigError(f"--scene/--set: {first_error(exc, 'scene', skip=1)}") from None

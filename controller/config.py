@@ -232,6 +232,21 @@ class CellConfig(StrictModel):
     supervision: Supervision = Supervision()
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
 
+    @model_validator(mode="after")
+    def _wired_to_the_profile(self) -> CellConfig:
+        wiring = getattr(self.driver, "wiring", None)
+        if wiring is None:
+            return self
+        hw = self.profile.hardware
+        problems = wiring.check_against(list(hw.circuit.safe_valves), hw.channels,
+                                        regulated=hw.circuit.kind in ("tank", "regulated"))
+        if hw.circuit.kind == "flow":
+            problems.append("a flow-controlled circuit cannot be driven through control-box I/O (no mass flow "
+                            "controller interface): use a tank or regulated circuit")
+        if problems:
+            raise ValueError("driver.wiring: " + "; ".join(problems))
+        return self
+
 
 # ---------------------------------------------------------------------- loading
 def _field_path(loc: tuple, data: Any) -> str:
@@ -258,7 +273,7 @@ def _format_errors(path: Path, exc: ValidationError, data: Any, prefix: str = ""
     for err in exc.errors():
         loc = _field_path(err["loc"], data)
         loc = f"{prefix}{loc}" if loc else (prefix.rstrip(".") or "(top level)")
-        msg = err["msg"]
+        msg = err["msg"].removeprefix("Value error, ")
         if err["type"] == "extra_forbidden":
             msg = "unknown field (not allowed here)"
         elif err["type"] == "missing":

@@ -311,6 +311,10 @@ class SceneControl(Device):
         """Ground truth of the current scene (simulated cells only)."""
         raise NotSupportedError("this backend has no ground truth")
 
+    async def read_truth(self) -> dict[str, Any]:
+        """``truth()``, also where the simulated cell runs in another process."""
+        return self.truth()
+
 
 @dataclass
 class Backend:

@@ -1,6 +1,6 @@
-"""Driver selection: a pydantic discriminated union on ``kind``; the chosen backend's
-module is imported only when it is built, so a cell that does not ask for the
-simulated plant (or for ur_rtde) never imports it."""
+"""Driver selection: a pydantic discriminated union on ``kind`` (``sim``, ``ur``,
+``modbus``); the chosen backend's module is imported only when it is built, so a cell
+that does not ask for the simulated plant (or for ur_rtde, or pymodbus) never imports it."""
 
 from __future__ import annotations
 
@@ -12,6 +12,8 @@ from pydantic import Field
 from .base import Backend
 from .hardware import Hardware
 from .models import StrictModel
+from .modbus.config import ModbusDriverConfig
+from .ur.config import UrDriverConfig
 from .scenes import EmptyScene, Scene
 
 
@@ -37,12 +39,12 @@ class SimDriverConfig(StrictModel):
     perturb: Perturbations = Perturbations()
 
 
-DriverConfig = Annotated[SimDriverConfig, Field(discriminator="kind")]
+DriverConfig = Annotated[SimDriverConfig | UrDriverConfig | ModbusDriverConfig, Field(discriminator="kind")]
 
-_BACKEND_MODULES = {"sim": "drivers.sim"}
+_BACKEND_MODULES = {"sim": "drivers.sim", "ur": "drivers.ur.backend", "modbus": "drivers.modbus.backend"}
 
 
-def build_backend(cfg: SimDriverConfig, hardware: Hardware) -> Backend:
+def build_backend(cfg: SimDriverConfig | UrDriverConfig | ModbusDriverConfig, hardware: Hardware) -> Backend:
     """Import the selected backend lazily and build it."""
     module = importlib.import_module(_BACKEND_MODULES[cfg.kind])
     return module.build(cfg, hardware)

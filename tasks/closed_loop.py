@@ -70,10 +70,10 @@ class Cell:
         await self.ctrl.release()
 
 
-def _truth(ctrl: Controller) -> dict[str, Any] | None:
+async def _truth(ctrl: Controller) -> dict[str, Any] | None:
     if ctrl.backend.scene is None:
         return None
-    return ctrl.backend.scene.truth().get("world")
+    return (await ctrl.backend.scene.read_truth()).get("world")
 
 
 def _timing(ctrl: Controller, t0_sample: float, t0_wall: float) -> dict[str, float]:
@@ -127,7 +127,7 @@ async def sorting(ctrl: Controller, task: SortingTask, report: Report, order_mm:
     await cell.lift()
     summary: dict[str, Any] = {"task": "sorting", "readings": readings, "sorted_p_eq_kpa": sorted_vals,
                                **_timing(ctrl, t0, w0)}
-    world = _truth(ctrl)
+    world = await _truth(ctrl)
     if world is not None:
         final = [names.get(world["content"][s]) for s in task.sorted_slots[:n_inputs]]
         summary["final_order_mm"] = final
@@ -192,7 +192,7 @@ async def picking(ctrl: Controller, task: PickingTask, report: Report) -> dict:
         report({"event": "tomato", "slot": slot, "decision": decision})
     summary: dict[str, Any] = {"task": "picking", "references_kpa": refs, "tomatoes": outcomes,
                                **_timing(ctrl, t0, w0)}
-    world = _truth(ctrl)
+    world = await _truth(ctrl)
     if world is not None:
         events = world["events"]
         for i, out in enumerate(outcomes):

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
+import random
+import socket
 import subprocess
 import sys
 import uuid
@@ -32,6 +35,87 @@ def sim_config(tmp_path: Path, *, clock: str = "virtual", seed: int = 1, scene: 
     path = tmp_path / f"cell-{uuid.uuid4().hex[:6]}.yaml"
     path.write_text(yaml.safe_dump(data))
     return path
+
+
+_rng = random.Random()
+
+
+def _bindable(host: str, port: int) -> bool:
+    with socket.socket() as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((host, port))
+        except OSError:
+            return False
+    return True
+
+
+def free_loopback(ports) -> str:
+    """A 127.0.0.x address on which every one of ``ports`` is free: ur_rtde's ports are
+    fixed, and other sessions run their own control boxes on this machine."""
+    for _ in range(500):
+        host = f"127.0.0.{_rng.randint(20, 250)}"
+        if all(_bindable(host, p) for p in ports):
+            return host
+    raise RuntimeError("no free 127.0.0.x address")
+
+
+def pytest_collection_modifyitems(config, items):
+    """``hardware`` tests need a real robot cell: they run only when selected with
+    ``-m hardware`` (and FLUIDSENSE_HARDWARE_CONFIG names its cell config)."""
+    if "hardware" in (config.getoption("-m") or ""):
+        return
+    skip = pytest.mark.skip(reason="needs a real robot cell: run with -m hardware")
+    for item in items:
+        if "hardware" in item.keywords:
+            item.add_marker(skip)
+
+
+SIMCELL_PORTS = (30004, 29999, 30003, 5020, 30010)  # RTDE, dashboard, script, Modbus, sim control
+
+
+def write_cell(tmp_path: Path, data: dict) -> Path:
+    path = tmp_path / f"cell-{uuid.uuid4().hex[:6]}.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def simcell_config(tmp_path: Path, kind: str, host: str, profile: str | None = None) -> Path:
+    """config/cell-{kind}-sim.yaml moved to ``host``, with ipc endpoints in the test's directory."""
+    data = yaml.safe_load((CONFIG / f"cell-{kind}-sim.yaml").read_text())
+    data["driver"]["host"] = host
+    data["profile"] = str(CONFIG / "profiles" / (profile or data["profile"].rsplit("/", 1)[-1]))
+    pub, cmd = ipc_endpoints(tmp_path)
+    data["publisher"] = {"pub": pub, "cmd": cmd}
+    return write_cell(tmp_path, data)
+
+
+@contextlib.contextmanager
+def free_simcell(tmp_path: Path, kind: str, profile: str | None = None):
+    """``fluidsense simcell`` for a ``kind`` (ur, modbus) cell config on a free 127.0.0.x;
+    yields (the box process, the cell config). The box must end cleanly."""
+    from drivers.sim.controlbox.process import EmulatorProcess
+
+    for _ in range(5):
+        cell = simcell_config(tmp_path, kind, free_loopback(SIMCELL_PORTS), profile)
+        box = EmulatorProcess(command=[sys.executable, "-m", "fluidsense.cli", "simcell", "--config", str(cell)])
+        try:
+            box.start(timeout_s=30)
+        except Exception:  # noqa: BLE001 - lost a race for the address: take the next one
+            if "cannot listen" in box.log():
+                continue
+            raise
+        break
+    else:
+        raise RuntimeError("could not start fluidsense simcell on a free address")
+    try:
+        yield box, cell
+    finally:
+        killed = box.proc.poll() is not None and box.proc.returncode == -9
+        code = box.stop()
+        box.__exit__(None, None, None)
+        assert killed or code == 0, box.log()
+        assert "Traceback" not in box.log(), box.log()
 
 
 def ipc_endpoints(tmp_path: Path) -> tuple[str, str]:

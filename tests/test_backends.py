@@ -1,12 +1,14 @@
 """Contract every backend honours, then what only the simulated cell promises.
 
-The contract runs over every backend that can run here. Today that is the simulated
-cell; the ur-rtde and Modbus backends join the list when they exist.
+The contract runs over every backend: the simulated cell in-process, and the ur-rtde
+and Modbus drivers against ``fluidsense simcell`` (an emulated UR control box in its
+own process, backed by the simulated plant).
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 
 import numpy as np
 import pytest
@@ -17,22 +19,29 @@ from drivers.errors import CommandError, DriverError, SafetyError
 from drivers.hardware import Hardware
 from drivers.scenes import CylinderScene
 
-from .conftest import sim_config
+from .conftest import free_simcell, sim_config
 
-BACKENDS = ["sim"]
+BACKENDS = ["sim", "ur", "modbus"]
 
 
-def make_backend(kind: str, tmp_path):
-    if kind == "sim":
-        cfg = load_cell_config(sim_config(tmp_path))
-        return build_backend(cfg.driver, cfg.profile.hardware)
-    raise AssertionError(kind)  # pragma: no cover
+@pytest.fixture
+def make_backend(tmp_path):
+    with contextlib.ExitStack() as boxes:
+        def make(kind: str):
+            if kind == "sim":
+                cell = sim_config(tmp_path)
+            else:
+                _, cell = boxes.enter_context(free_simcell(tmp_path, kind))
+            cfg = load_cell_config(cell)
+            return build_backend(cfg.driver, cfg.profile.hardware)
+
+        yield make
 
 
 @pytest.mark.parametrize("kind", BACKENDS)
-def test_backend_contract(kind, tmp_path):
+def test_backend_contract(kind, make_backend):
     async def body():
-        backend = make_backend(kind, tmp_path)
+        backend = make_backend(kind)
         with pytest.raises(DriverError, match="not set up"):
             await backend.source.read_block()
         async with backend:
@@ -62,6 +71,14 @@ def test_backend_contract(kind, tmp_path):
                 await backend.regulator.set_setpoint(float("nan"), t[-1])
             await backend.regulator.set_setpoint(63e3, t[-1])
             assert backend.regulator.setpoint_pa == 63e3
+            # arm: a pose of six finite numbers; what it must not do is refused before the device
+            pose = backend.arm.tcp_pose
+            assert len(pose) == 6 and np.all(np.isfinite(pose))
+            with pytest.raises(SafetyError, match="outside"):
+                await backend.arm.move_l(pose, 2 * backend.arm.max_speed, 1.0, t[-1])
+            with pytest.raises(CommandError, match="6 finite numbers"):
+                await backend.arm.move_l([*pose[:5], float("nan")], 0.1, 1.0, t[-1])
+            assert backend.arm.tcp_pose == pytest.approx(pose, abs=1e-6)
         assert not backend.source.connected
 
     asyncio.run(body())

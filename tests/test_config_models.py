@@ -14,6 +14,7 @@ from drivers.errors import ConfigError
 from drivers.models import StrictModel
 
 MODULES = ["drivers.hardware", "drivers.scenes", "drivers.world", "drivers.config", "drivers.sampler.config",
+           "drivers.io", "drivers.ur.config", "drivers.modbus.config",
            "controller.config", "controller.commands", "tasks.config"]
 for m in MODULES:
     importlib.import_module(m)
@@ -40,6 +41,17 @@ EXAMPLES = {
     "ResetCmd": {"cmd": "reset"}, "SceneCmd": {"cmd": "scene", "scene": {"kind": "none"}},
     "TaskCmd": {"cmd": "task", "file": "x.yaml"}, "ShutdownCmd": {"cmd": "shutdown"},
     "RipenessObject": {"name": "o", "diameter_mm": 55},
+    "Ratiometric": {"range_kpa": [-34.5, 34.5]}, "Mpx": {"a_per_kpa": 0.004, "b": 0.04},
+    "Linear": {"range_kpa": [0, 600]}, "ValveWiring": {"output": 0}, "RegulatorWiring": {"analog_output": 0},
+    "SensorWiring": {"analog_input": 0, "transfer": {"kind": "linear", "range_kpa": [0, 600]}},
+    "Wiring": {"valves": {"actuate": {"output": 1}},
+               "sensors": {"p_act": {"analog_input": 0, "transfer": {"kind": "linear", "range_kpa": [0, 600]}}}},
+    "UrDriverConfig": {"host": "10.0.0.2", "wiring": {
+        "valves": {"actuate": {"output": 1}},
+        "sensors": {"p_act": {"analog_input": 0, "transfer": {"kind": "linear", "range_kpa": [0, 600]}}}}},
+    "ModbusDriverConfig": {"host": "10.0.0.2", "wiring": {
+        "valves": {"actuate": {"output": 1}},
+        "sensors": {"p_act": {"analog_input": 0, "transfer": {"kind": "linear", "range_kpa": [0, 600]}}}}},
     "SortingTask": {"task": "sorting", "cell": "c.yaml", "slots": {"a": [0, 0, 0, 0, 0, 0], "b": [0, 0, 0, 0, 0, 0]},
                     "input_slots": ["a"], "sorted_slots": ["b"]},
     "PickingTask": {"task": "picking", "cell": "c.yaml", "slots": {"a": [0, 0, 0, 0, 0, 0], "b": [0, 0, 0, 0, 0, 0]},

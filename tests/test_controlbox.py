@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import asyncio
 import math
-import random
 import signal
 import socket
 import struct
@@ -21,32 +20,16 @@ from pymodbus.client import AsyncModbusTcpClient
 from drivers.errors import DriverError, LinkLostError
 from drivers.sim.controlbox.process import EmulatorProcess
 
+from .conftest import free_loopback
 from .ur_client import UrClient
 
 MODBUS_PORT = 5020  # 502 needs privileges; the emulator's port is configurable
 PORTS = (30004, 29999, 30003, MODBUS_PORT)
 START = [0.3, -0.2, 0.4, 0.0, 3.1416, 0.0]  # KinematicModel's default pose
-_rng = random.Random()
-
-
-def _bindable(host: str, port: int) -> bool:
-    with socket.socket() as s:
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            s.bind((host, port))
-        except OSError:
-            return False
-    return True
 
 
 def free_host() -> str:
-    """A loopback address on which every port of the box is free (other sessions run
-    their own emulators on this machine)."""
-    for _ in range(500):
-        host = f"127.0.0.{_rng.randint(20, 250)}"
-        if all(_bindable(host, p) for p in PORTS):
-            return host
-    raise RuntimeError("no free 127.0.0.x address")
+    return free_loopback(PORTS)
 
 
 @pytest.fixture

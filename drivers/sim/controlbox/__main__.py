@@ -21,7 +21,7 @@ from collections.abc import Callable
 
 from pydantic import ValidationError
 
-from ...errors import ConfigError, FluidsenseError
+from ...errors import ConfigError, DriverError, FluidsenseError
 from . import simcontrol
 from .config import AnalogScale, ControlBoxConfig
 from .emulator import Emulator
@@ -89,7 +89,7 @@ async def serve_sim_control(emulator: Emulator) -> None:
     while line := await reader.readline():
         if line.strip():
             reply = simcontrol.handle(emulator.box, line.decode(errors="replace"))
-            sys.stdout.write(json.dumps(reply) + "\n")
+            sys.stdout.write(json.dumps(reply, default=float) + "\n")
             sys.stdout.flush()
 
 
@@ -102,19 +102,29 @@ def _pollable(stream) -> bool:
     return stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode) or stream.isatty()
 
 
-async def main_async(config: ControlBoxConfig, model: ControlBoxModel) -> None:
+async def main_async(config: ControlBoxConfig, model: ControlBoxModel, sim_control_port: int | None = None) -> None:
     emulator = Emulator(config, model)
     await emulator.start()
+    tcp_control = None
+    if sim_control_port is not None:
+        try:
+            tcp_control = await simcontrol.serve_tcp(emulator.box, config.host, sim_control_port)
+        except OSError as exc:
+            await emulator.close()
+            raise DriverError(f"sim control cannot listen on {config.host}:{sim_control_port}: {exc}") from exc
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, emulator.stop)
+    sim = f" sim_control={sim_control_port}" if tcp_control is not None else ""
     print(f"ready host={config.host} rtde={config.rtde_port} dashboard={config.dashboard_port} "
-          f"script={config.script_port} modbus={config.modbus_port}", flush=True)
+          f"script={config.script_port} modbus={config.modbus_port}{sim}", flush=True)
     control = asyncio.create_task(serve_sim_control(emulator))
     try:
         await emulator.run()
     finally:
         control.cancel()
+        if tcp_control is not None:
+            tcp_control.close()
         await emulator.close()
         log.info("control box emulator stopped")
 

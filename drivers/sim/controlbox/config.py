@@ -4,37 +4,12 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from pydantic import Field, model_validator
+from pydantic import Field
 
+from ...io import AnalogScale
 from ...models import StrictModel
 
 Port = Annotated[int, Field(ge=1, le=65535)]
-
-
-class AnalogScale(StrictModel):
-    """How Modbus raw counts (0..65535) and RTDE ratios (0..1) map to signal values.
-
-    UR does not document the raw count scale; the defaults map the full count range onto
-    the analog I/O's electrical range (0-10 V, 4-20 mA). RTDE's analog output ratio uses
-    the same ranges (ratio 0 -> 4 mA, ratio 1 -> 20 mA)."""
-
-    voltage_v: tuple[float, float] = (0.0, 10.0)
-    current_ma: tuple[float, float] = (4.0, 20.0)
-
-    @model_validator(mode="after")
-    def _ordered(self) -> AnalogScale:
-        for name in ("voltage_v", "current_ma"):
-            lo, hi = getattr(self, name)
-            if not lo < hi:
-                raise ValueError(f"{name} must be [low, high] with low < high, got {[lo, hi]}")
-        return self
-
-    def span(self, domain: int) -> tuple[float, float]:
-        """(low, high) in SI units (V or A) for an ``AnalogDomain`` value."""
-        if domain == 1:
-            return self.voltage_v
-        lo, hi = self.current_ma
-        return lo / 1e3, hi / 1e3
 
 
 class ControlBoxConfig(StrictModel):

@@ -33,13 +33,18 @@ class EmulatorProcess:
     """``python -m drivers.sim.controlbox`` in a child process."""
 
     def __init__(self, host: str = "127.0.0.1", *, modbus_port: int = 502, model: str | None = None,
-                 args: Sequence[str] = (), python: str = sys.executable, cwd: Path = REPO):
+                 args: Sequence[str] = (), python: str = sys.executable, cwd: Path = REPO,
+                 command: Sequence[str] | None = None):
+        """``command`` replaces the whole command line (e.g. ``fluidsense simcell``, which
+        speaks the same ready line and sim control channel)."""
         self.host = host
         self.modbus_port = modbus_port
         self.argv = [python, "-m", "drivers.sim.controlbox", "--host", host, "--modbus-port", str(modbus_port)]
         if model is not None:
             self.argv += ["--model", model]
         self.argv += list(args)
+        if command is not None:
+            self.argv = list(command)
         self.cwd = cwd
         self.proc: subprocess.Popen[bytes] | None = None
         self.ready_line = ""

@@ -8,10 +8,18 @@ per line on stdout: ``{"cmd": "state"}`` returns a snapshot of the model;
 ``{"cmd": "set", "analog_input": {"channel": 0, "value": 4.5, "domain": "VOLTAGE"}}``.
 Replies are ``{"ok": true, ...}`` or ``{"ok": false, "error": "..."}``, with the
 request's ``id`` echoed when it has one. This is not part of the UR control box.
+
+A box backed by the simulated plant (``fluidsense simcell``) also answers ``scene``
+(place an object), ``world`` (lay out slots and objects for an arm), ``truth`` (what a
+bench instrument would read) and ``inject`` / ``clear_faults`` (fault injection). The
+same commands are served over TCP (one JSON object per line each way) when the cell
+config names a ``sim_control_port``: that is how a daemon's simulated task lays out its
+objects and scores itself.
 """
 
 from __future__ import annotations
 
+import asyncio
 import json
 import logging
 from typing import Annotated, Any, Literal
@@ -20,6 +28,8 @@ from pydantic import Field, TypeAdapter, ValidationError
 
 from ...errors import FluidsenseError, NotSupportedError
 from ...models import StrictModel
+from ...scenes import Scene
+from ...world import WorldSpec
 from .box import ControlBox
 from .model import DIGITAL_MASK, AnalogDomain, RobotMode
 
@@ -56,7 +66,38 @@ class SetCommand(StrictModel):
     speed_fraction: float | None = Field(None, ge=0, le=1)
 
 
-Command = TypeAdapter(Annotated[StateCommand | SetCommand, Field(discriminator="cmd")])
+class SceneCommand(StrictModel):
+    cmd: Literal["scene"]
+    id: Any = None
+    scene: Scene
+
+
+class WorldCommand(StrictModel):
+    cmd: Literal["world"]
+    id: Any = None
+    world: WorldSpec
+
+
+class TruthCommand(StrictModel):
+    cmd: Literal["truth"]
+    id: Any = None
+
+
+class InjectCommand(StrictModel):
+    cmd: Literal["inject"]
+    id: Any = None
+    fault: str = Field(min_length=1, max_length=40)
+    after_s: float = Field(0.0, ge=0, le=3600)
+
+
+class ClearFaultsCommand(StrictModel):
+    cmd: Literal["clear_faults"]
+    id: Any = None
+
+
+_PLANT = (SceneCommand, WorldCommand, TruthCommand, InjectCommand, ClearFaultsCommand)
+Command = TypeAdapter(Annotated[StateCommand | SetCommand | SceneCommand | WorldCommand | TruthCommand
+                                | InjectCommand | ClearFaultsCommand, Field(discriminator="cmd")])
 
 
 def handle(box: ControlBox, line: str) -> dict[str, Any]:
@@ -68,12 +109,50 @@ def handle(box: ControlBox, line: str) -> dict[str, Any]:
     reply: dict[str, Any] = {"ok": True} if command.id is None else {"ok": True, "id": command.id}
     box.sync()
     try:
+        if isinstance(command, _PLANT):
+            reply.update(_plant(box, command))
+            return reply
         if isinstance(command, SetCommand):
             _apply(box, command)
         reply["state"] = box.snapshot()
     except (FluidsenseError, ValueError) as exc:
         reply.update(ok=False, error=str(exc))
     return reply
+
+
+def _plant(box: ControlBox, c: StrictModel) -> dict[str, Any]:
+    m = box.model
+    if not hasattr(m, "truth"):
+        raise NotSupportedError(f"{type(m).__name__} has no simulated plant (run fluidsense simcell)")
+    if isinstance(c, SceneCommand):
+        m.set_scene(c.scene)
+    elif isinstance(c, WorldCommand):
+        m.set_world(c.world)
+    elif isinstance(c, InjectCommand):
+        m.inject(c.fault, c.after_s)
+    elif isinstance(c, ClearFaultsCommand):
+        m.clear_faults()
+    if not isinstance(c, TruthCommand):
+        log.info("sim control: %s", c.cmd)
+    return {"truth": m.truth()}
+
+
+async def serve_tcp(box: ControlBox, host: str, port: int) -> asyncio.Server:
+    """The sim control channel on ``host:port``: one JSON request per line, one reply per line."""
+
+    async def client(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        try:
+            while line := await reader.readline():
+                if line.strip():
+                    writer.write((json.dumps(handle(box, line.decode(errors="replace")), default=float)
+                                  + "\n").encode())
+                    await writer.drain()
+        except (ConnectionError, asyncio.IncompleteReadError):
+            pass
+        finally:
+            writer.close()
+
+    return await asyncio.start_server(client, host, port, limit=1 << 20)
 
 
 def _apply(box: ControlBox, c: SetCommand) -> None:

@@ -1,0 +1,154 @@
+"""Build the Modbus backend: an async pymodbus client for the outputs, the
+sampler process for the analog inputs, optionally the ur_rtde worker for the arm."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+
+from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.exceptions import ModbusException
+
+from ..base import Backend, Regulator, ValveBank
+from ..errors import ConfigError, DriverError, LinkLostError
+from ..hardware import Hardware, RegulatedCircuit, TankCircuit
+from ..io import AnalogScale, RegulatorWiring, Wiring
+from ..remote import Link, PolledCellSource, sampler_config
+from .config import ModbusDriverConfig, RegisterMap
+
+log = logging.getLogger(__name__)
+
+_DOMAIN_CODE = {"current": 0, "voltage": 1}  # UR's analog domain registers
+
+
+class ModbusLink(Link):
+    """One Modbus TCP connection, shared by the valves and the regulator."""
+
+    def __init__(self, cfg: ModbusDriverConfig):
+        self.cfg = cfg
+        self.name = f"modbus {cfg.host}:{cfg.port}"
+        self.client: AsyncModbusTcpClient | None = None
+        self._lost: LinkLostError | None = LinkLostError(f"{self.name}: not connected")
+        self._lock = asyncio.Lock()
+
+    async def open(self) -> None:
+        c = self.cfg
+        self.client = AsyncModbusTcpClient(c.host, port=c.port, timeout=c.timeout_s, retries=0,
+                                           reconnect_delay=0)  # reconnection is the source's business
+        if not await self.client.connect():
+            self.client.close()
+            raise LinkLostError(f"{self.name}: cannot connect")
+        self._lost = None
+        await self._check_domains()
+        log.info("%s: connected", self.name)
+
+    async def close(self) -> None:
+        if self.client is not None:
+            self.client.close()
+            self.client = None
+        self._lost = self._lost or LinkLostError(f"{self.name}: closed")
+
+    def check(self) -> None:
+        if self._lost is not None:
+            raise self._lost
+
+    async def _request(self, what: str, call):
+        self.check()
+        async with self._lock:
+            try:
+                reply = await call()
+            except (ModbusException, OSError, asyncio.TimeoutError) as exc:
+                self._lost = LinkLostError(f"{self.name}: {what}: {exc}")
+                log.error("%s", self._lost)
+                raise self._lost from exc
+        if reply.isError():
+            raise DriverError(f"{self.name}: {what} refused: {reply}")
+        return reply
+
+    async def read(self, address: int, count: int = 1) -> list[int]:
+        reply = await self._request(f"read {address}+{count}", lambda: self.client.read_holding_registers(
+            address, count=count, device_id=self.cfg.device_id))
+        return reply.registers
+
+    async def write(self, address: int, value: int) -> None:
+        await self._request(f"write {address}", lambda: self.client.write_register(
+            address, value, device_id=self.cfg.device_id))
+
+    async def _check_domains(self) -> None:
+        """The box's analog input domains must match the sensors' outputs: a 4-20 mA
+        transmitter on an input configured for volts reads nonsense."""
+        regs = self.cfg.registers
+        if regs.analog_input_domains is None:
+            return
+        for name, s in self.cfg.wiring.sensors.items():
+            (domain,) = await self.read(regs.analog_input_domains[s.analog_input])
+            if domain != _DOMAIN_CODE[s.transfer.domain]:
+                raise ConfigError(f"driver.wiring.sensors.{name}: analog input {s.analog_input} of {self.cfg.host} "
+                                  f"is set to {'voltage' if domain else 'current'}, the sensor outputs "
+                                  f"{s.transfer.domain} (change the robot's I/O setup or the wiring)")
+
+
+class ModbusValves(ValveBank):
+    """Valves on digital outputs: through the set/clear mask registers when the map has
+    them (no read-modify-write race with other masters), else read-modify-write."""
+
+    def __init__(self, link: ModbusLink, wiring: Wiring, regs: RegisterMap, safe: dict[str, bool]):
+        super().__init__("modbus-valves", safe)
+        self.link, self.wiring, self.regs = link, wiring.valves, regs
+
+    async def _set(self, valve: str, open: bool, t: float) -> None:
+        w = self.wiring[valve]
+        bit, level = 1 << w.output, w.level(open)
+        if self.regs.set_mask is not None:
+            await self.link.write(self.regs.set_mask if level else self.regs.clear_mask, bit)
+            return
+        (bits,) = await self.link.read(self.regs.digital_outputs)
+        await self.link.write(self.regs.digital_outputs, (bits | bit) if level else (bits & ~bit))
+
+
+class ModbusRegulator(Regulator):
+    def __init__(self, link: ModbusLink, wiring: RegulatorWiring, regs: RegisterMap, scale: AnalogScale):
+        super().__init__("modbus-regulator")
+        self.link, self.wiring, self.regs, self.scale = link, wiring, regs, scale
+
+    async def _set_setpoint(self, pressure_pa: float, t: float) -> None:
+        w, ch = self.wiring, self.wiring.analog_output
+        if self.regs.analog_output_domains is not None:
+            await self.link.write(self.regs.analog_output_domains[ch], _DOMAIN_CODE[w.input])
+        gain, offset = self.scale.raw_affine(w.input)
+        raw = round((w.to_signal(pressure_pa) - offset) / gain)
+        await self.link.write(self.regs.analog_outputs[ch], min(65535, max(0, raw)))
+
+
+def modbus_inputs(cfg: ModbusDriverConfig, channels: tuple[str, ...]) -> list[list[float]]:
+    """Per channel [register, k, c] with Pa = k * raw + c."""
+    out = []
+    for name in channels:
+        s = cfg.wiring.sensors[name]
+        gain, offset = s.transfer.affine()
+        raw_gain, raw_offset = cfg.analog.raw_affine(s.transfer.domain)
+        out.append([cfg.registers.analog_inputs[s.analog_input], raw_gain / gain, (raw_offset - offset) / gain])
+    return out
+
+
+def build(cfg: ModbusDriverConfig, hw: Hardware) -> Backend:
+    from ..ur.backend import scene_link, worker_link  # noqa: PLC0415 - no ur_rtde import on this side
+    from ..ur.devices import UrArm  # noqa: PLC0415
+
+    link = ModbusLink(cfg)
+    links: list[Link] = [link]
+    arm = None
+    if cfg.arm is not None:
+        worker = worker_link(cfg.host, cfg.arm, io=False)
+        links.append(worker)
+        arm = UrArm(worker, cfg.arm)
+    poller = {"host": cfg.host, "port": cfg.port, "device_id": cfg.device_id, "timeout_s": cfg.timeout_s,
+              "inputs": modbus_inputs(cfg, hw.channels)}
+    sampler = sampler_config("drivers.modbus.poller:ModbusAnalogPoller", poller, hw.channels, cfg.rate_hz,
+                             cfg.block_size, cfg.sampler, cfg.reconnect.connect_timeout_s)
+    regulated = isinstance(hw.circuit, (TankCircuit, RegulatedCircuit))
+    regulator = ModbusRegulator(link, cfg.wiring.regulator, cfg.registers, cfg.analog) if regulated else None
+    return Backend(name="modbus", source=PolledCellSource("modbus", sampler, links, cfg.reconnect),
+                   valves=ModbusValves(link, cfg.wiring, cfg.registers, hw.circuit.safe_valves),
+                   regulator=regulator, arm=arm, scene=scene_link(cfg.host, cfg.sim_control_port),
+                   extras={"link": link})

@@ -1,0 +1,60 @@
+"""Settings of the Modbus driver (``driver: {kind: modbus}``)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import Field, model_validator
+
+from ..io import AnalogScale, Host, Port, Reconnect, SamplerOptions, UrArmConfig, Wiring
+from ..models import StrictModel
+
+Register = Annotated[int, Field(ge=0, le=65535)]
+
+
+class RegisterMap(StrictModel):
+    """Where things are, as holding registers. The defaults are the UR control box's
+    Modbus server (design.md section 5); a generic Modbus I/O module sets its own and
+    leaves out what it lacks (null)."""
+
+    digital_outputs: Register = Field(1, description="read back: bit n is output n")
+    set_mask: Register | None = Field(2, description="writing sets those output bits (null: read-modify-write)")
+    clear_mask: Register | None = Field(3, description="writing clears those output bits")
+    analog_inputs: tuple[Register, Register] = Field((4, 6), description="raw 0..65535 of analog input 0, 1")
+    analog_input_domains: tuple[Register, Register] | None = Field(
+        (5, 7), description="0 current, 1 voltage; checked against the wiring at set-up")
+    analog_outputs: tuple[Register, Register] = (16, 18)
+    analog_output_domains: tuple[Register, Register] | None = (17, 19)
+
+    @model_validator(mode="after")
+    def _masks_together(self) -> RegisterMap:
+        if (self.set_mask is None) != (self.clear_mask is None):
+            raise ValueError("set_mask and clear_mask go together (both, or neither)")
+        if abs(self.analog_inputs[1] - self.analog_inputs[0]) >= 125:
+            raise ValueError("analog_inputs must lie within 125 registers of each other: one poll reads both")
+        return self
+
+
+class ModbusDriverConfig(StrictModel):
+    """Valves, regulator and analog inputs through Modbus TCP (pymodbus): by default a UR
+    control box's Modbus server. The analog inputs are polled at ``rate_hz`` in the
+    sampler process; valves and regulator are written from the daemon. Modbus cannot move
+    a UR arm: ``arm`` moves it through ur_rtde (as the paper used Modbus for I/O next to
+    a motion library), ``arm: null`` has none; the arm's interface also reports its
+    protective stop to the supervisor."""
+
+    kind: Literal["modbus"] = "modbus"
+    host: Host
+    port: Port = 502
+    device_id: int = Field(1, ge=0, le=255, description="Modbus unit / slave id")
+    timeout_s: float = Field(0.5, gt=0, le=10, description="one request's answer")
+    rate_hz: float = Field(1000.0, gt=0, le=5000)
+    block_size: int = Field(10, ge=1, le=10_000)
+    registers: RegisterMap = RegisterMap()
+    wiring: Wiring
+    analog: AnalogScale = AnalogScale()
+    arm: UrArmConfig | None = UrArmConfig()
+    sampler: SamplerOptions = SamplerOptions()
+    reconnect: Reconnect = Reconnect()
+    sim_control_port: Port | None = Field(
+        None, description="simulated cells only (fluidsense simcell): its control port; absent on a real cell")

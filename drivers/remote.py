@@ -1,0 +1,153 @@
+"""What the production drivers share: links to remote equipment, and a sample source
+that polls analog inputs in the sampler process and reconnects after a loss.
+
+A backend's devices (valves, regulator, arm) talk through one or more ``Link``s (a
+Modbus client, the ur_rtde worker process). The source is the backend's heartbeat:
+every block it delivers also checks every link, so a link lost while the cell is idle
+still becomes a fault within one block. After a loss every read raises
+``LinkLostError`` until the next reconnection attempt (exponential backoff); a
+successful one restarts the sampler and reopens the links, and sample time carries on
+from the first connection's origin, the gap reported as missed slots.
+"""
+
+from __future__ import annotations
+
+import abc
+import asyncio
+import dataclasses
+import logging
+
+from .base import SampleBlock, SampleSource
+from .errors import DriverError, LinkLostError
+from .io import Reconnect, SamplerOptions
+from .sampler.config import PollerSpec, SamplerConfig
+from .sampler.source import SampledSource
+
+log = logging.getLogger(__name__)
+
+
+class Link(abc.ABC):
+    """A connection that several devices share. ``check()`` raises LinkLostError once the
+    link is known to be gone; ``open()`` (re)connects."""
+
+    name: str = "link"
+
+    @abc.abstractmethod
+    async def open(self) -> None: ...
+
+    @abc.abstractmethod
+    async def close(self) -> None: ...
+
+    @abc.abstractmethod
+    def check(self) -> None: ...
+
+
+def sampler_config(poller: str, kwargs: dict, channels: tuple[str, ...], rate_hz: float, block_size: int,
+                   options: SamplerOptions, start_timeout_s: float) -> SamplerConfig:
+    return SamplerConfig(poller=PollerSpec(factory=poller, kwargs=kwargs), channels=channels, rate_hz=rate_hz,
+                         block_size=block_size, start_timeout_s=start_timeout_s, **options.model_dump())
+
+
+class PolledCellSource(SampleSource):
+    def __init__(self, name: str, cfg: SamplerConfig, links: list[Link], reconnect: Reconnect):
+        super().__init__(name)
+        self.cfg = cfg
+        self.links = links
+        self.reconnect = reconnect
+        self.rate_hz = cfg.rate_hz
+        self.channels = tuple(cfg.channels)
+        self.sampler: SampledSource | None = None
+        self._origin: float | None = None  # CLOCK_MONOTONIC of sample time 0
+        self._seq = 0
+        self._t_last: float | None = None
+        self._lost: LinkLostError | None = None
+        self._retry_at = 0.0
+        self._backoff = reconnect.first_s
+
+    @property
+    def clock_origin_s(self) -> float | None:
+        return self._origin
+
+    async def _setup(self) -> None:
+        await self._connect()
+
+    async def _connect(self) -> None:
+        opened: list[Link] = []
+        try:
+            for link in self.links:
+                await asyncio.wait_for(link.open(), self.reconnect.connect_timeout_s)
+                opened.append(link)
+            sampler = SampledSource(self.cfg, name=f"{self.name}-sampler")
+            await sampler.setup()
+        except BaseException as exc:
+            for link in reversed(opened):
+                await link.close()
+            if isinstance(exc, asyncio.TimeoutError):
+                raise LinkLostError(f"{self.name}: no connection within {self.reconnect.connect_timeout_s:g} s") \
+                    from exc
+            raise
+        self.sampler = sampler
+        if self._origin is None:
+            self._origin = sampler.t0_monotonic_s
+
+    async def _read_block(self) -> SampleBlock:
+        if self._lost is not None:
+            await self._try_reconnect()
+        try:
+            block = await self.sampler.read_block()
+            for link in self.links:
+                link.check()
+        except LinkLostError as exc:
+            await self._lose(exc)
+            raise
+        return self._rebase(block)
+
+    def _rebase(self, block: SampleBlock) -> SampleBlock:
+        """One sample clock across reconnections: times from the first origin, the gap
+        while disconnected reported as missed slots."""
+        t = block.t + (self.sampler.t0_monotonic_s - self._origin)
+        missed = block.missed
+        if self._t_last is not None:
+            missed = max(missed, int(round((t[0] - self._t_last) * self.rate_hz)) - 1)
+        self._t_last = float(t[-1])
+        self._seq += 1
+        return dataclasses.replace(block, seq=self._seq, t=t, missed=missed)
+
+    async def _lose(self, exc: LinkLostError) -> None:
+        if self._lost is None:
+            log.error("%s: link lost: %s", self.name, exc)
+            loop = asyncio.get_running_loop()
+            self._retry_at = loop.time() + self.reconnect.first_s
+            self._backoff = self.reconnect.first_s
+        self._lost = exc
+        await self._close_all()
+
+    async def _try_reconnect(self) -> None:
+        loop = asyncio.get_running_loop()
+        if loop.time() < self._retry_at:
+            raise LinkLostError(f"{self.name}: disconnected ({self._lost}); next attempt in "
+                                f"{self._retry_at - loop.time():.1f} s") from self._lost
+        try:
+            await self._connect()
+        except (DriverError, OSError) as exc:
+            self._backoff = min(2 * self._backoff, self.reconnect.max_s)
+            self._retry_at = loop.time() + self._backoff
+            log.warning("%s: reconnection failed (%s); next attempt in %.1f s", self.name, exc, self._backoff)
+            raise LinkLostError(f"{self.name}: reconnection failed: {exc}") from exc
+        log.warning("%s: reconnected", self.name)
+        self._lost = None
+
+    async def _close_all(self) -> None:
+        if self.sampler is not None:
+            try:
+                await self.sampler.stop()
+            finally:
+                self.sampler = None
+        for link in reversed(self.links):
+            try:
+                await link.close()
+            except Exception as exc:  # noqa: BLE001 - close the others anyway
+                log.error("%s: closing %s: %s", self.name, link.name, exc)
+
+    async def _stop(self) -> None:
+        await self._close_all()

@@ -1,0 +1,50 @@
+"""Build the ur-rtde backend: the worker process for IO and motion, the sampler process
+for the analog inputs, the simulated cell's control channel when there is one."""
+
+from __future__ import annotations
+
+from ..base import Backend
+from ..hardware import Hardware, RegulatedCircuit, TankCircuit
+from ..io import Wiring
+from ..remote import PolledCellSource, sampler_config
+from .config import UrDriverConfig
+from .devices import UrArm, UrRegulator, UrValves
+from .link import WorkerLink
+
+
+def rtde_inputs(wiring: Wiring, channels: tuple[str, ...]) -> list[list[float]]:
+    """Per channel [analog input, k, c] with Pa = k * reading + c; RTDE reads V or mA."""
+    out = []
+    for name in channels:
+        s = wiring.sensors[name]
+        gain, offset = s.transfer.affine()
+        unit = 1.0 if s.transfer.domain == "voltage" else 1e-3
+        out.append([s.analog_input, unit / gain, -offset / gain])
+    return out
+
+
+def worker_link(host: str, arm, io: bool) -> WorkerLink:
+    return WorkerLink({"host": arm.host or host, "io": io, "control": True, "status_hz": arm.status_hz,
+                       "upper_range_registers": arm.upper_range_registers})
+
+
+def scene_link(host: str, port: int | None):
+    if port is None:
+        return None
+    from ..sim.link import RemoteScene  # noqa: PLC0415 - a simulated cell was asked for
+
+    return RemoteScene(host, port)
+
+
+def build(cfg: UrDriverConfig, hw: Hardware) -> Backend:
+    link = worker_link(cfg.host, cfg.arm, io=True)
+    poller = {"host": cfg.host, "frequency": cfg.rate_hz, "inputs": rtde_inputs(cfg.wiring, hw.channels),
+              "upper_range_registers": cfg.arm.upper_range_registers}
+    sampler = sampler_config("drivers.ur.poller:RtdeAnalogPoller", poller, hw.channels, cfg.rate_hz,
+                             cfg.block_size, cfg.sampler, cfg.reconnect.connect_timeout_s)
+    source = PolledCellSource("ur", sampler, [link], cfg.reconnect)
+    regulated = isinstance(hw.circuit, (TankCircuit, RegulatedCircuit))
+    regulator = UrRegulator(link, cfg.wiring.regulator, cfg.analog) if regulated else None
+    return Backend(name="ur", source=source, valves=UrValves(link, cfg.wiring.valves, hw.circuit.safe_valves),
+                   regulator=regulator, arm=UrArm(link, cfg.arm), scene=scene_link(cfg.host, cfg.sim_control_port),
+                   extras={"link": link})

@@ -1,0 +1,46 @@
+"""Settings of the ur-rtde driver (``driver: {kind: ur}``). Pydantic only: importing this
+does not import ur_rtde."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field, ValidationInfo, field_validator
+
+from ..io import AnalogScale, Host, Port, Reconnect, SamplerOptions, UrArmConfig, Wiring
+from ..models import StrictModel
+
+#: highest RTDE output rate per controller generation (UR's RTDE guide)
+RTDE_MAX_HZ = {"e-series": 500.0, "cb3": 125.0}
+
+
+class UrDriverConfig(StrictModel):
+    """A UR control box reached with ur_rtde: valves on its digital outputs, the
+    regulator on an analog output (RTDE IO interface), pressure sensors on its analog
+    inputs (RTDE receive, polled in the sampler process), the arm through the RTDE
+    control interface."""
+
+    kind: Literal["ur"] = "ur"
+    host: Host
+    controller: Literal["e-series", "cb3"] = "e-series"
+    rate_hz: float = Field(500.0, gt=0, description="analog input sample rate (RTDE: 500 Hz e-Series, 125 Hz CB3)")
+    block_size: int = Field(5, ge=1, le=10_000)
+    wiring: Wiring
+    analog: AnalogScale = AnalogScale()
+    arm: UrArmConfig = UrArmConfig()
+    sampler: SamplerOptions = SamplerOptions()
+    reconnect: Reconnect = Reconnect()
+    sim_control_port: Port | None = Field(
+        None, description="simulated cells only (fluidsense simcell): its control port, through which "
+        "tasks lay out objects and score themselves; absent on a real robot")
+
+    @field_validator("rate_hz")
+    @classmethod
+    def _rtde_rate(cls, rate_hz: float, info: ValidationInfo) -> float:
+        controller = info.data.get("controller", "e-series")
+        limit = RTDE_MAX_HZ[controller]
+        if rate_hz > limit:
+            raise ValueError(
+                f"{rate_hz:g} Hz: UR control-box analog inputs come through RTDE at {limit:g} Hz at most on "
+                f"{controller} controllers; for 1 kHz use a DAQ or a Modbus I/O module (kind: modbus)")
+        return rate_hz

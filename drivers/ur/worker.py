@@ -1,0 +1,194 @@
+"""``python -m drivers.ur.worker ARGS_JSON``: ur_rtde's IO and control interfaces in a
+process of their own.
+
+ur_rtde's constructors hold the GIL while they wait for the robot (for ever when the
+robot is silent) and its IO interface aborts its process when the robot goes away, so
+neither may live in the daemon. This process owns them; the daemon (``link.py``)
+talks to it with JSON lines on stdin/stdout and kills it when it stops answering.
+
+Protocol. First line out: ``{"ready": true}`` or ``{"error": "..."}``. In:
+``{"id": N, "op": OP, ...}`` with OP one of ``digital_out`` (output, level),
+``analog_out`` (channel, domain, ratio), ``move_l`` (pose, speed, acc), ``stop_l``
+(acc); out: ``{"id": N, "ok": true, ...}`` or ``{"id": N, "error": "..."}``. Every
+``1/status_hz`` s, ``{"status": {...}}``: pose, safety mode, protective stop, whether
+the control script runs, and the latest move's id and result (``arrived``,
+``stopped``). End of input: disconnect and exit 0.
+
+Everything runs on one thread: ur_rtde's objects are not documented as thread-safe.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import select
+import sys
+import time
+from typing import Any
+
+#: a finished move within this of its target arrived (UR's own blend-free tolerance is finer)
+ARRIVED_M, ARRIVED_RAD = 1e-3, 1e-2
+SCRIPT_START_S = 5.0  # ur_rtde waits as long for its script to run
+
+
+class Worker:
+    def __init__(self, args: dict[str, Any], out) -> None:
+        self.args = args
+        self.out = out
+        self.receive = self.io = self.control = None
+        self.move_id = 0
+        self.move: dict[str, Any] | None = None  # the running move: id, target, since
+        self.move_result: str | None = None
+
+    def connect(self) -> None:
+        import rtde_receive  # noqa: PLC0415 - only in this process
+
+        host, upper = self.args["host"], bool(self.args.get("upper_range_registers", False))
+        self.receive = rtde_receive.RTDEReceiveInterface(host, float(self.args.get("status_hz", 50.0)),
+                                                         ["timestamp", "actual_TCP_pose", "safety_mode", "safety_status_bits",
+                                                          "runtime_state", "robot_mode"], False, upper)
+        if self.args.get("io", True):
+            import rtde_io  # noqa: PLC0415
+
+            self.io = rtde_io.RTDEIOInterface(host, False, upper)
+        if self.args.get("control", True):
+            import rtde_control  # noqa: PLC0415
+
+            flags = rtde_control.RTDEControlInterface.Flags
+            f = flags.FLAG_UPLOAD_SCRIPT | (flags.FLAG_UPPER_RANGE_REGISTERS if upper else 0)
+            self.control = rtde_control.RTDEControlInterface(host, -1.0, f)
+
+    # -- requests ------------------------------------------------------------------------------
+    def handle(self, req: dict[str, Any]) -> dict[str, Any]:
+        op = req.get("op")
+        if op not in OPS:
+            return {"id": req.get("id"), "error": f"unknown op {op!r}"}
+        try:
+            extra = getattr(self, f"_op_{op}")(req)
+        except Exception as exc:  # noqa: BLE001 - answered, the worker goes on
+            return {"id": req.get("id"), "error": f"{type(exc).__name__}: {exc}"}
+        return {"id": req.get("id"), "ok": True, **(extra or {})}
+
+    def _need(self, iface, what: str):
+        if iface is None:
+            raise RuntimeError(f"this worker has no {what} interface")
+        return iface
+
+    def _op_digital_out(self, req):
+        io, n, level = self._need(self.io, "IO"), int(req["output"]), bool(req["level"])
+        ok = io.setStandardDigitalOut(n, level) if n < 8 else io.setConfigurableDigitalOut(n - 8, level)
+        if not ok:
+            raise RuntimeError(f"digital output {n} not set")
+
+    def _op_analog_out(self, req):
+        io, ch, ratio = self._need(self.io, "IO"), int(req["channel"]), float(req["ratio"])
+        if not 0.0 <= ratio <= 1.0:
+            raise ValueError(f"analog output ratio {ratio} outside [0, 1]")
+        ok = io.setAnalogOutputVoltage(ch, ratio) if req["domain"] == "voltage" else io.setAnalogOutputCurrent(ch, ratio)
+        if not ok:
+            raise RuntimeError(f"analog output {ch} not set")
+
+    def _op_move_l(self, req):
+        control = self._need(self.control, "control")
+        self._ensure_script(control)
+        pose = [float(v) for v in req["pose"]]
+        if not control.moveL(pose, float(req["speed"]), float(req["acc"]), True):
+            raise RuntimeError("moveL refused by the robot")
+        self.move_id += 1
+        self.move = {"id": self.move_id, "target": pose, "since": time.monotonic()}
+        self.move_result = None
+        return {"move_id": self.move_id}
+
+    def _op_stop_l(self, req):
+        control = self._need(self.control, "control")
+        if control.isProgramRunning():
+            control.stopL(float(req.get("acc", 2.0)), False)
+
+    def _ensure_script(self, control) -> None:
+        """After a protective stop the robot stops ur_rtde's script: upload it again."""
+        if control.isProgramRunning():
+            return
+        control.reuploadScript()
+        deadline = time.monotonic() + SCRIPT_START_S
+        while not control.isProgramRunning():
+            if time.monotonic() > deadline:
+                raise RuntimeError("the control script does not run (robot not in remote control, or stopped?)")
+            time.sleep(0.01)  # polling the robot's state, not a timing assumption
+
+    # -- status --------------------------------------------------------------------------------
+    def status(self) -> dict[str, Any]:
+        r = self.receive
+        pose = list(r.getActualTCPPose())
+        running = self.control.isProgramRunning() if self.control is not None else None
+        if self.move is not None:
+            self._follow_move(pose, running)
+        return {"t": time.monotonic(), "connected": bool(r.isConnected()), "pose": pose,
+                "safety_mode": int(r.getSafetyMode()), "protective_stop": bool(r.isProtectiveStopped()),
+                "robot_mode": int(r.getRobotMode()), "program_running": running,
+                "move_id": self.move_id, "move_result": self.move_result}
+
+    def _follow_move(self, pose: list[float], running: bool | None) -> None:
+        move = self.move
+        busy = running and self.control.getAsyncOperationProgressEx().isAsyncOperationRunning()
+        # the progress register may not show the move in the first cycles after the call
+        if busy or (running and time.monotonic() - move["since"] < 0.1):
+            return
+        target = move["target"]
+        at = (math.dist(pose[:3], target[:3]) <= ARRIVED_M
+              and max(abs(a - b) for a, b in zip(pose[3:], target[3:])) <= ARRIVED_RAD)
+        self.move_result = "arrived" if at else ("stopped" if running else "stopped: the control script ended")
+        self.move = None
+
+    def emit(self, message: dict[str, Any]) -> None:
+        self.out.write(json.dumps(message) + "\n")
+
+    def close(self) -> None:
+        for iface in (self.control, self.io, self.receive):
+            if iface is not None:
+                try:
+                    iface.disconnect()
+                except Exception:  # noqa: BLE001, S110 - leaving anyway
+                    pass
+
+
+OPS = ("digital_out", "analog_out", "move_l", "stop_l")
+
+
+def main(argv: list[str]) -> int:
+    args = json.loads(argv[0])
+    # ur_rtde prints to std::cout: keep fd 1 for it (sent to stderr), answer on a copy
+    out = os.fdopen(os.dup(1), "w", buffering=1)
+    os.dup2(2, 1)
+    worker = Worker(args, out)
+    try:
+        worker.connect()
+    except Exception as exc:  # noqa: BLE001 - reported to the daemon
+        worker.emit({"error": f"{type(exc).__name__}: {exc}"})
+        return 1
+    worker.emit({"ready": True})
+    period = 1.0 / float(args.get("status_hz", 50.0))
+    next_status = time.monotonic()
+    buffer = b""
+    fd = sys.stdin.fileno()
+    try:
+        while True:
+            ready, _, _ = select.select([fd], [], [], max(0.0, next_status - time.monotonic()))
+            if ready:
+                chunk = os.read(fd, 65536)
+                if not chunk:
+                    return 0
+                buffer += chunk
+                while b"\n" in buffer:
+                    line, _, buffer = buffer.partition(b"\n")
+                    if line.strip():
+                        worker.emit(worker.handle(json.loads(line)))
+            if time.monotonic() >= next_status:
+                worker.emit({"status": worker.status()})
+                next_status = max(next_status + period, time.monotonic())
+    finally:
+        worker.close()
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,268 @@
+"""The production drivers (ur-rtde, Modbus) against ``fluidsense simcell``: an emulated UR
+control box backed by the simulated plant, in its own process, on its own 127.0.0.x
+address. The drivers run unmodified: ur_rtde in its worker and sampler processes,
+pymodbus in the daemon and the sampler. Nothing here is mocked.
+
+Real time: these tests wait for real samples, bounded by timeouts, never by sleeps
+that make timing pass.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import yaml
+
+from controller.config import load_cell_config
+from controller.service import Controller
+from drivers.config import build_backend
+from drivers.errors import ConfigError
+from drivers.io import Linear, Mpx, Ratiometric, RegulatorWiring
+from drivers.sim.controlbox.model import AnalogDomain
+from drivers.sim.controlbox.plant import PlantModel
+
+from .conftest import CONFIG, REPO, free_simcell, write_cell
+
+KINDS = ["ur", "modbus"]
+
+
+# ------------------------------------------------------------------ wiring, in-process
+def test_transfer_functions_give_datasheet_values_and_invert():
+    ssc = Ratiometric(range_kpa=(-34.5, 34.5))  # Honeywell SSC: 10-90 % of 5 V
+    assert ssc.to_signal(0.0) == pytest.approx(2.5)
+    assert ssc.to_signal(34.5e3) == pytest.approx(4.5)
+    assert ssc.to_signal(-34.5e3) == pytest.approx(0.5)
+    mpx = Mpx(supply_v=5.1, a_per_kpa=0.00369, b=0.04)  # MPX4250DP: Vout = Vs (0.00369 P + 0.04)
+    assert mpx.to_signal(100e3) == pytest.approx(5.1 * (0.369 + 0.04))
+    loop = Linear(range_kpa=(0.0, 600.0))  # 4-20 mA transmitter
+    assert loop.to_signal(300e3) == pytest.approx(12e-3)
+    for transfer in (ssc, mpx, loop):
+        for p in (-20e3, 0.0, 17.3e3, 63e3):
+            assert transfer.to_pa(transfer.to_signal(p)) == pytest.approx(p, abs=1e-6)
+    reg = RegulatorWiring(analog_output=0, range_kpa=(0.0, 900.0))  # SMC ITV1050: 0-10 V
+    assert reg.to_signal(64e3) == pytest.approx(64 / 90)
+    assert reg.to_pa(reg.to_signal(64e3)) == pytest.approx(64e3)
+    assert reg.to_signal(2e6) == pytest.approx(10.0)  # clipped to the command range
+
+
+def test_the_plant_follows_the_box_outputs_through_the_wiring():
+    """Virtual time: the box's outputs drive valves and regulator as wired, and its
+    analog inputs show the plant's pressures through the sensors' transfer functions."""
+    cfg = load_cell_config(CONFIG / "cell-ur-sim.yaml")
+    wiring = cfg.driver.wiring
+    m = PlantModel(cfg.profile.hardware, wiring)
+    t = 0.0
+
+    def run(seconds):
+        nonlocal t
+        for _ in range(int(seconds * 500)):
+            t += 0.002
+            m.advance(t)
+
+    def pressure_kpa(name):
+        s = wiring.sensors[name]
+        return s.transfer.to_pa(m.analog_input(s.analog_input).value) / 1e3
+
+    m.set_analog_output(0, wiring.regulator.to_signal(64e3), AnalogDomain.VOLTAGE)
+    m.on_outputs_changed(m.t)
+    run(2.0)
+    # the supply valve is normally open: with every output off the tank charges
+    assert pressure_kpa("p_tank") == pytest.approx(64.0, abs=1.0)
+    assert abs(pressure_kpa("p_act")) < 1.0
+    m.set_digital_outputs(0b11, 0b01)  # isolate the tank
+    m.on_outputs_changed(m.t)
+    m.set_digital_outputs(0b10, 0b10)  # the 3/2 valve connects the gripper
+    m.on_outputs_changed(m.t)
+    run(8.0)
+    p_act, p_tank = pressure_kpa("p_act"), pressure_kpa("p_tank")
+    assert 30.0 < p_act < 40.0  # an empty grip settles near the paper's 34-35 kPa
+    assert p_tank == pytest.approx(p_act, abs=1.0)
+    m.set_digital_outputs(0b10, 0b00)  # de-energised, the 3/2 valve vents the gripper
+    m.on_outputs_changed(m.t)
+    run(2.0)
+    assert abs(pressure_kpa("p_act")) < 1.0
+
+
+def _cell_data(kind: str) -> dict:
+    data = yaml.safe_load((CONFIG / f"cell-{kind}-sim.yaml").read_text())
+    data["profile"] = str(CONFIG / data["profile"])
+    return data
+
+
+def test_a_ur_config_asking_1khz_is_refused_with_the_rtde_limit(tmp_path):
+    data = _cell_data("ur")
+    data["driver"]["rate_hz"] = 1000
+    path = write_cell(tmp_path, data)
+    with pytest.raises(ConfigError) as err:
+        load_cell_config(path)
+    assert str(path) in str(err.value) and "driver.rate_hz" in str(err.value)
+    assert "RTDE at 500 Hz at most" in str(err.value)
+    data["driver"].update(rate_hz=200, controller="cb3")
+    with pytest.raises(ConfigError, match="125 Hz at most on cb3"):
+        load_cell_config(write_cell(tmp_path, data))
+
+
+def test_wiring_that_does_not_match_the_profile_is_refused(tmp_path):
+    data = _cell_data("modbus")
+    del data["driver"]["wiring"]["valves"]["supply"]
+    data["driver"]["wiring"]["sensors"]["p_tank"]["analog_input"] = 0
+    with pytest.raises(ConfigError) as err:
+        load_cell_config(write_cell(tmp_path, data))
+    assert "two sensors on one analog input" in str(err.value)
+    data["driver"]["wiring"]["sensors"]["p_tank"]["analog_input"] = 1
+    with pytest.raises(ConfigError, match=r"driver.wiring: valves \['supply'\] of the profile's circuit are not wired"):
+        load_cell_config(write_cell(tmp_path, data))
+
+
+def test_simcell_refuses_a_config_without_a_control_box():
+    res = subprocess.run([sys.executable, "-m", "fluidsense.cli", "simcell", "--config", str(CONFIG / "cell-sim.yaml")],
+                         capture_output=True, text=True, timeout=60, cwd=REPO)
+    assert res.returncode == 2
+    assert "driver.kind" in res.stderr and "'sim'" in res.stderr
+
+
+# ------------------------------------------------------------------ against fluidsense simcell
+async def _blocks(source, n: int):
+    return [await source.read_block() for _ in range(n)]
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_outputs_reach_the_box_and_inputs_come_back_in_pascal(kind, tmp_path):
+    with free_simcell(tmp_path, kind) as (box, cell):
+        cfg = load_cell_config(cell)
+        w = cfg.driver.wiring
+
+        async def body():
+            backend = build_backend(cfg.driver, cfg.profile.hardware)
+            async with backend:
+                blocks = await _blocks(backend.source, 20)
+                t = np.concatenate([b.t for b in blocks])
+                assert np.all(np.diff(t) > 0)
+                backend.regulator.set_limits(-5e3, 90e3)
+                await backend.regulator.set_setpoint(64e3, t[-1])
+                await backend.valves.set("supply", True, t[-1])  # normally open: de-energised
+                await backend.valves.set("actuate", False, t[-1])
+                # RTDE writes return once sent: the box applies them within a cycle or two
+                box.wait_for(lambda s: s["digital_outputs"] & 0b11 == 0 and s["analog_outputs"][0]["value"]
+                             == pytest.approx(w.regulator.to_signal(64e3), abs=1e-3), 2.0, "valves and regulator")
+                per_second = int(backend.source.rate_hz / blocks[0].t.size)
+                await _blocks(backend.source, per_second)  # the tank charges (time constant about 0.1 s)
+                await backend.valves.set("supply", False, t[-1])  # energised: the tank is isolated
+                box.wait_for(lambda s: s["digital_outputs"] & 0b11 == 0b01, 2.0, "supply isolated")
+                blocks = await _blocks(backend.source, per_second // 3)
+                v = np.vstack([b.values for b in blocks])
+                tank = v[:, blocks[0].channels.index("p_tank")]
+                # what the driver reads is what the plant holds: the charged tank, in Pa
+                truth = box.state()
+                p_tank_box = w.sensors["p_tank"].transfer.to_pa(truth["analog_inputs"][1]["value"])
+                assert np.mean(tank) == pytest.approx(p_tank_box, abs=1.5e3)
+                assert np.mean(tank) == pytest.approx(64e3, abs=2e3)
+                await backend.valves.set("actuate", True, t[-1])
+                box.wait_for(lambda s: s["digital_outputs"] & 0b11 == 0b11, 2.0, "gripper connected")
+                await backend.valves.safe(t[-1])  # supply closed (energised), gripper vented (de-energised)
+                box.wait_for(lambda s: s["digital_outputs"] & 0b11 == 0b01, 2.0, "safe state")
+
+        asyncio.run(asyncio.wait_for(body(), 90))
+
+
+def test_a_sensor_on_an_input_set_to_the_other_domain_stops_the_modbus_driver_at_setup(tmp_path):
+    with free_simcell(tmp_path, "modbus") as (_, cell):
+        data = yaml.safe_load(cell.read_text())
+        data["driver"]["wiring"]["sensors"]["p_act"]["transfer"] = {"kind": "linear", "output": "current",
+                                                                    "range_kpa": [-50, 50]}
+        cfg = load_cell_config(write_cell(tmp_path, data))
+
+        async def body():
+            backend = build_backend(cfg.driver, cfg.profile.hardware)
+            with pytest.raises(ConfigError, match=r"driver.wiring.sensors.p_act: analog input 0 .* set to voltage"):
+                await backend.setup()
+            assert not backend.source.connected
+
+        asyncio.run(asyncio.wait_for(body(), 60))
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_link_loss_is_a_fault_and_the_driver_reconnects_on_one_clock(kind, tmp_path):
+    """The box dies (SIGKILL): a fault within a second, the cell vented as far as software
+    can. The box comes back: the source reconnects by itself, sample time carries on
+    from where it was with the gap reported as missed, and after a reset a cycle runs."""
+    with free_simcell(tmp_path, kind, profile="sorting-gripper-quick.yaml") as (box, cell):
+        cfg = load_cell_config(cell)
+
+        async def body():
+            ctrl = Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware))
+            async with ctrl:
+                await _until(lambda: ctrl.samples > 100, 20, "samples")
+                box.kill()
+                t_kill = ctrl.now
+                await _until(lambda: ctrl.fault is not None, 10, "a fault")
+                assert ctrl.fault.kind in ("link_lost", "no_data")
+                assert ctrl.fault.t - t_kill < 1.5
+                box.start(timeout_s=30)
+                missed_before = ctrl.missed
+                await _until(lambda: ctrl.now > t_kill + 3.0 and ctrl.missed > missed_before, 60, "reconnection")
+                assert ctrl.missed - missed_before >= (3.0 - 1.5) * ctrl.backend.source.rate_hz * 0.5
+                ctrl.reset()
+                result = await asyncio.wait_for(ctrl.run_cycle(), 30)
+                assert result.ok and 25e3 < result.p_eq < 40e3
+
+        asyncio.run(asyncio.wait_for(body(), 150))
+
+
+async def _until(predicate, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{what} not reached within {timeout_s} s")
+        await asyncio.sleep(0.05)  # polling a condition, bounded by the timeout
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_sorting_task_through_the_driver(kind, tmp_path):
+    """The paper's sorting task, as a user runs it (``fluidsense task run``), through the
+    production driver: the simulated cell lays out the cylinders and scores the result."""
+    with free_simcell(tmp_path, kind, profile="sorting-gripper-quick.yaml") as (_, cell):
+        task = yaml.safe_load((CONFIG / "tasks" / "sorting.yaml").read_text())
+        task.update(cell=str(cell), motion={"speed_m_s": 1.0, "acc_m_s2": 3.0, "approach_m": 0.05})
+        task_file = tmp_path / "sorting.yaml"
+        task_file.write_text(yaml.safe_dump(task))
+        res = subprocess.run([sys.executable, "-m", "fluidsense.cli", "task", "run", str(task_file),
+                              "--order", "60,100,80,40", "--json"],
+                             capture_output=True, text=True, timeout=600, cwd=REPO)
+        assert res.returncode == 0, res.stderr[-3000:]
+        summary = json.loads(res.stdout)
+        assert summary["success"] is True
+        assert summary["final_order_mm"] == [100.0, 80.0, 60.0, 40.0]
+        by_size = dict(zip([60, 100, 80, 40], [r["p_eq_kpa"] for r in summary["readings"]]))
+        assert by_size[40] < by_size[60] < by_size[80] < by_size[100]
+
+
+# ------------------------------------------------------------------ a real cell
+@pytest.mark.hardware
+def test_hardware_cell_samples_and_vents():
+    """On a real robot cell: FLUIDSENSE_HARDWARE_CONFIG names its cell config. Samples
+    arrive at the configured rate and the safe state is reached."""
+    import os
+
+    path = os.environ.get("FLUIDSENSE_HARDWARE_CONFIG")
+    if not path:
+        pytest.skip("set FLUIDSENSE_HARDWARE_CONFIG to the real cell's config")
+    cfg = load_cell_config(path)
+
+    async def body():
+        backend = build_backend(cfg.driver, cfg.profile.hardware)
+        async with backend:
+            blocks = await _blocks(backend.source, 50)
+            t = np.concatenate([b.t for b in blocks])
+            rate = (len(t) - 1) / (t[-1] - t[0])
+            assert rate == pytest.approx(backend.source.rate_hz, rel=0.02)
+            await backend.safe_state(t[-1])
+            assert backend.valves.in_safe_state
+
+    asyncio.run(asyncio.wait_for(body(), 60))

@@ -15,6 +15,8 @@ the control script runs, and the latest move's id and result (``arrived``,
 ``stopped``). End of input: disconnect and exit 0.
 
 Everything runs on one thread: ur_rtde's objects are not documented as thread-safe.
+SIGINT and SIGTERM are ignored: the daemon vents through this process after a stop
+signal that reached the whole process group, then closes its input.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import json
 import math
 import os
 import select
+import signal
 import sys
 import time
 from typing import Any
@@ -156,6 +159,11 @@ OPS = ("digital_out", "analog_out", "move_l", "stop_l")
 
 
 def main(argv: list[str]) -> int:
+    # Ctrl-C and a service manager's stop signal reach the whole process group; the
+    # daemon still needs this process to vent, and closes its stdin when it is done
+    # (or when it dies): end of input is the only way out.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     args = json.loads(argv[0])
     # ur_rtde prints to std::cout: keep fd 1 for it (sent to stderr), answer on a copy
     out = os.fdopen(os.dup(1), "w", buffering=1)

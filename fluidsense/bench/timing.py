@@ -18,6 +18,7 @@ import argparse
 import json
 import multiprocessing
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -101,8 +102,13 @@ def run_bench(seconds: float = 60.0, source: str = "sim", rate: float = 1000.0, 
     cfg = _cell_config(tmp, source, rate)
     extra: list[subprocess.Popen] = []
     if source == "modbus":
-        extra.append(subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "simcell", "--config",
-                                       str(Path(cfg).parent / "cell.yaml")], stdout=subprocess.PIPE))
+        box = subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "simcell", "--config", str(cfg)],
+                               stdout=subprocess.PIPE)
+        extra.append(box)
+        ready = select.select([box.stdout], [], [], 30)[0] and box.stdout.readline().decode()
+        if not ready or not ready.startswith("ready"):
+            box.kill()
+            raise RuntimeError(f"fluidsense simcell did not start (said {ready!r}); is another box on its ports?")
     daemon = subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "run", "--config", str(cfg)],
                               stderr=subprocess.PIPE)
     ctx = zmq.Context()
@@ -151,10 +157,13 @@ def run_bench(seconds: float = 60.0, source: str = "sim", rate: float = 1000.0, 
         sub.close()
         ctx.term()
     t = np.array(times)
-    k = np.round((t - t[0]) * rate).astype(np.int64)
-    grid = t[0] + k / rate
-    lateness = (t - grid) * 1e6
-    lateness -= lateness.min()  # the first sample may itself have been late: measure from the earliest
+    if len(t) < 2:
+        raise RuntimeError("the subscriber received no samples: see the daemon's log")
+    # sample time 0 is slot 0's deadline and a sample is stamped when its read starts,
+    # before the next slot's deadline: its slot is the floor (rounding would file a
+    # sample more than half a period late under the next slot)
+    k = np.floor(t * rate + 1e-6).astype(np.int64)
+    lateness = (t - k / rate) * 1e6
     uniq = np.unique(k)
     pct = np.percentile
     return {

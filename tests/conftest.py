@@ -131,12 +131,14 @@ def run(coro):
 class Daemon:
     """``fluidsense run`` in a subprocess, with a SUB and a REQ socket attached."""
 
-    def __init__(self, config: Path, *extra: str):
+    def __init__(self, config: Path, *extra: str, new_session: bool = False):
+        """``new_session``: the daemon and its helper processes get a process group of their own."""
         cfg = yaml.safe_load(config.read_text())
         self.pub, self.cmd = cfg["publisher"]["pub"], cfg["publisher"]["cmd"]
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         self.proc = subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "run", "--config", str(config), *extra],
-                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=REPO)
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=REPO,
+                                     start_new_session=new_session)
         self.ctx = zmq.Context()
         self.sub = self.ctx.socket(zmq.SUB)
         self.sub.setsockopt(zmq.LINGER, 0)

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
+import signal
 import subprocess
 import sys
 import time
@@ -27,7 +29,7 @@ from drivers.io import Linear, Mpx, Ratiometric, RegulatorWiring
 from drivers.sim.controlbox.model import AnalogDomain
 from drivers.sim.controlbox.plant import PlantModel
 
-from .conftest import CONFIG, REPO, free_simcell, write_cell
+from .conftest import CONFIG, REPO, Daemon, free_simcell, write_cell
 
 KINDS = ["ur", "modbus"]
 
@@ -241,6 +243,28 @@ def test_sorting_task_through_the_driver(kind, tmp_path):
         assert summary["final_order_mm"] == [100.0, 80.0, 60.0, 40.0]
         by_size = dict(zip([60, 100, 80, 40], [r["p_eq_kpa"] for r in summary["readings"]]))
         assert by_size[40] < by_size[60] < by_size[80] < by_size[100]
+
+
+def test_a_stop_signal_to_the_whole_process_group_still_vents_through_the_ur_driver(tmp_path):
+    """Ctrl-C and a service manager's stop reach every process of the daemon's group,
+    ur_rtde's worker included: the daemon must still vent through it, then exit 0."""
+    with free_simcell(tmp_path, "ur", profile="sorting-gripper-quick.yaml") as (box, cell):
+        daemon = Daemon(cell, new_session=True)
+        try:
+            daemon.wait_welcome()
+            assert "cycle_id" in daemon.request({"cmd": "cycle"})
+            while daemon.next_message("state", timeout_s=30)[1]["to"] != "actuate":
+                pass
+            box.wait_for(lambda s: s["digital_outputs"] & 0b10, 2.0, "gripper connected")
+            os.killpg(daemon.proc.pid, signal.SIGTERM)
+            assert daemon.proc.wait(30) == 0, daemon.stderr_now()
+            # the 3/2 valve de-energised: the gripper vents (and the box saw it happen)
+            state = box.state()
+            assert state["digital_outputs"] & 0b10 == 0
+            log = daemon.stderr_now()
+            assert "venting at stop failed" not in log and "Traceback" not in log, log[-3000:]
+        finally:
+            daemon.close()
 
 
 # ------------------------------------------------------------------ a real cell

@@ -88,7 +88,9 @@ def _cell_config(tmp: Path, source: str, rate: float) -> Path:
         if not modbus.exists():
             raise SystemExit("--source modbus needs the Modbus driver (config/cell-modbus-sim.yaml)")
         cell = yaml.safe_load(modbus.read_text())
-        data["driver"] = cell["driver"]
+        # daemon and sampler only: the arm's ur_rtde worker (and its own 500 Hz RTDE
+        # stream) is not part of the sampling path being measured
+        data["driver"] = {**cell["driver"], "arm": None}
         data["profile"] = str((modbus.parent / cell["profile"]).resolve()) if isinstance(cell["profile"], str) \
             else cell["profile"]
     path = tmp / "cell.yaml"

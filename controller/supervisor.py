@@ -7,7 +7,8 @@ Checks, per block: a pressure channel reading NaN, on its sensor's rail (out of 
 frozen (stuck: not one changed reading for ``stuck_s``), beyond the profile's limits
 (positive and vacuum); a leak while the actuator is held (a sustained decay towards
 atmosphere after the measurement windows: three consecutive half-second slopes beyond
-``leak_kpa_per_s``, so a single step such as an object slipping is not a leak); the arm
+``leak_kpa_per_s`` and beyond three standard errors of each slope, so that neither a
+single step such as an object slipping nor a noisy sensor is a leak); the arm
 protective-stopped. The controller adds no data, link loss and loop overrun, which are
 about blocks not arriving rather than their content.
 """
@@ -33,6 +34,15 @@ class Fault:
     channel: str | None
     t: float
     detail: str
+
+
+def _slope(t: np.ndarray, p: np.ndarray) -> tuple[float, float]:
+    """Least-squares slope and its standard error."""
+    tc = t - t.mean()
+    sxx = float(tc @ tc)
+    slope = float(tc @ (p - p.mean())) / sxx
+    resid = p - p.mean() - slope * tc
+    return slope, float(np.sqrt((resid @ resid) / (len(t) - 2) / sxx))
 
 
 class Supervisor:
@@ -120,14 +130,18 @@ class Supervisor:
             return None
         tt, pp = np.array(self._hold).T
         sign = 1.0 if self.vacuum else -1.0  # towards atmosphere
-        slopes = []
+        slopes, limits = [], []
         for k in range(3):
             sel = (tt >= tt[-1] - 1.5 + 0.5 * k) & (tt < tt[-1] - 1.0 + 0.5 * k + 1e-9)
-            if sel.sum() < 3:
+            if sel.sum() < 4:
                 return None
-            slopes.append(np.polyfit(tt[sel], pp[sel], 1)[0] * sign)
-        rate = min(slopes) / KPA
-        if rate > self.cfg.leak_kpa_per_s:
+            slope, se = _slope(tt[sel], pp[sel])
+            slopes.append(slope * sign / KPA)
+            # a slope within noise of zero is no evidence of a leak, however steep the
+            # noise makes it look: the limit rises to three standard errors
+            limits.append(max(self.cfg.leak_kpa_per_s, 3.0 * se / KPA))
+        if all(r > lim for r, lim in zip(slopes, limits)):
+            rate, limit = min(slopes), max(limits)
             return Fault("leak", "p_act", float(block.t_end),
-                         f"held pressure falls {rate:.2f} kPa/s towards atmosphere (limit {self.cfg.leak_kpa_per_s} kPa/s)")
+                         f"held pressure falls {rate:.2f} kPa/s towards atmosphere (limit {limit:.2f} kPa/s)")
         return None

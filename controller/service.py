@@ -551,7 +551,9 @@ class Controller:
         if self._batch_start is None:
             self._batch_start = float(block.t[0])
         self._batch.append(block)
-        if self.now - self._batch_start + 1e-12 >= self.cfg.publisher.pressure_batch_s:
+        # n samples cover n sample periods: a batch as long as one block is one block
+        covered = self.now + 1.0 / self.backend.source.rate_hz - self._batch_start
+        if covered + 1e-12 >= self.cfg.publisher.pressure_batch_s:
             self._flush_pressure()
 
     def _flush_pressure(self) -> None:

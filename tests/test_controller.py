@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 import subprocess
 import sys
@@ -116,3 +117,42 @@ def test_demo_json_rises_with_diameter_at_the_papers_slope():
     assert data["r2"] > 0.99
     assert abs(pts[20]["p_eq_kpa"] - pts[None]["p_eq_kpa"]) < 0.2  # barely touching
     assert pts[None]["p_eq_kpa"] == pytest.approx(34.6, abs=0.2)
+
+
+@pytest.mark.parametrize("batch_s, samples", [(0.01, 10), (0.1, 100)])
+def test_pressure_batches_hold_as_many_samples_as_their_length_says(tmp_path, batch_s, samples):
+    """At 1 kHz in blocks of 10, a 10 ms batch is one block: n samples cover n periods."""
+    from controller.config import load_cell_config
+    from controller.service import Controller
+    from drivers.config import build_backend
+
+    from .conftest import sim_config
+
+    cfg = load_cell_config(sim_config(tmp_path))
+    cfg = cfg.model_copy(update={"publisher": cfg.publisher.model_copy(update={"pressure_batch_s": batch_s})})
+
+    class Capture:
+        endpoint, dropped = None, 0
+
+        def __init__(self):
+            self.pressure = []
+
+        def send(self, topic, t_s, payload):
+            if topic == "pressure":
+                self.pressure.append(payload)
+
+        def close(self):
+            pass
+
+    pub = Capture()
+
+    async def body():
+        async with Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware), pub) as ctrl:
+            await ctrl.wait(1.0)
+
+    asyncio.run(body())
+    full = pub.pressure[:-1]  # the last may be cut short by the stop
+    assert len(full) >= 1.0 / batch_s - 2
+    assert {m["n"] for m in full} == {samples}
+    times = np.concatenate([m["times_s"] for m in pub.pressure])
+    assert np.all(np.diff(times) > 0)  # nothing sent twice, nothing out of order

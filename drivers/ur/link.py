@@ -57,6 +57,11 @@ class WorkerLink(Link):
         self._lost = None
         self.status, self._status_at = None, asyncio.get_running_loop().time()
         self._reader = asyncio.create_task(self._read(self._proc), name=f"{self.name}-reader")
+        try:
+            await self.wait_status(lambda _: True, self.stale_s)  # the arm's pose is known once set up
+        except DriverError as exc:
+            await self.close()
+            raise LinkLostError(f"{self.name}: the worker sent no status: {exc}") from exc
         log.info("%s: connected to %s (worker %d)", self.name, self.args["host"], self._proc.pid)
 
     async def close(self) -> None:

@@ -36,6 +36,7 @@ def main(args: argparse.Namespace) -> int:
     from drivers.sim.controlbox.__main__ import main_async
     from drivers.sim.controlbox.config import ControlBoxConfig
     from drivers.sim.controlbox.plant import PlantModel
+    from drivers.ur.config import RTDE_MAX_HZ
 
     cfg = load_cell_config(args.config)
     driver = cfg.driver
@@ -46,7 +47,7 @@ def main(args: argparse.Namespace) -> int:
     logging.getLogger("pymodbus").setLevel(logging.WARNING)
     modbus_port = args.modbus_port or (driver.port if driver.kind == "modbus" else 5020)
     box = ControlBoxConfig(host=driver.host, modbus_port=modbus_port, analog=driver.analog,
-                           rtde_max_hz=500.0 if getattr(driver, "controller", "e-series") == "e-series" else 125.0)
+                           rtde_max_hz=RTDE_MAX_HZ[getattr(driver, "controller", "e-series")])
     sim = SimDriverConfig(clock="realtime", rate_hz=1000.0, block_size=1, seed=args.seed,
                           **({"scene": s} if (s := scene_from_args(args)) is not None else {}))
     model = PlantModel(cfg.profile.hardware, driver.wiring, sim)

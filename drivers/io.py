@@ -257,7 +257,7 @@ class SamplerOptions(StrictModel):
     cpu: Literal["auto", "none"] | Annotated[int, Field(ge=0, le=4095)] = "auto"
     rt_priority: Annotated[int, Field(ge=1, le=99)] | None = 40
     late_threshold_us: float = Field(50.0, gt=0)
-    spin_us: float = Field(200.0, ge=0, le=10_000)
+    spin_us: float = Field(75.0, ge=0, le=10_000, description="docs/performance.md")
     max_consecutive_failures: int = Field(10, ge=1, le=1_000_000)
     silence_timeout_s: float = Field(1.0, gt=0, le=600)
 

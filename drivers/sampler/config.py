@@ -30,8 +30,9 @@ class SamplerConfig(StrictModel):
     block_size: int = Field(10, ge=1, le=10_000, description="samples per block handed to the daemon")
     late_threshold_us: float = Field(
         50.0, gt=0, description="a read that starts more than this after its slot's deadline counts as late")
-    spin_us: float = Field(200.0, ge=0, le=10_000,
-                           description="sleep until this long before a deadline, then spin to it")
+    spin_us: float = Field(75.0, ge=0, le=10_000,
+                           description="sleep until this long before a deadline, then spin to it (75 us: "
+                           "docs/performance.md, spin against lateness and CPU)")
     max_consecutive_failures: int = Field(10, ge=1, le=1_000_000,
                                           description="failed reads in a row that mean the link is lost")
     cpu: Literal["auto", "none"] | Annotated[int, Field(ge=0, le=4095)] = Field(

@@ -40,6 +40,8 @@ def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("--read-us", type=float, default=0.0,
                    help="busy wait per read in the synthetic poller, standing in for I/O time (default 0)")
     p.add_argument("--rt-priority", type=int, default=40, help="SCHED_FIFO priority; 0: normal scheduling (default 40)")
+    p.add_argument("--spin-us", type=float, default=None,
+                   help="sleep until this long before each deadline, then spin (default: the sampler's default)")
     p.add_argument("--cpu", default="auto", help="CPU to pin to: auto (the last one), none, or a number (default auto)")
     p.add_argument("--json", action="store_true")
 
@@ -105,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = SamplerConfig(
         poller={"factory": "drivers.sampler.synthetic:SyntheticPoller", "kwargs": {"busy_us": args.read_us}},
         channels=("p_act",), rate_hz=args.rate_hz, block_size=args.block_size, cpu=cpu,
-        rt_priority=args.rt_priority or None)
+        rt_priority=args.rt_priority or None, **({} if args.spin_us is None else {"spin_us": args.spin_us}))
     loads = [subprocess.Popen([sys.executable, "-c", LOAD_CODE, str(os.getpid())]) for _ in range(args.load)]
     steal0, wall0 = _steal_ticks(), time.monotonic()
     try:

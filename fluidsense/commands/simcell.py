@@ -28,6 +28,9 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=1, help="seed of the simulated cell (default 1)")
     add_scene_options(p)
     p.add_argument("--modbus-port", type=int, help="Modbus port (default: the config's for kind modbus, else 5020)")
+    p.add_argument("--rt-priority", type=int, default=30, metavar="N",
+                   help="SCHED_FIFO priority of the box when permitted, 0 for normal scheduling (default 30: a "
+                   "real box answers from its own CPU; here it shares two with the daemon; below the sampler's 40)")
     p.add_argument("--log-level", choices=["DEBUG", "INFO", "WARNING", "ERROR"], default="WARNING")
     p.set_defaults(func=main)
 
@@ -51,6 +54,11 @@ def main(args: argparse.Namespace) -> int:
     sim = SimDriverConfig(clock="realtime", rate_hz=1000.0, block_size=1, seed=args.seed,
                           **({"scene": s} if (s := scene_from_args(args)) is not None else {}))
     model = PlantModel(cfg.profile.hardware, driver.wiring, sim)
+    if args.rt_priority:
+        from drivers.sampler.realtime import set_fifo
+
+        result = set_fifo(args.rt_priority)
+        log.log(logging.INFO if result["applied"] else logging.WARNING, "simcell scheduling: %s", result["detail"])
     try:
         asyncio.run(main_async(box, model, driver.sim_control_port))
     except KeyboardInterrupt:

@@ -223,6 +223,23 @@ class PublisherConfig(StrictModel):
         return self
 
 
+class RecordingConfig(StrictModel):
+    """What the daemon writes to disk (docs/recording.md): every sample block and event,
+    and the config, in MCAP files named by their start time in ``dir``."""
+
+    enabled: bool = Field(True, description="the daemon records (fluidsense run --no-record turns it off)")
+    dir: str = Field("runs", min_length=1, description="directory of the recordings, relative to the "
+                     "daemon's working directory; created if missing")
+    flush_s: float = Field(1.0, gt=0, le=10, description="sample time between flushes: a killed daemon "
+                           "loses at most this much")
+    fsync: bool = Field(True, description="also force each flush to storage (power loss), off the sample loop")
+    compression: Literal["zstd", "lz4", "none"] = "zstd"
+    max_file_mb: float = Field(1024.0, gt=0, le=1_000_000, description="start a new file, between cycles, "
+                               "once a file is this large")
+    min_free_mb: float = Field(1024.0, ge=0, le=1_000_000, description="stop recording (and say so) when the "
+                               "disk has less free space than this")
+
+
 class CellConfig(StrictModel):
     """A whole cell: which driver, which actuator profile, where to publish."""
 
@@ -230,6 +247,7 @@ class CellConfig(StrictModel):
     profile: Profile
     publisher: PublisherConfig = PublisherConfig()
     supervision: Supervision = Supervision()
+    recording: RecordingConfig = RecordingConfig()
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
 
     @model_validator(mode="after")

@@ -47,10 +47,22 @@ def _reference_key(p0_pa: float) -> float:
     return round(p0_pa / KPA, 3)
 
 
+def _command_dict(cmd: Command) -> dict[str, Any]:
+    if isinstance(cmd, ValveCmd):
+        return {"kind": "valve", "valve": cmd.valve, "open": cmd.open}
+    if isinstance(cmd, SetpointCmd):
+        return {"kind": "setpoint", "pressure_pa": cmd.pressure_pa}
+    return {"kind": "flow_profile", "times_s": list(cmd.times), "flows_m3_s": list(cmd.flows)}
+
+
 class Sink:
     """Something that keeps what the controller sees (a recorder, a test probe). Every
     method is called from the sample loop and must return quickly; a sink that raises is
-    logged and dropped rather than allowed to stop the loop."""
+    logged and dropped rather than allowed to stop the loop.
+
+    ``on_event`` gets every published event and two that are not published, which a
+    recording needs to replay a cycle exactly: ``cycle_start`` (cycle_id, p0_pa, label,
+    store_reference, hold) and ``command`` (each command sent to a device)."""
 
     def on_block(self, block: SampleBlock) -> None: ...
 
@@ -205,6 +217,8 @@ class Controller:
         self._measured = asyncio.get_running_loop().create_future()
         self._recorder = Recorder()
         self._cycle_future = asyncio.get_running_loop().create_future()
+        self._to_sinks("cycle_start", {"cycle_id": self.sequencer.cycle_id, "p0_pa": self.sequencer.p0_pa,
+                                       "label": label, "store_reference": store_reference, "hold": hold})
         self._publish_transitions()
         await self._apply_guarded(cmds)
         self._demand.set()
@@ -462,6 +476,7 @@ class Controller:
                     await self.backend.flow.set_profile(cmd.times, cmd.flows, self.now)
                 else:
                     await self.backend.flow.stop_flow(self.now)
+            self._to_sinks("command", _command_dict(cmd))
 
     async def _apply_guarded(self, cmds: list[Command]) -> None:
         """Apply commands outside the sample loop (start, abort); a failure faults the cell."""
@@ -536,6 +551,9 @@ class Controller:
     def emit(self, topic: str, payload: dict[str, Any]) -> None:
         """Publish an event and hand it to every sink."""
         self.pub.send(topic, self.now, payload)
+        self._to_sinks(topic, payload)
+
+    def _to_sinks(self, topic: str, payload: dict[str, Any]) -> None:
         for sink in list(self.sinks):
             try:
                 sink.on_event(topic, self.now, payload)
@@ -594,7 +612,7 @@ class Controller:
         period = self.cfg.publisher.heartbeat_s
         self._next_heartbeat = (np.floor(self.now / period) + 1) * period
         proc = np.array(self._proc_s) * 1e6 if self._proc_s else np.zeros(1)
-        self.pub.send("heartbeat", self.now, {
+        self.emit("heartbeat", {
             "state": self.sequencer.state.value, "cycle_id": self.sequencer.cycle_id,
             "fault": None if self.fault is None else self.fault.kind,
             "samples": self.samples, "blocks": self.blocks, "missed": self.missed, "late": self.late,

@@ -39,12 +39,26 @@ class SimDriverConfig(StrictModel):
     perturb: Perturbations = Perturbations()
 
 
-DriverConfig = Annotated[SimDriverConfig | UrDriverConfig | ModbusDriverConfig, Field(discriminator="kind")]
+class ReplayDriverConfig(StrictModel):
+    """A recording (``fluidsense run`` writes them) played back in virtual time: its
+    samples as they were delivered; valves cannot be commanded (docs/recording.md)."""
 
-_BACKEND_MODULES = {"sim": "drivers.sim", "ur": "drivers.ur.backend", "modbus": "drivers.modbus.backend"}
+    kind: Literal["replay"] = "replay"
+    file: str = Field(min_length=1, description="the recording (.mcap)")
 
 
-def build_backend(cfg: SimDriverConfig | UrDriverConfig | ModbusDriverConfig, hardware: Hardware) -> Backend:
+AnyDriverConfig = SimDriverConfig | UrDriverConfig | ModbusDriverConfig | ReplayDriverConfig
+DriverConfig = Annotated[AnyDriverConfig, Field(discriminator="kind")]
+
+_BACKEND_MODULES = {
+    "sim": "drivers.sim",
+    "ur": "drivers.ur.backend",
+    "modbus": "drivers.modbus.backend",
+    "replay": "drivers.replay",
+}
+
+
+def build_backend(cfg: AnyDriverConfig, hardware: Hardware) -> Backend:
     """Import the selected backend lazily and build it."""
     module = importlib.import_module(_BACKEND_MODULES[cfg.kind])
     return module.build(cfg, hardware)

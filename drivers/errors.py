@@ -46,3 +46,12 @@ class SequenceError(FluidsenseError, RuntimeError):
 
 class FaultError(FluidsenseError, RuntimeError):
     """The controller is in its safe state after a fault and needs a reset."""
+
+
+class RecordingError(FluidsenseError, ValueError):
+    """A recording cannot be written or read (not a recording, garbled, cut off before its
+    config). The message names the file."""
+
+
+class EndOfRecording(LinkLostError):
+    """A replayed recording has no more samples: the replay driver's source is gone."""

@@ -35,8 +35,9 @@ def load(path: str | Path | None, overrides: dict[str, Any] | None = None) -> Ce
 
 
 @contextlib.asynccontextmanager
-async def controller(cfg: CellConfig, publish: bool = False) -> AsyncIterator[Controller]:
-    """A started controller on the configured backend; vents and closes on exit."""
+async def controller(cfg: CellConfig, publish: bool = False, record: bool = False) -> AsyncIterator[Controller]:
+    """A started controller on the configured backend; vents and closes on exit. With
+    ``record`` (the daemon) it records as ``cfg.recording`` says, from sample time 0."""
     pub = None
     if publish:
         try:
@@ -46,6 +47,10 @@ async def controller(cfg: CellConfig, publish: bool = False) -> AsyncIterator[Co
     backend = build_backend(cfg.driver, cfg.profile.hardware)
     ctrl = Controller(cfg, backend, pub)
     try:
+        if record and cfg.recording.enabled:
+            from controller.recording import RecordingSink
+
+            ctrl.add_sink(RecordingSink(cfg, backend.source, lambda: ctrl.references))
         async with ctrl:
             yield ctrl
     finally:
@@ -80,7 +85,7 @@ async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None) -> int:
     stop = asyncio.Event()
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, stop.set)
-    async with controller(cfg, publish=True) as ctrl:
+    async with controller(cfg, publish=True, record=True) as ctrl:
         ctrl.task_runner = _task_runner(ctrl, tasks_dir)
         try:
             curve = cfg.publisher.cmd_curve

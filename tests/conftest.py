@@ -31,6 +31,8 @@ def sim_config(tmp_path: Path, *, clock: str = "virtual", seed: int = 1, scene: 
                    "scene": scene or {"kind": "none"}},
         "profile": profile if profile is not None else str(PROFILE),
         "publisher": {"pub": pub, "cmd": cmd},
+        # a daemon records (docs/recording.md): into the test's directory, never the repository
+        "recording": {"dir": str(tmp_path / "runs"), "min_free_mb": 16},
     }
     path = tmp_path / f"cell-{uuid.uuid4().hex[:6]}.yaml"
     path.write_text(yaml.safe_dump(data))

@@ -25,6 +25,7 @@ EXAMPLES = {
     "Limits": {"max_kpa": 90, "min_kpa": -5},
     "Profile": {"name": "p"},
     "CellConfig": {"driver": {"kind": "sim"}, "profile": {"name": "p"}},
+    "ReplayDriverConfig": {"file": "run.mcap"},
     "CylinderScene": {"diameter_mm": 60},
     "RectangleScene": {"width_mm": 60},
     "PlateScene": {"height_mm": 10},

@@ -18,13 +18,19 @@ def register(sub) -> None:
     p.add_argument("--virtual", action="store_true",
                    help="simulated cell in virtual time (sample time only advances while a cycle runs)")
     p.add_argument("--log-level", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    rec = p.add_mutually_exclusive_group()
+    rec.add_argument("--record", metavar="DIR", help="record to this directory (default: the config's "
+                     "recording.dir, runs/ unless set; docs/recording.md)")
+    rec.add_argument("--no-record", action="store_true", help="do not record")
     p.add_argument("--tasks-dir", help="directory of task files the command socket may start "
                    "(default: config/tasks)")
     p.set_defaults(func=main)
 
 
 def main(args: argparse.Namespace) -> int:
-    overrides = {"driver": {"clock": "virtual"}} if args.virtual else None
+    overrides = {"driver": {"clock": "virtual"}} if args.virtual else {}
+    if args.record or args.no_record:
+        overrides["recording"] = {"enabled": False} if args.no_record else {"enabled": True, "dir": args.record}
     cfg = app.load(args.config, overrides)
     setup_logging(args.log_level or cfg.log_level)
     return asyncio.run(app.run_daemon(cfg, Path(args.tasks_dir) if args.tasks_dir else None))

@@ -1,0 +1,361 @@
+"""The recording format: MCAP files of JSON messages, each channel with a JSON schema.
+
+A file holds, in the order the controller produced them: a ``fluidsense`` metadata
+record, the cell config (the first message, so a file replays on its own), the free-air
+references the controller held when the file was opened, then every sample block
+(``/samples``, SI units) and every controller event (``/state``, ``/cycle``, ``/fault``,
+``/heartbeat``, ``/task``, ``/cycle_start``, ``/command``). Event payloads are those of
+the published interface plus ``t_s``. See docs/recording.md.
+
+MCAP is append-only and chunked: a writer killed mid-file leaves every chunk it had
+flushed readable. The reader here reads such a file up to its last complete record and
+says how many bytes it left; a file that is not a recording, or is garbled, raises
+``RecordingError`` naming the file.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.exceptions import EndOfFile, InvalidMagic
+from mcap.records import Channel, Footer, Message, Metadata
+from mcap.stream_reader import StreamReader
+from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
+
+from .base import SampleBlock
+from .errors import RecordingError
+
+log = logging.getLogger(__name__)
+
+FORMAT = "fluidsense-recording"
+FORMAT_VERSION = 1
+METADATA_NAME = "fluidsense"
+SAMPLES, CONFIG, REFERENCE = "samples", "config", "reference"
+# chunks close on flush(), not on size: this only bounds a chunk if flushes stop coming
+CHUNK_BYTES = 8 * 2**20
+COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+
+_NUMBERS = {"type": "array", "items": {"type": ["number", "null"]}}
+SCHEMAS: dict[str, dict[str, Any]] = {
+    SAMPLES: {
+        "title": "fluidsense.SampleBlock",
+        "description": "One block of samples as the driver delivered it. values[j][i] is channel j at "
+                       "times_s[i], SI units: Pa gauge for pressures, standard m^3/s for flows; null where "
+                       "the reading was not a finite number.",
+        "type": "object", "required": ["seq", "times_s", "channels", "values", "missed", "late"],
+        "properties": {
+            "seq": {"type": "integer"}, "times_s": _NUMBERS,
+            "channels": {"type": "array", "items": {"type": "string"}},
+            "values": {"type": "array", "items": _NUMBERS},
+            "missed": {"type": "integer", "description": "sample slots the source could not fill before this block"},
+            "late": {"type": "integer", "description": "samples taken after their slot deadline"},
+        },
+    },
+    REFERENCE: {
+        "title": "fluidsense.Reference",
+        "description": "A free-air reference the controller held when this file was opened: offset-corrected "
+                       "actuator pressure (Pa) against time since the valve opened (s).",
+        "type": "object", "required": ["t_s", "key_kpa", "cycle_id", "t_rel_s", "p_pa"],
+        "properties": {"t_s": {"type": "number"}, "key_kpa": {"type": "number"}, "cycle_id": {"type": "integer"},
+                       "t_rel_s": _NUMBERS, "p_pa": _NUMBERS},
+    },
+    "cycle_start": {
+        "title": "fluidsense.CycleStart",
+        "description": "What a cycle was started with (exact SI values, for replay).",
+        "type": "object", "required": ["t_s", "cycle_id", "p0_pa", "label", "store_reference", "hold"],
+        "properties": {"t_s": {"type": "number"}, "cycle_id": {"type": "integer"}, "p0_pa": {"type": "number"},
+                       "label": {"type": ["string", "null"]}, "store_reference": {"type": "boolean"},
+                       "hold": {"type": "boolean"}},
+    },
+    "command": {
+        "title": "fluidsense.Command",
+        "description": "A command the sequencer sent to a device (valve, regulator setpoint in Pa, flow "
+                       "profile in standard m^3/s at sample times).",
+        "type": "object", "required": ["t_s", "kind"],
+        "properties": {"t_s": {"type": "number"}, "kind": {"enum": ["valve", "setpoint", "flow_profile"]}},
+    },
+}
+
+
+def _event_schema(topic: str) -> dict[str, Any]:
+    return SCHEMAS.get(topic) or {
+        "title": f"fluidsense.{topic}",
+        "description": f"The payload of the published '{topic}' topic (docs/zmq-schema.md, schema version 1) "
+                       "with t_s, the sample time when it was emitted.",
+        "type": "object", "required": ["t_s"], "properties": {"t_s": {"type": "number"}},
+    }
+
+
+def _finite(obj: Any) -> Any:
+    """JSON has no NaN or infinity: they become null (and NaN again when read)."""
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, np.generic):
+        return _finite(obj.item())
+    if isinstance(obj, np.ndarray):
+        return _finite(obj.tolist())
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    return obj
+
+
+def to_json(obj: Any) -> bytes:
+    """Compact JSON; floats keep every bit (repr), non-finite numbers become null."""
+    try:  # the common case, without walking every value
+        return json.dumps(obj, allow_nan=False, separators=(",", ":")).encode()
+    except (ValueError, TypeError):
+        return json.dumps(_finite(obj), allow_nan=False, separators=(",", ":"), default=str).encode()
+
+
+def block_payload(block: SampleBlock) -> dict[str, Any]:
+    return {"seq": block.seq, "times_s": block.t.tolist(), "channels": list(block.channels),
+            "values": block.values.T.tolist(), "missed": block.missed, "late": block.late}
+
+
+def block_from_payload(data: dict[str, Any]) -> SampleBlock:
+    t = np.asarray(data["times_s"], dtype=float)
+    values = np.asarray(data["values"], dtype=float).reshape(len(data["channels"]), len(t))
+    return SampleBlock(int(data["seq"]), t, np.ascontiguousarray(values.T), tuple(data["channels"]),
+                       missed=int(data["missed"]), late=int(data["late"]))
+
+
+def package_version() -> str:
+    try:
+        return version("fluidsense")
+    except PackageNotFoundError:  # pragma: no cover - running from a source tree
+        return "unknown"
+
+
+class RecordingWriter:
+    """Appends messages to a new MCAP file (it refuses to overwrite one). ``flush()``
+    closes the chunk in progress and hands the bytes to the OS; ``sync()`` forces them
+    to storage."""
+
+    def __init__(self, path: str | Path, t0_unix_ns: int, metadata: dict[str, str] | None = None,
+                 compression: str = "zstd"):
+        self.path = Path(path)
+        self._t0_ns = t0_unix_ns
+        self._file = open(self.path, "xb")  # noqa: SIM115 - closed in close(); "x": never overwrite
+        try:
+            self._mcap = Writer(self._file, chunk_size=CHUNK_BYTES, compression=COMPRESSION[compression])
+            self._mcap.start(profile="", library=f"fluidsense {package_version()}; {LIBRARY_IDENTIFIER}")
+            self._mcap.add_metadata(METADATA_NAME, {"format": FORMAT, "format_version": str(FORMAT_VERSION),
+                                                    "fluidsense_version": package_version(),
+                                                    "t0_unix_ns": str(t0_unix_ns), **(metadata or {})})
+        except BaseException:
+            self._file.close()
+            raise
+        self._channels: dict[str, int] = {}
+        self._closed = False
+
+    @property
+    def size(self) -> int:
+        """Bytes handed to the file so far (the open chunk not included)."""
+        return self._file.tell()
+
+    def fileno(self) -> int:
+        return self._file.fileno()
+
+    def _channel(self, topic: str, schema: dict[str, Any]) -> int:
+        cid = self._channels.get(topic)
+        if cid is None:
+            sid = self._mcap.register_schema(schema.get("title", topic), "jsonschema", json.dumps(schema).encode())
+            cid = self._mcap.register_channel("/" + topic, "json", sid)
+            self._channels[topic] = cid
+        return cid
+
+    def _add(self, topic: str, t_s: float, data: bytes, schema: dict[str, Any]) -> None:
+        # MCAP times are ns on a clock readers show as dates: the wall clock at sample time 0
+        # plus sample time; the exact sample time is in the message itself
+        ns = self._t0_ns + max(0, round(t_s * 1e9))
+        self._mcap.add_message(self._channel(topic, schema), log_time=ns, data=data, publish_time=ns)
+
+    def write_config(self, config: dict[str, Any], schema: dict[str, Any]) -> None:
+        self._add(CONFIG, 0.0, to_json(config), schema)
+
+    def write_block(self, block: SampleBlock) -> None:
+        self._add(SAMPLES, block.t_end, to_json(block_payload(block)), SCHEMAS[SAMPLES])
+
+    def write_event(self, topic: str, t_s: float, payload: dict[str, Any]) -> None:
+        self._add(topic, t_s, to_json({"t_s": t_s, **payload}), _event_schema(topic))
+
+    def flush(self) -> None:
+        self._mcap.flush()
+        self._file.flush()
+
+    def sync(self) -> None:
+        os.fsync(self._file.fileno())
+
+    def close(self) -> None:
+        """Write the summary and footer (the file is then complete) and close."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._mcap.finish()
+            self._file.flush()
+            os.fsync(self._file.fileno())
+        finally:
+            self._file.close()
+
+    def abandon(self) -> None:
+        """Close without the summary (after a write error: whatever was flushed stays readable)."""
+        self._closed = True
+        try:
+            self._file.close()
+        except OSError:
+            pass
+
+
+def _one_line(exc: Exception) -> str:
+    return " ".join(f"{type(exc).__name__}: {exc}".split())
+
+
+@dataclass(frozen=True)
+class Record:
+    """One message of a recording: ``topic`` without its slash, ``t_s`` sample time,
+    ``data`` a SampleBlock for ``samples``, else the decoded JSON object."""
+
+    topic: str
+    t_s: float
+    data: Any
+
+
+class _Exact:
+    """A file whose reads return all the bytes asked for or raise EndOfFile: the MCAP
+    stream reader then stops cleanly at a record cut off by a kill instead of parsing
+    half a record."""
+
+    def __init__(self, f):
+        self._f = f
+        self.pos = 0
+
+    def read(self, n: int = -1) -> bytes:
+        data = self._f.read(n)
+        if n is not None and n > 0 and len(data) < n:
+            raise EndOfFile()
+        self.pos += len(data)
+        return data
+
+
+class RecordingReader:
+    """Reads a recording in file order, tolerating a cut-off tail (a writer killed with
+    SIGKILL): ``complete`` tells whether the writer closed the file, ``dropped_bytes`` how
+    much of a partial record was left at the end. Reading is lazy: ``records()`` once."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        try:
+            self._file = open(self.path, "rb")  # noqa: SIM115 - closed by close()
+        except OSError as exc:
+            raise RecordingError(f"{self.path}: cannot read: {exc.strerror or exc}") from exc
+        self.size = os.fstat(self._file.fileno()).st_size
+        self._stream = _Exact(self._file)
+        self._good = 0
+        self._topics: dict[int, str] = {}
+        self.metadata: dict[str, str] = {}
+        self.complete = False
+        self.dropped_bytes = 0
+        self._head: list[Record] = []
+        self._iter = self._read()
+        try:
+            self.config = self._find_config()
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self) -> RecordingReader:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _find_config(self) -> dict[str, Any]:
+        not_ours = RecordingError(f"{self.path}: an MCAP file but not a fluidsense recording (no "
+                                  f"'{METADATA_NAME}' metadata before its data)")
+        for rec in self._iter:
+            if rec.topic == CONFIG:
+                if not self.metadata:
+                    raise not_ours
+                return rec.data
+            self._head.append(rec)
+        if self.complete:
+            raise not_ours if not self.metadata else RecordingError(f"{self.path}: has no cell config")
+        raise RecordingError(f"{self.path}: cut off after {self.size} bytes, before its cell config: "
+                             "nothing to replay")
+
+    def records(self) -> Iterator[Record]:
+        """Every message after the config, in the order it was written."""
+        head, self._head = self._head, []
+        yield from head
+        yield from self._iter
+
+    def _read(self) -> Iterator[Record]:
+        records = StreamReader(self._stream, validate_crcs=True, record_size_limit=256 * 2**20).records
+        while True:
+            try:
+                item = next(records)
+            except StopIteration:
+                return
+            except EndOfFile:
+                self.dropped_bytes = self.size - self._good
+                log.info("%s: ends without a footer; %d bytes of a partial record ignored", self.path,
+                         self.dropped_bytes)
+                return
+            except InvalidMagic as exc:
+                raise RecordingError(f"{self.path}: not an MCAP file (bad magic bytes)") from exc
+            except Exception as exc:  # noqa: BLE001 - anything the parser trips on is a garbled file
+                raise RecordingError(f"{self.path}: garbled near byte {self._stream.pos}: "
+                                     f"{_one_line(exc)}") from exc
+            self._good = self._stream.pos
+            rec = self._dispatch(item)
+            if rec is not None:
+                yield rec
+
+    def _dispatch(self, item: Any) -> Record | None:
+        if isinstance(item, Message):
+            return self._decode(item)
+        if isinstance(item, Channel):
+            self._topics[item.id] = item.topic.removeprefix("/")
+        elif isinstance(item, Metadata) and item.name == METADATA_NAME:
+            self._check_format(item.metadata)
+        elif isinstance(item, Footer):
+            self.complete = True
+        return None
+
+    def _check_format(self, meta: dict[str, str]) -> None:
+        if meta.get("format") != FORMAT:
+            raise RecordingError(f"{self.path}: not a fluidsense recording (format {meta.get('format')!r})")
+        found = meta.get("format_version", "?")
+        if found != str(FORMAT_VERSION):
+            raise RecordingError(f"{self.path}: recording format version {found}; this fluidsense reads "
+                                 f"version {FORMAT_VERSION}")
+        self.metadata = dict(meta)
+
+    def _decode(self, msg: Message) -> Record:
+        topic = self._topics.get(msg.channel_id)
+        try:
+            if topic is None:
+                raise KeyError(f"message on unknown channel {msg.channel_id}")
+            data = json.loads(msg.data)
+            if topic == SAMPLES:
+                block = block_from_payload(data)
+                return Record(SAMPLES, block.t_end, block)
+            return Record(topic, float(data.get("t_s", 0.0)), data)
+        except (ValueError, KeyError, TypeError, AttributeError) as exc:
+            raise RecordingError(f"{self.path}: garbled message on {topic or '?'} near byte {self._stream.pos}: "
+                                 f"{_one_line(exc)}") from exc

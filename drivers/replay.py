@@ -1,0 +1,83 @@
+"""The replay driver: a recording's sample blocks, as they were delivered, in virtual time
+(imported only when a config selects ``driver: replay``).
+
+The source hands over the recorded blocks one by one, unchanged; the events recorded
+between two blocks (transitions, results, commands) wait in ``drain_events()`` for a
+consumer that wants them (``fluidsense replay``). Valves cannot be commanded in a
+recording: the valve bank accepts commands and does nothing, and there is no regulator
+or flow controller, so a controller on this backend can watch samples but not run cycles.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+from .base import Backend, SampleBlock, SampleSource, ValveBank
+from .errors import EndOfRecording
+from .hardware import Hardware
+from .recording import SAMPLES, Record, RecordingReader
+
+log = logging.getLogger(__name__)
+
+
+class ReplaySource(SampleSource):
+    virtual = True
+
+    def __init__(self, path: str | Path, name: str = "replay"):
+        super().__init__(name)
+        self.path = Path(path)
+        self.reader: RecordingReader | None = None
+        self._records = iter(())
+        self._events: list[Record] = []
+        self.rate_hz = 0.0
+        self.channels = ()
+        self.last_t: float | None = None
+
+    @property
+    def config(self) -> dict[str, Any]:
+        """The recorded cell config (JSON), once set up."""
+        self._require_connected()
+        return self.reader.config
+
+    async def _setup(self) -> None:
+        self.reader = RecordingReader(self.path)
+        self._records = self.reader.records()
+        meta = self.reader.metadata
+        self.rate_hz = float(meta.get("rate_hz", 0.0))
+        self.channels = tuple(c for c in meta.get("channels", "").split(",") if c)
+        log.info("replaying %s", self.path)
+
+    async def _stop(self) -> None:
+        if self.reader is not None:
+            self.reader.close()
+
+    async def _read_block(self) -> SampleBlock:
+        for rec in self._records:
+            if rec.topic == SAMPLES:
+                self.last_t = rec.t_s
+                return rec.data
+            self._events.append(rec)
+        raise EndOfRecording(f"{self.path}: end of the recording"
+                             + ("" if self.last_t is None else f" at t = {self.last_t:.3f} s"))
+
+    def drain_events(self) -> list[Record]:
+        """The events read since the last call (those recorded before the latest block)."""
+        out, self._events = self._events, []
+        return out
+
+
+class ReplayValves(ValveBank):
+    """Valves of a recording: positions are kept, nothing moves."""
+
+    async def _set(self, valve: str, open: bool, t: float) -> None:
+        log.debug("replay: valve %s -> %s at t=%.3f ignored (a recording cannot be commanded)", valve, open, t)
+
+
+def build(cfg: Any, hw: Hardware) -> Backend:
+    return Backend(name="replay", source=ReplaySource(cfg.file), valves=ReplayValves("replay-valves",
+                                                                                      hw.circuit.safe_valves))
+
+
+__all__ = ["ReplaySource", "ReplayValves", "build"]

@@ -1,0 +1,509 @@
+"""Recording and replay (docs/recording.md): what the daemon writes, what a kill leaves,
+and that replaying a recording gives the live results, float for float."""
+
+from __future__ import annotations
+
+import asyncio
+import errno
+import json
+import logging
+import shutil
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from controller.config import CellConfig, load_cell_config
+from controller.recording import new_path
+from controller.replay import CycleReplay, comparable, replay_file
+from controller.service import Sink
+from drivers.errors import ConfigError, EndOfRecording, RecordingError
+from drivers.recording import CONFIG, SAMPLES, RecordingReader, RecordingWriter
+from drivers.scenes import CylinderScene, EmptyScene
+from fluidsense import app, cli
+
+from .conftest import PROFILE, REPO, sim_config
+from .test_zmq import fast_profile
+
+
+def cell(tmp_path: Path, **recording) -> CellConfig:
+    cfg = load_cell_config(sim_config(tmp_path, clock="virtual"))
+    return cfg.model_copy(update={"recording": cfg.recording.model_copy(update=recording)})
+
+
+def the_file(tmp_path: Path) -> Path:
+    files = sorted((tmp_path / "runs").glob("*.mcap"))
+    assert len(files) == 1, files
+    return files[0]
+
+
+async def varied_cycles(ctrl) -> list:
+    """A reference, two objects, an aborted cycle, a held one, a sensor fault."""
+    results = []
+    await ctrl.set_scene(EmptyScene())
+    results.append(await ctrl.run_cycle(store_reference=True))
+    for d in (40, 80):
+        await ctrl.set_scene(CylinderScene(diameter_mm=d))
+        results.append(await ctrl.run_cycle(label=f"D{d}"))
+    fut = await ctrl.start_cycle(label="aborted")
+    await ctrl.wait(23.456)  # inside ACTUATE
+    await ctrl.abort("test")
+    results.append(await fut)
+    fut = await ctrl.start_cycle(label="held", hold=True)
+    await ctrl.measured()
+    await ctrl.wait(3.0)
+    results.append(await ctrl.release())
+    fut = await ctrl.start_cycle(label="nan")
+    ctrl.backend.extras["cell"].inject("sensor_nan", ctrl.now + 25.0)
+    results.append(await fut)
+    ctrl.backend.extras["cell"].clear_faults()
+    ctrl.reset()
+    results.append(await ctrl.run_cycle(label="after reset"))
+    return results
+
+
+def record(tmp_path: Path, body, cfg: CellConfig | None = None, **recording):
+    """Run ``body(controller)`` on a virtual-time controller that records (as the daemon)."""
+    cfg = cfg or cell(tmp_path, **recording)
+
+    async def main():
+        async with app.controller(cfg, record=True) as ctrl:
+            return await body(ctrl)
+
+    return asyncio.run(main())
+
+
+@pytest.fixture(scope="module")
+def varied(tmp_path_factory) -> tuple[CellConfig, list, Path]:
+    """One recording of varied_cycles: its config, the live results, the file."""
+    tmp = tmp_path_factory.mktemp("varied")
+    cfg = cell(tmp)
+    live = record(tmp, varied_cycles, cfg=cfg)
+    return cfg, live, the_file(tmp)
+
+
+@pytest.fixture(scope="module")
+def good_file(tmp_path_factory) -> Path:
+    """A short recording: a free-air reference and one object."""
+    tmp = tmp_path_factory.mktemp("good")
+
+    async def two(ctrl):
+        await ctrl.run_cycle(store_reference=True)
+        await ctrl.set_scene(CylinderScene(diameter_mm=60))
+        await ctrl.run_cycle()
+
+    record(tmp, two)
+    return the_file(tmp)
+
+
+# ----------------------------------------------------------------- replay = live
+def test_replay_gives_the_live_results_float_for_float(varied):
+    _, live, path = varied
+    assert [r.ok for r in live] == [True, True, True, False, True, False, True]
+    assert live[3].aborted == "test" and live[5].aborted == "fault: sensor_nan"
+    assert live[2].has_reference and live[2].dp_eq is not None  # the reference path is exercised
+
+    report = asyncio.run(replay_file(path))
+    assert report.closed and report.dropped_bytes == 0 and report.agree
+    assert [c.cycle_id for c in report.cycles] == [r.cycle_id for r in live]
+    for cyc, res in zip(report.cycles, live):
+        assert cyc.complete and cyc.agree, (cyc.cycle_id, cyc.differences)
+        assert cyc.replay == comparable(res.to_dict())  # every field, exact floats
+    # the NaN readings that faulted cycle 6 came back as NaN, not as numbers
+    with RecordingReader(path) as reader:
+        values = np.concatenate([r.data.values for r in reader.records() if r.topic == SAMPLES])
+    assert np.isnan(values).any()
+
+
+def test_the_comparison_sees_a_changed_pipeline(varied):
+    """Replayed with other windows, the same records no longer agree: agreement above is
+    not an artefact of copying the live results."""
+    with RecordingReader(varied[2]) as reader:
+        cfg = CellConfig.model_validate(reader.config)
+        seq = cfg.profile.sequence
+        other = seq.model_copy(update={"windows": [seq.windows[0].model_copy(update={"end_s": 4.9})]})
+        pipeline = CycleReplay(other)
+        for rec in reader.records():
+            if rec.topic == SAMPLES:
+                pipeline.on_block(rec.data)
+            else:
+                pipeline.on_event(rec)
+    cycles = pipeline.finish()
+    assert {c.cycle_id for c in cycles if c.agree is False} == {1, 2, 3, 5, 7}  # the ones with features
+    assert "p_eq_kpa" in cycles[1].differences
+
+
+def test_the_recording_holds_config_commands_and_events(varied):
+    cfg, _, path = varied
+    with RecordingReader(path) as reader:
+        assert reader.metadata["format"] == "fluidsense-recording" and reader.metadata["rate_hz"] == "1000.0"
+        assert CellConfig.model_validate(reader.config) == cfg  # the config round-trips exactly
+        topics: dict[str, list] = {}
+        for rec in reader.records():
+            topics.setdefault(rec.topic, []).append(rec)
+    assert {"samples", "state", "cycle", "heartbeat", "fault", "cycle_start", "command"} <= set(topics)
+    blocks = [r.data for r in topics["samples"]]
+    t = np.concatenate([b.t for b in blocks])
+    assert np.all(np.diff(t) > 0) and blocks[0].channels == ("p_act", "p_tank")
+    valves = [r.data for r in topics["command"] if r.data["kind"] == "valve"]
+    assert {"valve": "actuate", "open": True, "kind": "valve", "t_s": topics["state"][2].data["at_s"]} in valves
+    assert [r.data["p0_pa"] for r in topics["cycle_start"]] == [63e3] * 7
+
+
+# ----------------------------------------------------------------- the flush guarantee
+def test_what_is_on_disk_lags_sample_time_by_at_most_flush_s(tmp_path):
+    """A SIGKILL loses what the process had not yet handed to the OS: the file as it is on
+    disk at any moment. Read it at odd moments of a cycle, without closing the writer."""
+    seen = []
+
+    async def body(ctrl):
+        sink = ctrl.sinks[0]
+        fut = await ctrl.start_cycle()
+        for step in (0.35, 1.73, 0.011, 2.5, 13.0, 0.99, 7.77):
+            await ctrl.wait(step)
+            copy = tmp_path / f"at-{ctrl.now:.3f}.mcap"
+            shutil.copyfile(sink.path, copy)
+            with RecordingReader(copy) as reader:
+                last = max((r.t_s for r in reader.records() if r.topic == SAMPLES), default=0.0)
+                seen.append((ctrl.now, last, reader.complete))
+        await fut
+
+    record(tmp_path, body, flush_s=1.0)
+    for now, last, complete in seen:
+        assert not complete
+        assert now - 1.0 - 0.010 - 1e-9 <= last <= now, (now, last)  # flush_s plus one block at most
+    assert any(now - last > 0.5 for now, last, _ in seen)  # and something really was still unflushed
+
+
+def test_every_cut_of_a_file_reads_up_to_the_cut(tmp_path, good_file):
+    """Wherever a file is cut, what is left reads (or says clearly that nothing can):
+    blocks are a prefix of the full recording and complete cycles still agree."""
+    full = good_file
+    data = full.read_bytes()
+    with RecordingReader(full) as reader:
+        all_t = [r.t_s for r in reader.records() if r.topic == SAMPLES]
+    last_before = -1.0
+    for frac in np.linspace(0.0, 0.999, 17):
+        cut = tmp_path / "cut.mcap"
+        cut.write_bytes(data[: int(len(data) * frac)])
+        try:
+            report = asyncio.run(replay_file(cut))
+        except RecordingError as exc:
+            assert str(exc).startswith(f"{cut}: ") and frac < 0.01, (frac, exc)
+            continue
+        assert not report.closed and report.agree
+        assert report.blocks == 0 or report.t_last_s == all_t[report.blocks - 1]
+        t_last = report.t_last_s or 0.0
+        assert t_last >= last_before
+        last_before = t_last
+    assert last_before > all_t[-1] - 5  # the late cuts keep nearly everything
+
+
+# ----------------------------------------------------------------- SIGKILL of a real daemon
+def test_sigkill_mid_cycle_then_replay(tmp_path, daemon_factory):
+    """A real-time daemon is killed with SIGKILL in the middle of a cycle. Its recording
+    reads back to within flush_s (1 s) of the kill, and the cycles it completed before
+    replay to their live results."""
+    d = daemon_factory(sim_config(tmp_path, clock="realtime", profile=fast_profile(tmp_path)))
+    d.wait_welcome()
+    live: dict[int, dict] = {}
+    last_pressure_t = [None]
+
+    def take(frames) -> tuple[str, dict] | None:
+        if len(frames) != 2:
+            return None
+        topic, msg = frames[0].decode(), json.loads(frames[1])
+        if topic == "pressure":
+            last_pressure_t[0] = msg["times_s"][-1]
+        elif topic == "cycle":
+            live[msg["cycle_id"]] = msg
+        return topic, msg
+
+    def until(pred, timeout_s=30.0):
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if d.sub.poll(100):
+                got = take(d.sub.recv_multipart())
+                if got is not None and pred(*got):
+                    return
+        raise AssertionError(f"timed out; daemon: {d.stderr_now()}")
+
+    assert d.request({"cmd": "cycle", "store_reference": True})["ok"]
+    until(lambda t, m: t == "cycle" and m["cycle_id"] == 1)
+    assert d.request({"cmd": "scene", "scene": {"kind": "cylinder", "diameter_mm": 80}})["ok"]
+    assert d.request({"cmd": "cycle", "label": "D80"})["ok"]
+    until(lambda t, m: t == "cycle" and m["cycle_id"] == 2)
+    assert d.request({"cmd": "cycle"})["ok"]
+    until(lambda t, m: t == "state" and m["cycle_id"] == 3 and m["to"] == "hold")
+    d.proc.kill()
+    assert d.proc.wait(10) == -9
+    while d.sub.poll(300):  # what it published before it died is still on its way to us
+        take(d.sub.recv_multipart())
+
+    report = asyncio.run(replay_file(the_file(tmp_path)))
+    assert not report.closed
+    t_kill = last_pressure_t[0]  # the daemon's sample time at the kill, within one 0.1 s batch
+    assert t_kill - 1.0 - 0.2 <= report.t_last_s <= t_kill + 0.15, (t_kill, report.t_last_s)
+    cycles = {c.cycle_id: c for c in report.cycles}
+    assert sorted(cycles) == [1, 2, 3]
+    for cid in (1, 2):
+        c = cycles[cid]
+        assert c.complete and c.agree, c.differences
+        assert c.replay == {k: live[cid][k] for k in c.replay}  # as published live
+    assert cycles[2].replay["has_reference"] and cycles[2].replay["dp_eq_kpa"] > 1.0
+    assert not cycles[3].complete and cycles[3].agree is None and cycles[3].live is None
+
+
+# ----------------------------------------------------------------- bad files
+def _not_ours(path: Path) -> None:
+    from mcap.writer import Writer
+
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start()
+        sid = w.register_schema("x", "jsonschema", b"{}")
+        cid = w.register_channel("/config", "json", sid)
+        w.add_message(cid, log_time=0, data=b"{}", publish_time=0)
+        w.finish()
+
+
+def _flip(path: Path, good: Path) -> None:
+    """One bit of rot in the compressed records of a chunk in the middle of the file."""
+    data = bytearray(good.read_bytes())
+    chunks, pos = [], 8
+    while pos < len(data) and data[pos] != 0x0F:  # top-level records up to the footer
+        length = struct.unpack_from("<Q", data, pos + 1)[0]
+        if data[pos] == 0x06:  # a chunk: its compressed records are its last bytes
+            chunks.append(pos + 9 + length)
+        pos += 9 + length
+    end = chunks[len(chunks) // 2]
+    data[end - 100] ^= 0x10
+    path.write_bytes(bytes(data))
+
+
+BAD = {
+    "empty": (lambda p, g: p.write_bytes(b""), "cut off after 0 bytes, before its cell config"),
+    "text": (lambda p, g: p.write_text("driver: {kind: sim}\n"), "not an MCAP file"),
+    "header only": (lambda p, g: p.write_bytes(g.read_bytes()[:40]), "before its cell config"),
+    "flipped byte": (_flip, "garbled near byte"),
+    "other mcap": (lambda p, g: _not_ours(p), "not a fluidsense recording"),
+    "missing": (lambda p, g: None, "cannot read: No such file"),
+}
+
+
+@pytest.mark.parametrize("kind", BAD)
+def test_a_bad_file_gives_one_clear_error_naming_it(tmp_path, good_file, kind, capsys):
+    make, reason = BAD[kind]
+    path = tmp_path / f"{kind.replace(' ', '-')}.mcap"
+    make(path, good_file)
+    with pytest.raises(RecordingError) as err:
+        asyncio.run(replay_file(path))
+    msg = str(err.value)
+    assert msg.startswith(f"{path}: ") and reason in msg and "\n" not in msg
+    if kind in ("text", "flipped byte", "missing"):
+        assert err.value.__cause__ is not None
+    assert cli.main(["replay", str(path)]) == 2  # the exit code (a subprocess below checks one)
+    out = capsys.readouterr()
+    assert out.out == "" and out.err.splitlines() == [f"fluidsense: error: {msg}"]
+
+
+def test_a_recorded_config_that_no_longer_validates_names_the_file(tmp_path):
+    path = tmp_path / "bad-config.mcap"
+    w = RecordingWriter(path, 0)
+    w.write_config({"driver": {"kind": "sim"}, "profile": {"name": "p"}, "colour": 3}, {})
+    w.close()
+    with pytest.raises(ConfigError, match=rf"^{path}: \(recorded config\) colour: unknown field"):
+        asyncio.run(replay_file(path))
+
+
+# ----------------------------------------------------------------- the CLI
+def _copy_with(src: Path, dst: Path, change) -> None:
+    """Rewrite a recording record by record, letting ``change`` edit event payloads."""
+    with RecordingReader(src) as reader:
+        w = RecordingWriter(dst, 0, {k: v for k, v in reader.metadata.items() if k in ("rate_hz", "channels")})
+        w.write_config(reader.config, {})
+        for rec in reader.records():
+            if rec.topic == SAMPLES:
+                w.write_block(rec.data)
+            elif rec.topic != CONFIG:
+                payload = {k: v for k, v in rec.data.items() if k != "t_s"}
+                w.write_event(rec.topic, rec.t_s, change(rec.topic, payload))
+        w.close()
+
+
+def test_cli_replay_json_and_exit_codes(tmp_path, good_file):
+    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "replay", str(good_file), "--json"], cwd=REPO,
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    doc = json.loads(out.stdout)
+    assert doc["agree"] and doc["closed"] and [c["status"] for c in doc["cycles"]] == ["complete"] * 2
+    assert doc["cycles"][1]["replay"]["p_eq_kpa"] == doc["cycles"][1]["live"]["p_eq_kpa"]
+
+    def nudge(topic, payload):
+        if topic == "cycle" and payload["cycle_id"] == 2:
+            payload = {**payload, "p_eq_kpa": payload["p_eq_kpa"] + 1e-9}
+        return payload
+
+    tampered = tmp_path / "tampered.mcap"
+    _copy_with(good_file, tampered, nudge)
+    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "replay", str(tampered)], cwd=REPO,
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 1, out.stderr
+    assert "differs in: p_eq_kpa" in out.stdout and "cycles [2] differ" in out.stdout
+
+    garbled = tmp_path / "garbled.mcap"
+    _flip(garbled, good_file)
+    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "replay", str(garbled)], cwd=REPO,
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and out.stdout == ""
+    assert len(out.stderr.splitlines()) == 1 and out.stderr.startswith(f"fluidsense: error: {garbled}: garbled")
+
+
+# ----------------------------------------------------------------- files, rotation, failures
+def test_files_are_never_overwritten(tmp_path):
+    first = new_path(tmp_path)
+    first.write_bytes(b"keep")
+    second = new_path(tmp_path)
+    assert second != first and second.name.startswith(first.stem)
+    with pytest.raises(FileExistsError):
+        RecordingWriter(first, 0)
+    assert first.read_bytes() == b"keep"
+    second.write_bytes(b"")
+    third = new_path(tmp_path)
+    assert sorted([third, second, first]) == [first, second, third]  # name order = write order
+
+
+def test_rotation_between_cycles_keeps_every_file_replayable(tmp_path):
+    async def body(ctrl):
+        await ctrl.run_cycle(store_reference=True)
+        await ctrl.set_scene(CylinderScene(diameter_mm=70))
+        return [await ctrl.run_cycle() for _ in range(3)]
+
+    live = record(tmp_path, body, max_file_mb=0.2)
+    files = sorted((tmp_path / "runs").glob("*.mcap"))
+    assert len(files) == 4
+    replayed = []
+    for f in files:
+        report = asyncio.run(replay_file(f))
+        assert report.closed and report.agree and len(report.cycles) == 1
+        replayed += report.cycles
+    assert [c.cycle_id for c in replayed] == [1, 2, 3, 4]  # each cycle whole, in one file
+    for c, res in zip(replayed[1:], live):
+        assert c.replay["has_reference"] and c.replay == comparable(res.to_dict())  # the reference travelled
+
+
+def test_a_write_error_drops_the_recording_and_control_goes_on(tmp_path, caplog):
+    def disk_full():
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    async def body(ctrl):
+        sink = ctrl.sinks[0]
+        await ctrl.wait(30.0)
+        sink._writer.flush = disk_full
+        res = await ctrl.run_cycle()
+        return sink, res
+
+    with caplog.at_level(logging.ERROR):
+        sink, res = record(tmp_path, body)
+    assert res.ok  # the cycle ran to its end without the recording
+    assert any("dropped" in r.message and str(sink.path) in r.message and "No space left" in r.message
+               for r in caplog.records)
+    with RecordingReader(sink.path) as reader:  # what was flushed before the error is there
+        last = max(r.t_s for r in reader.records() if r.topic == SAMPLES)
+    assert 29.0 <= last <= 31.0
+
+
+def test_a_nearly_full_disk_stops_the_recording_and_says_so(tmp_path, monkeypatch, caplog):
+    (tmp_path / "second").mkdir()
+    with pytest.raises(ConfigError, match=r"recording.dir: cannot record in .*MB free"):
+        record(tmp_path, lambda ctrl: ctrl.wait(1.0), min_free_mb=1_000_000)
+
+    real = shutil.disk_usage
+
+    async def body(ctrl):
+        await ctrl.wait(5.0)
+        monkeypatch.setattr("controller.recording.shutil.disk_usage",
+                            lambda p: real(p)._replace(free=10 * 2**20))
+        await ctrl.run_cycle()
+        return ctrl.sinks
+
+    with caplog.at_level(logging.ERROR):
+        sinks = record(tmp_path / "second", body)
+    assert sinks == []
+    assert any("MB free" in r.message and "recording stopped" in r.message for r in caplog.records)
+    with RecordingReader(the_file(tmp_path / "second")) as reader:
+        list(reader.records())
+        assert reader.complete  # closed properly before stopping
+
+
+def test_run_record_and_no_record_flags(tmp_path, monkeypatch):
+    from fluidsense.cli import build_parser
+    from fluidsense.commands import run as run_cmd
+
+    seen = []
+
+    async def fake_daemon(cfg, tasks_dir):
+        seen.append(cfg.recording)
+        return 0
+
+    monkeypatch.setattr(run_cmd.app, "run_daemon", fake_daemon)
+    path = str(sim_config(tmp_path))
+    for extra in ([], ["--no-record"], ["--record", str(tmp_path / "elsewhere")]):
+        assert run_cmd.main(build_parser().parse_args(["run", "--config", path, *extra])) == 0
+    default, off, moved = seen
+    assert default.enabled and default.dir == str(tmp_path / "runs")
+    assert not off.enabled
+    assert moved.enabled and moved.dir == str(tmp_path / "elsewhere")
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["run", "--record", "x", "--no-record"])
+
+
+class Probe(Sink):
+    def __init__(self):
+        self.blocks = []
+
+    def on_block(self, block) -> None:
+        self.blocks.append(block)
+
+
+# ----------------------------------------------------------------- the replay driver
+def test_replay_driver_feeds_the_recorded_blocks_to_a_controller(tmp_path, good_file):
+    with RecordingReader(good_file) as reader:
+        recorded = [r.data for r in reader.records() if r.topic == SAMPLES]
+    data = {"driver": {"kind": "replay", "file": str(good_file)}, "profile": str(PROFILE)}
+    path = tmp_path / "replay.yaml"
+    path.write_text(yaml.safe_dump(data))
+    cfg = load_cell_config(path)
+
+    async def main():
+        async with app.controller(cfg) as ctrl:
+            assert ctrl.virtual and ctrl.backend.source.rate_hz == 1000.0
+            probe = Probe()
+            ctrl.add_sink(probe)
+            await ctrl.wait(12.345)
+            return ctrl.now, probe.blocks
+
+    now, seen = asyncio.run(main())
+    assert now == recorded[len(seen) - 1].t_end and 12.345 <= now < 12.36
+    for got, want in zip(seen, recorded):
+        assert got.seq == want.seq and np.array_equal(got.t, want.t) and np.array_equal(got.values, want.values)
+
+    async def drain():
+        from drivers.replay import ReplaySource
+
+        async with ReplaySource(good_file) as src:
+            n = 0
+            while True:
+                try:
+                    await src.read_block()
+                except EndOfRecording as exc:
+                    return n, str(exc)
+                n += 1
+
+    n, msg = asyncio.run(drain())
+    assert n == len(recorded) and msg.startswith(f"{good_file}: end of the recording at t = ")

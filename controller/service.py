@@ -569,9 +569,13 @@ class Controller:
         if self._batch_start is None:
             self._batch_start = float(block.t[0])
         self._batch.append(block)
-        # n samples cover n sample periods: a batch as long as one block is one block
-        covered = self.now + 1.0 / self.backend.source.rate_hz - self._batch_start
-        if covered + 1e-12 >= self.cfg.publisher.pressure_batch_s:
+        # n samples cover n sample periods: a batch as long as one block is one block.
+        # Half a period of slack: a polled source stamps each read when it happens, and a
+        # first sample a few ns later than the last one must not hold the batch for a
+        # second block (measured: the oldest sample 20 ms old instead of 10 on Modbus)
+        period = 1.0 / self.backend.source.rate_hz
+        covered = self.now + period - self._batch_start
+        if covered + 0.5 * period >= self.cfg.publisher.pressure_batch_s:
             self._flush_pressure()
 
     def _flush_pressure(self) -> None:
@@ -580,9 +584,10 @@ class Controller:
         t = np.concatenate([b.t for b in self._batch])
         channels = self._batch[0].channels
         v = np.vstack([b.values for b in self._batch]) / np.array([_EDGE_SCALE[_unit(c)] for c in channels])
+        origin = self.backend.source.clock_origin_s
         self.pub.send("pressure", self.now, {
             "t0_s": float(t[0]), "rate_hz": self.backend.source.rate_hz, "n": len(t),
-            "clock_origin_s": self.backend.source.clock_origin_s,
+            "clock_origin_s": origin, "sent_s": None if origin is None else time.monotonic(),
             "channels": list(channels), "units": [_unit(c) for c in channels],
             "times_s": t.tolist(), "values": np.round(v, 5).T.tolist()})
         self._batch, self._batch_start = [], None

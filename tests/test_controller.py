@@ -156,3 +156,37 @@ def test_pressure_batches_hold_as_many_samples_as_their_length_says(tmp_path, ba
     assert {m["n"] for m in full} == {samples}
     times = np.concatenate([m["times_s"] for m in pub.pressure])
     assert np.all(np.diff(times) > 0)  # nothing sent twice, nothing out of order
+
+
+def test_a_polled_sources_jitter_does_not_hold_a_batch_for_a_second_block(tmp_path):
+    """A polled source stamps each read when it starts: the first sample of a block can be
+    a few microseconds later than its slot while the last is on time. A 10 ms batch is
+    still one block of 10 (it once waited for a second block, doubling the latency)."""
+    from controller.config import load_cell_config
+    from controller.service import Controller
+    from drivers.base import SampleBlock
+    from drivers.config import build_backend
+
+    from .conftest import sim_config
+
+    cfg = load_cell_config(sim_config(tmp_path))
+    cfg = cfg.model_copy(update={"publisher": cfg.publisher.model_copy(update={"pressure_batch_s": 0.01})})
+    sent = []
+
+    class Capture:
+        endpoint, dropped = None, 0
+
+        def send(self, topic, t_s, payload):
+            sent.append(payload["n"])
+
+        def close(self):
+            pass
+
+    ctrl = Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware), Capture())
+    slots = np.arange(30) / 1000.0
+    lateness = np.tile(np.r_[5e-6, np.zeros(9)], 3)  # each block's first read 5 us late
+    for i in range(3):
+        t = slots[10 * i:10 * i + 10] + lateness[10 * i:10 * i + 10]
+        ctrl.now = float(t[-1])
+        ctrl._batch_pressure(SampleBlock(seq=i, t=t, values=np.zeros((10, 1)), channels=("p",)))
+    assert sent == [10, 10, 10]

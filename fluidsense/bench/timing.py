@@ -9,7 +9,9 @@ subscriber in this process and reports, for the samples it received:
 - end-to-end latency from a sample's timestamp to its arrival here (CLOCK_MONOTONIC is
   shared by the processes of a machine): the newest sample of each published block,
 - CPU used by the daemon and its sampler process.
-Blocks are published as they come (``pressure_batch_s`` = one block).
+Blocks are published as they come (``pressure_batch_s`` = one block). The daemon records
+as it does in production (MCAP, flushed every second), into the benchmark's temporary
+directory, which is removed at the end; ``--no-record`` measures without it.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import json
 import multiprocessing
 import os
 import select
+import shutil
 import signal
 import subprocess
 import sys
@@ -43,6 +46,8 @@ def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("--load", nargs="?", const=-1, type=int, default=0,
                    help="competing CPU load: N busy processes (default: one per CPU)")
     p.add_argument("--late-us", type=float, default=50.0, help="a sample this late is late (default 50 us)")
+    p.add_argument("--no-record", dest="record", action="store_false",
+                   help="run the daemon without its recording (default: records, as in production)")
     p.add_argument("--json", action="store_true")
 
 
@@ -72,7 +77,7 @@ def _cpu_s(pid: int) -> float:
     return total
 
 
-def _cell_config(tmp: Path, source: str, rate: float) -> Path:
+def _cell_config(tmp: Path, source: str, rate: float, record: bool = True) -> Path:
     from ..app import REPO_ROOT
 
     block = 10
@@ -80,6 +85,7 @@ def _cell_config(tmp: Path, source: str, rate: float) -> Path:
         "profile": str(REPO_ROOT / "config" / "profiles" / "pneunet-gripper.yaml"),
         "publisher": {"pub": f"ipc://{tmp}/pub", "cmd": f"ipc://{tmp}/cmd", "pressure_batch_s": block / rate},
         "log_level": "WARNING",
+        "recording": {"enabled": record, "dir": str(tmp / "runs"), "min_free_mb": 16},
     }
     if source == "sim":
         data["driver"] = {"kind": "sim", "clock": "realtime", "rate_hz": rate, "block_size": block, "seed": 1}
@@ -99,10 +105,18 @@ def _cell_config(tmp: Path, source: str, rate: float) -> Path:
 
 
 def run_bench(seconds: float = 60.0, source: str = "sim", rate: float = 1000.0, load: int = 0,
-              late_us: float = 50.0) -> dict[str, Any]:
+              late_us: float = 50.0, record: bool = True) -> dict[str, Any]:
     tmp = Path(tempfile.mkdtemp(prefix="fluidsense-timing-"))
-    cfg = _cell_config(tmp, source, rate)
+    try:
+        return _measure(tmp, _cell_config(tmp, source, rate, record), seconds, source, rate, load, late_us, record)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, load: int, late_us: float,
+             record: bool) -> dict[str, Any]:
     extra: list[subprocess.Popen] = []
+    rtt = None
     if source == "modbus":
         box = subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "simcell", "--config", str(cfg)],
                                stdout=subprocess.PIPE)
@@ -111,6 +125,7 @@ def run_bench(seconds: float = 60.0, source: str = "sim", rate: float = 1000.0, 
         if not ready or not ready.startswith("ready"):
             box.kill()
             raise RuntimeError(f"fluidsense simcell did not start (said {ready!r}); is another box on its ports?")
+        rtt = _modbus_read_times(cfg)
     daemon = subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "run", "--config", str(cfg)],
                               stderr=subprocess.PIPE)
     ctx = zmq.Context()
@@ -130,7 +145,7 @@ def run_bench(seconds: float = 60.0, source: str = "sim", rate: float = 1000.0, 
             pr.start()
             burners.append(pr)
         cpu0, wall0 = _cpu_s(daemon.pid), time.monotonic()
-        times, newest_age, oldest_age = [], [], []
+        times, newest_age, oldest_age, in_daemon = [], [], [], []
         while time.monotonic() < stop_at:
             if not sub.poll(1000):
                 continue
@@ -143,6 +158,7 @@ def run_bench(seconds: float = 60.0, source: str = "sim", rate: float = 1000.0, 
             t = msg["times_s"]
             times.extend(t)
             newest_age.append(arrival - (origin + t[-1]))
+            in_daemon.append(msg["sent_s"] - (origin + t[-1]))
             oldest_age.append(arrival - (origin + t[0]))
         cpu = (_cpu_s(daemon.pid) - cpu0) / (time.monotonic() - wall0)
     finally:
@@ -158,6 +174,7 @@ def run_bench(seconds: float = 60.0, source: str = "sim", rate: float = 1000.0, 
             p.wait(30)
         sub.close()
         ctx.term()
+    recorded = sum(f.stat().st_size for f in (tmp / "runs").glob("*.mcap"))
     t = np.array(times)
     if len(t) < 2:
         raise RuntimeError("the subscriber received no samples: see the daemon's log")
@@ -177,12 +194,51 @@ def run_bench(seconds: float = 60.0, source: str = "sim", rate: float = 1000.0, 
         "e2e_latency_ms": {"p50": float(pct(newest_age, 50) * 1e3), "p99": float(pct(newest_age, 99) * 1e3),
                            "max": float(np.max(newest_age) * 1e3)},
         "e2e_latency_oldest_ms": {"p50": float(pct(oldest_age, 50) * 1e3), "p99": float(pct(oldest_age, 99) * 1e3)},
+        # the newest sample's age split at the daemon's send: source + daemon, then ZeroMQ to here
+        "to_daemon_send_ms": _pcts(np.array(in_daemon) * 1e3),
+        "daemon_send_to_subscriber_ms": _pcts((np.array(newest_age) - np.array(in_daemon)) * 1e3),
         "cpu_percent": 100.0 * cpu,
+        "recording": record, "recorded_mb": recorded / 2**20,
+        "modbus_read_us": rtt,
     }
 
 
+def _modbus_read_times(cfg: Path, n: int = 5000) -> dict[str, float]:
+    """Round trip of one poll (every wired analog input in one request), before the daemon
+    starts: the sampler's own poller code, here at normal priority in this process, paced
+    at 1 kHz. The floor under any polled sample's latency."""
+    from controller.config import load_cell_config
+    from drivers.modbus.backend import modbus_inputs
+    from drivers.modbus.poller import ModbusAnalogPoller
+
+    cell = load_cell_config(cfg)
+    d = cell.driver
+    poller = ModbusAnalogPoller(d.host, d.port, d.device_id, modbus_inputs(d, cell.profile.hardware.channels),
+                                d.timeout_s)
+    poller.open()
+    took = np.empty(n)
+    try:
+        due = time.monotonic()
+        for i in range(n):
+            due += 1e-3
+            time.sleep(max(0.0, due - time.monotonic()))
+            t0 = time.perf_counter()
+            poller.read()
+            took[i] = time.perf_counter() - t0
+    finally:
+        poller.close()
+    took *= 1e6
+    return {"reads": n, "p50": float(np.percentile(took, 50)), "p99": float(np.percentile(took, 99)),
+            "p999": float(np.percentile(took, 99.9)), "max": float(took.max()),
+            "over_1ms_fraction": float(np.mean(took > 1000.0))}
+
+
+def _pcts(x: np.ndarray) -> dict[str, float]:
+    return {"p50": float(np.percentile(x, 50)), "p99": float(np.percentile(x, 99)), "max": float(x.max())}
+
+
 def run(args: argparse.Namespace) -> int:
-    res = run_bench(args.seconds, args.source, args.rate_hz, args.load, args.late_us)
+    res = run_bench(args.seconds, args.source, args.rate_hz, args.load, args.late_us, args.record)
     if args.json:
         print(json.dumps(res, indent=1))
         return 0

@@ -1,0 +1,36 @@
+"""`fluidsense bench timing` as a user runs it: a real daemon in real time, a real ZeroMQ
+subscriber in another process. Only what does not depend on how busy the machine is gets
+asserted: the simulated source is hardware-timed (exact timestamps), so every slot of the
+grid must arrive exactly once whatever the load; latency and CPU are reported, not judged
+(docs/performance.md holds the figures)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from .conftest import REPO
+
+
+def test_sim_source_accounts_for_every_slot_and_cleans_up(tmp_path):
+    env = {**os.environ, "TMPDIR": str(tmp_path)}  # the bench's own directory goes here
+    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "bench", "timing", "--seconds", "2", "--json"],
+                         cwd=REPO, env=env, capture_output=True, text=True, timeout=180)
+    assert out.returncode == 0, out.stderr
+    res = json.loads(out.stdout)
+    assert res["source"] == "sim" and res["rate_hz"] == 1000.0
+    assert res["samples"] >= 1500  # 2 s at 1 kHz, less what arrives before the subscriber joins
+    assert res["lost"] == 0 and res["duplicated"] == 0
+    assert res["late_fraction"] == 0.0 and res["lateness_us"]["max"] < 1e-3  # stamped on the grid
+    e2e, daemon, wire = res["e2e_latency_ms"], res["to_daemon_send_ms"], res["daemon_send_to_subscriber_ms"]
+    assert 0 < e2e["p50"] <= e2e["p99"] <= e2e["max"]
+    assert 0 < daemon["p50"] < e2e["p50"] and 0 < wire["p50"] < e2e["p50"]  # the two parts of one age
+    # the oldest sample of a 10-sample batch is 9 periods older than the newest
+    assert res["e2e_latency_oldest_ms"]["p50"] - e2e["p50"] == pytest.approx(9.0, abs=0.01)
+    assert res["recording"] is True and res["recorded_mb"] > 0  # the daemon recorded, as in production
+    assert not list(tmp_path.glob("fluidsense-timing-*"))  # config, sockets and recording removed
+

@@ -290,6 +290,9 @@ class Controller:
         if self.fault is not None:
             log.warning("fault reset by operator: %s", self.fault.detail)
         self.fault = None
+        # the overrun baseline forms again from the next blocks: a loop still catching up
+        # on the stall it was reset for is not a second overrun (it once latched one)
+        self._wall_lag0 = None
         self.sequencer.reset(self.now)
         self._publish_transitions()
 
@@ -406,7 +409,11 @@ class Controller:
     async def _read(self) -> SampleBlock:
         if self.virtual:
             return await self.backend.source.read_block()
-        return await asyncio.wait_for(self.backend.source.read_block(), self.cfg.supervision.no_data_s)
+        # asyncio.timeout, not wait_for: Python 3.11's wait_for returns the result when a
+        # cancel arrives just as the read completes (a block already due, as while catching
+        # up after a stall), and the swallowed cancel left stop() waiting for ever
+        async with asyncio.timeout(self.cfg.supervision.no_data_s):
+            return await self.backend.source.read_block()
 
     def _read_fault(self, exc: Exception) -> Fault:
         if isinstance(exc, (asyncio.TimeoutError, DeviceTimeoutError)):

@@ -93,3 +93,52 @@ def test_a_noisy_sensor_on_a_steady_hold_is_not_a_leak_and_a_real_leak_still_is(
     found = next(f for f in (leaking.check(b, holding=True) for b in _held_blocks(-0.5, 0.28, 5.0, seed=4))
                  if f is not None)
     assert found.kind == "leak" and found.t <= 2.0
+
+
+def test_a_stalled_loop_is_an_overrun_vented_at_once_and_latched_once_and_the_controller_still_stops():
+    """Real time (an overrun only exists there): a sink blocks the event loop for 0.5 s.
+    The first block after it latches one overrun fault with the vent commanded in the same
+    block; a reset while the loop is still catching up does not latch a second one; and
+    stop() returns (Python 3.11's wait_for swallowed the stop's cancel when the read was
+    already done, which hung the controller). The stall is the condition under test, not a
+    way to let time pass; the timeout below only turns a hang into a failure."""
+    import asyncio
+    import time
+
+    from controller.service import Controller, Sink
+    from drivers.config import build_backend
+
+    class Stall(Sink):
+        at: float | None = None
+
+        def on_block(self, block) -> None:
+            if self.at is not None and block.t_end >= self.at:
+                self.at = None
+                time.sleep(0.5)
+
+    async def body():
+        cfg = bench._cfg(seed=3, clock="realtime")
+        stall = Stall()
+        ctrl = Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware))
+        await ctrl.start()
+        ctrl.add_sink(stall)
+        await ctrl.wait(0.2)
+        stall.at = ctrl.now + 0.1
+        while ctrl.fault is None:
+            await ctrl.wait(0.01)
+        first, vented = ctrl.fault, ctrl.backend.valves.in_safe_state
+        fault, t_vent = ctrl.last_vent
+        ctrl.reset()  # at once: the loop is still about 0.5 s behind its samples
+        await ctrl.wait(1.0)
+        second = ctrl.fault
+        stall.at = ctrl.now + 0.1  # again, and stop while the loop is still catching up
+        while ctrl.fault is None:
+            await ctrl.wait(0.01)
+        stopping = asyncio.ensure_future(ctrl.stop())
+        stopped, _ = await asyncio.wait({stopping}, timeout=30)  # waits, cancels nothing
+        return first, vented, t_vent - fault.t, second, bool(stopped)
+
+    first, vented, vent_delay_s, second, stopped = run(body())
+    assert first.kind == "overrun" and vented and vent_delay_s == 0.0
+    assert second is None
+    assert stopped

@@ -138,7 +138,8 @@ async def _overrun(n: int, seed: int) -> list[dict[str, Any]]:
         await ctrl.wait(0.3)
         for _ in range(n):
             stall.at = ctrl.now + float(rng.uniform(0.1, 0.5))
-            while ctrl.fault is None and ctrl.now < stall.at + 2.0:
+            give_up = stall.at + 2.0  # the sink clears stall.at when it stalls
+            while ctrl.fault is None and ctrl.now < give_up:
                 await ctrl.wait(0.05)
             rec = {"kind": "overrun", "detected": False}
             if ctrl.fault is not None and ctrl.last_vent is not None:

@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test install clean lint-imports report speed-accuracy stability timing
+.PHONY: demo test install clean lint-imports report speed-accuracy stability timing faults
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -41,6 +41,11 @@ timing: $(STAMP)
 	$(BIN)/fluidsense bench timing --source sim --seconds $(TIMING_S) --json > docs/performance/timing-sim.json
 	$(BIN)/fluidsense bench timing --source modbus --seconds $(TIMING_S) --json > docs/performance/timing-modbus.json
 	$(BIN)/fluidsense bench sampler --seconds 60 --json > docs/performance/sampler.json
+
+# Fault-injection figures of docs/safety.md (~2 minutes).
+faults: $(STAMP)
+	mkdir -p docs/safety
+	$(BIN)/fluidsense bench faults --json > docs/safety/faults.json
 
 lint-imports: $(STAMP)
 	$(BIN)/lint-imports

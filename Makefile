@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test install clean lint-imports report speed-accuracy stability timing
+.PHONY: demo test install clean lint-imports report speed-accuracy stability timing soak
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -41,6 +41,11 @@ timing: $(STAMP)
 	$(BIN)/fluidsense bench timing --source sim --seconds $(TIMING_S) --json > docs/performance/timing-sim.json
 	$(BIN)/fluidsense bench timing --source modbus --seconds $(TIMING_S) --json > docs/performance/timing-modbus.json
 	$(BIN)/fluidsense bench sampler --seconds 60 --json > docs/performance/sampler.json
+
+# Soak figures of docs/soak.md: 8 hours of sample time in virtual time (~5-10 minutes).
+soak: $(STAMP)
+	mkdir -p docs/soak
+	$(BIN)/fluidsense bench soak --virtual-hours 8 --json > docs/soak/soak-8h.json
 
 lint-imports: $(STAMP)
 	$(BIN)/lint-imports

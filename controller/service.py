@@ -15,6 +15,7 @@ import logging
 import time
 from collections import deque
 from collections.abc import Awaitable, Callable
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -539,7 +540,8 @@ class Controller:
         if store and result.ok:
             self.references[key] = make_reference(result)
             result.is_reference = True
-        self.results.append(result)
+        # the caller gets the trace; the history keeps features only (a trace is ~0.6 MB)
+        self.results.append(replace(result, trace=None))
         self.emit("cycle", result.to_dict())
         fut, self._cycle_future = self._cycle_future, None
         if fut is not None and not fut.done():

@@ -35,13 +35,15 @@ def load(path: str | Path | None, overrides: dict[str, Any] | None = None) -> Ce
 
 
 @contextlib.asynccontextmanager
-async def controller(cfg: CellConfig, publish: bool = False, record: bool = False) -> AsyncIterator[Controller]:
+async def controller(cfg: CellConfig, publish: bool = False, record: bool = False,
+                     pub_hwm: int | None = None) -> AsyncIterator[Controller]:
     """A started controller on the configured backend; vents and closes on exit. With
-    ``record`` (the daemon) it records as ``cfg.recording`` says, from sample time 0."""
+    ``record`` (the daemon) it records as ``cfg.recording`` says, from sample time 0.
+    ``pub_hwm`` replaces the publisher's high-water mark (the soak bench fills it fast)."""
     pub = None
     if publish:
         try:
-            pub = Publisher(cfg.publisher.pub)
+            pub = Publisher(cfg.publisher.pub, **({} if pub_hwm is None else {"hwm": pub_hwm}))
         except zmq.ZMQError as exc:
             raise ConfigError(f"publisher.pub: cannot bind {cfg.publisher.pub}: {exc}") from exc
     backend = build_backend(cfg.driver, cfg.profile.hardware)

@@ -57,7 +57,9 @@ async def controller(cfg: CellConfig, publish: bool = False, record: bool = Fals
             yield ctrl
     finally:
         if pub is not None:
-            pub.send("log", ctrl.now, {"level": "INFO", "message": "controller stopped"})
+            # the last message says where the valves were left, for whoever checks the safe state
+            pub.send("log", ctrl.now, {"level": "INFO", "message": "controller stopped",
+                                       "valves": backend.valves.state, "safe": backend.valves.in_safe_state})
             pub.close()
 
 

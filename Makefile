@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test install clean lint-imports report speed-accuracy stability timing faults
+.PHONY: demo test install clean lint-imports report speed-accuracy stability timing faults soak
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -46,6 +46,11 @@ timing: $(STAMP)
 faults: $(STAMP)
 	mkdir -p docs/safety
 	$(BIN)/fluidsense bench faults --json > docs/safety/faults.json
+
+# Soak figures of docs/soak.md: 8 hours of sample time in virtual time (~5-10 minutes).
+soak: $(STAMP)
+	mkdir -p docs/soak
+	$(BIN)/fluidsense bench soak --virtual-hours 8 --json > docs/soak/soak-8h.json
 
 lint-imports: $(STAMP)
 	$(BIN)/lint-imports

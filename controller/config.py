@@ -236,6 +236,9 @@ class RecordingConfig(StrictModel):
     compression: Literal["zstd", "lz4", "none"] = "zstd"
     max_file_mb: float = Field(1024.0, gt=0, le=1_000_000, description="start a new file, between cycles, "
                                "once a file is this large")
+    max_file_s: float = Field(3600.0, gt=0, le=7 * 86400, description="start a new file, between cycles, "
+                              "once a file covers this much sample time (the writer's index of a file stays "
+                              "in memory until the file is closed: ~1 KB per flush)")
     min_free_mb: float = Field(1024.0, ge=0, le=1_000_000, description="stop recording (and say so) when the "
                                "disk has less free space than this")
 

@@ -4,9 +4,12 @@ Flush guarantee: every ``flush_s`` of sample time the open chunk is closed and h
 the OS, so a daemon killed with SIGKILL loses at most the last ``flush_s`` (measured in
 tests/test_recording.py); with ``fsync`` a worker thread also forces it to storage, so
 the sample loop never waits on the disk. A file is started between cycles once it passes
-``max_file_mb``; each file carries the config and the references it needs to replay on
-its own. A write error or a nearly full disk logs, closes what can be closed and drops
-the sink (the controller's Sink contract): control goes on without recording.
+``max_file_mb`` or covers ``max_file_s`` of sample time (the MCAP writer keeps an index
+entry per flushed chunk in memory until the file is closed: ~1 KB per ``flush_s``, 28 MB
+over 8 h in one file, found by fluidsense bench soak); each file carries the config and
+the references it needs to replay on its own. A write error or a nearly full disk logs,
+closes what can be closed and drops the sink (the controller's Sink contract): control
+goes on without recording.
 """
 
 from __future__ import annotations
@@ -83,14 +86,14 @@ class RecordingSink(Sink):
         self._guard(self._writer.write_block, block)
         if block.t_end - self._flushed_t >= self.rc.flush_s:
             self.flush(block.t_end)
-            if not self._in_cycle and self._writer.size >= self.rc.max_file_mb * MB:
+            if not self._in_cycle and self._full(block.t_end):
                 self._rotate(block.t_end)
 
     def on_event(self, topic: str, t_s: float, payload: dict[str, Any]) -> None:
         if topic == "cycle_start":
             # between two cycles every block of the last one is written: the place to start
             # a new file (in virtual time no block comes between cycles)
-            if self._writer.size >= self.rc.max_file_mb * MB:
+            if self._full(t_s):
                 self._rotate(t_s)
             self._in_cycle = True
         elif topic == "cycle":
@@ -114,7 +117,11 @@ class RecordingSink(Sink):
             self._stop_pool()
 
     # ------------------------------------------------------------ files
+    def _full(self, t_s: float) -> bool:
+        return self._writer.size >= self.rc.max_file_mb * MB or t_s - self._file_t0 >= self.rc.max_file_s
+
     def _open(self, t_s: float) -> RecordingWriter:
+        self._file_t0 = t_s
         path = new_path(self.dir)
         writer = RecordingWriter(path, self._t0_ns, self._meta, self.rc.compression)
         try:
@@ -130,7 +137,7 @@ class RecordingSink(Sink):
         return writer
 
     def _rotate(self, t_s: float) -> None:
-        old = self._writer
+        old, old_t0 = self._writer, self._file_t0
         self._wait_sync()
         self._guard(old.close)
         try:
@@ -138,7 +145,8 @@ class RecordingSink(Sink):
         except OSError as exc:
             self._stop_pool()
             raise RecordingError(f"{self.dir}: cannot start a new recording: {exc}; recording stopped") from exc
-        log.info("recording: %s reached %.0f MB, continuing in %s", old.path.name, self.rc.max_file_mb,
+        log.info("recording: %s holds %.1f MB over %.0f s (limits %.0f MB, %.0f s), continuing in %s",
+                 old.path.name, old.path.stat().st_size / MB, t_s - old_t0, self.rc.max_file_mb, self.rc.max_file_s,
                  self._writer.path.name)
 
     def _guard(self, write: Callable[..., None], *args: Any) -> None:

@@ -15,6 +15,7 @@ import logging
 import time
 from collections import deque
 from collections.abc import Awaitable, Callable
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -116,6 +117,8 @@ class Controller:
         self.missed = 0
         self.late = 0
         self._proc_s: deque[float] = deque(maxlen=2000)
+        self.loop_ticks = 0  # iterations the sample loop completed (a block, or a failed read handled)
+        self._parked = False  # the loop waits for demand (virtual time, nothing waits on samples)
         self._next_heartbeat = 0.0
         self._batch: list[SampleBlock] = []
         self._batch_start: float | None = None
@@ -370,6 +373,16 @@ class Controller:
         if self._task is None or self._task.done():
             raise CommandError("controller is not running")
 
+    @property
+    def loop_running(self) -> bool:
+        return self._task is not None and not self._task.done()
+
+    @property
+    def idle(self) -> bool:
+        """Virtual time with nothing waiting on samples: the loop is parked and sample time
+        stands still by design. Parked while something waits would be a lost wake-up."""
+        return self._parked and not self._has_demand()
+
     def _has_demand(self) -> bool:
         """In virtual time samples are only worth producing while something waits on them.
         A held cycle whose measurement is done waits on the task, not on samples."""
@@ -387,7 +400,11 @@ class Controller:
         while True:
             if self.virtual and not self._has_demand():
                 self._demand.clear()
-                await self._demand.wait()
+                self._parked = True
+                try:
+                    await self._demand.wait()
+                finally:
+                    self._parked = False
                 continue
             try:
                 block = await self._read()
@@ -395,6 +412,7 @@ class Controller:
                 raise
             except Exception as exc:  # noqa: BLE001 - every device failure is a fault, none ends the loop
                 failures += 1
+                self.loop_ticks += 1
                 if self.fault is None:
                     await self._enter_fault(self._read_fault(exc))
                 self._fail_waiters(FaultError(f"no samples: {exc}"))
@@ -405,6 +423,7 @@ class Controller:
             t0 = time.perf_counter()
             await self._on_block(block)
             self._proc_s.append(time.perf_counter() - t0)
+            self.loop_ticks += 1
 
     async def _read(self) -> SampleBlock:
         if self.virtual:
@@ -546,7 +565,8 @@ class Controller:
         if store and result.ok:
             self.references[key] = make_reference(result)
             result.is_reference = True
-        self.results.append(result)
+        # the caller gets the trace; the history keeps features only (a trace is ~0.6 MB)
+        self.results.append(replace(result, trace=None))
         self.emit("cycle", result.to_dict())
         fut, self._cycle_future = self._cycle_future, None
         if fut is not None and not fut.done():

@@ -133,11 +133,13 @@ def run(coro):
 class Daemon:
     """``fluidsense run`` in a subprocess, with a SUB and a REQ socket attached."""
 
-    def __init__(self, config: Path, *extra: str, new_session: bool = False):
-        """``new_session``: the daemon and its helper processes get a process group of their own."""
+    def __init__(self, config: Path, *extra: str, new_session: bool = False,
+                 env: dict[str, str] | None = None):
+        """``new_session``: the daemon and its helper processes get a process group of their own;
+        ``env``: variables added to the daemon's environment."""
         cfg = yaml.safe_load(config.read_text())
         self.pub, self.cmd = cfg["publisher"]["pub"], cfg["publisher"]["cmd"]
-        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
         self.proc = subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "run", "--config", str(config), *extra],
                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=REPO,
                                      start_new_session=new_session)
@@ -203,8 +205,8 @@ class Daemon:
 def daemon_factory():
     made: list[Daemon] = []
 
-    def make(config: Path, *extra: str) -> Daemon:
-        d = Daemon(config, *extra)
+    def make(config: Path, *extra: str, env: dict[str, str] | None = None) -> Daemon:
+        d = Daemon(config, *extra, env=env)
         made.append(d)
         return d
 

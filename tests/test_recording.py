@@ -397,6 +397,26 @@ def test_rotation_between_cycles_keeps_every_file_replayable(tmp_path):
         assert c.replay["has_reference"] and c.replay == comparable(res.to_dict())  # the reference travelled
 
 
+def test_files_rotate_by_sample_time_between_cycles(tmp_path):
+    """max_file_s bounds what one file covers, hence the writer's in-memory index (the soak
+    found +28 MB over 8 h in one file)."""
+    async def body(ctrl):
+        return [await ctrl.run_cycle(store_reference=True)] + [await ctrl.run_cycle() for _ in range(4)]
+
+    live = record(tmp_path, body, max_file_s=60.0)
+    starts = {r.cycle_id: r.t_start for r in live}
+    files = sorted((tmp_path / "runs").glob("*.mcap"))
+    assert len(files) >= 2
+    ids = []
+    for f in files:
+        report = asyncio.run(replay_file(f))
+        assert report.closed and report.agree
+        cids = [c.cycle_id for c in report.cycles]
+        ids += cids
+        assert starts[cids[-1]] - starts[cids[0]] < 60.0, (f.name, cids)  # no cycle started past the limit
+    assert ids == [1, 2, 3, 4, 5]  # each cycle whole, in one file, in order
+
+
 def test_a_write_error_drops_the_recording_and_control_goes_on(tmp_path, caplog):
     def disk_full():
         raise OSError(errno.ENOSPC, "No space left on device")

@@ -120,22 +120,30 @@ def test_real_time_heartbeat_and_sigterm_vents_then_exits(tmp_path, daemon_facto
     check("heartbeat", beat)
     assert beat["virtual"] is False and beat["rate_hz"] == 1000
     assert d.request({"cmd": "cycle"})["ok"]
-    while True:  # wait, in real time, for the actuator to be inflating
+    while True:  # wait, in real time, for the actuation valve to open: the actuator inflates
         _, st = d.next_message("state", timeout_s=10)
-        if st["to"] == "hold":
+        if st["to"] == "actuate":
             break
     d.proc.send_signal(signal.SIGTERM)
     tail = []
     while True:
         topic, msg = d.next_message(timeout_s=15)
+        check(topic, msg)
         tail.append((topic, msg))
         if topic == "log" and msg["message"] == "controller stopped":
             break
     assert d.proc.wait(30) == 0
-    vents = [m for t, m in tail if t == "state" and m["to"] == "vent"]
-    assert vents and vents[0]["reason"] == "abort: shutdown"
+    assert b"stopping: venting and closing" in d.proc.stderr.read()
+    # in this order: the cycle aborted into VENT, its (aborted) result, then the last message
+    # saying every valve is in its safe position (actuation valve closed: the actuator vents)
+    states = [m for t, m in tail if t == "state"]
+    assert [(m["from"], m["to"], m["reason"]) for m in states] == [("actuate", "vent", "abort: shutdown")]
     cycles = [m for t, m in tail if t == "cycle"]
-    assert not cycles or cycles[-1]["aborted"] == "shutdown"
+    assert len(cycles) == 1 and cycles[0]["aborted"] == "shutdown" and not cycles[0]["ok"]
+    seq = {id(m): m["seq"] for _, m in tail}
+    last = tail[-1][1]
+    assert seq[id(states[0])] < seq[id(cycles[0])] < last["seq"]
+    assert last["safe"] is True and last["valves"] and not any(last["valves"].values())
 
 
 def test_monitor_shows_transitions_and_the_result(tmp_path, daemon_factory):

@@ -1,0 +1,325 @@
+"""Deployment: systemd readiness and watchdog (sd_notify), the unit file, the Dockerfile."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import re
+import shlex
+import shutil
+import signal
+import socket
+import subprocess
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from controller.config import load_cell_config
+from controller.replay import replay_file
+from fluidsense.notify import LoopWatchdog, Notifier, keep_alive, watchdog_interval
+
+from .conftest import REPO, run, sim_config
+
+UNIT = REPO / "config" / "systemd" / "fluidsense.service"
+UNIT_CONFIG = REPO / "config" / "systemd" / "cell.yaml"
+
+
+def notify_socket(path: Path) -> socket.socket:
+    """What systemd listens on: an AF_UNIX datagram socket."""
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind(str(path))
+    return sock
+
+
+def receive(sock: socket.socket, timeout_s: float) -> str:
+    sock.settimeout(timeout_s)
+    try:
+        return sock.recv(4096).decode()
+    except TimeoutError:
+        raise AssertionError(f"no notification within {timeout_s} s") from None
+
+
+# ------------------------------------------------------------------ sd_notify
+def test_the_daemon_notifies_ready_pings_the_watchdog_and_says_stopping(tmp_path, daemon_factory):
+    """A real-time daemon with systemd's environment: READY once its sockets are bound and
+    samples flow, pings, then on SIGTERM STOPPING, the vented safe state as its last
+    message, a closed recording and exit 0. (A SIGTERM during a cycle, which aborts it
+    into VENT, is test_zmq's test_real_time_heartbeat_and_sigterm_vents_then_exits.)"""
+    sock = notify_socket(tmp_path / "notify")
+    cfg = sim_config(tmp_path, clock="realtime")
+    d = daemon_factory(cfg, env={"NOTIFY_SOCKET": str(tmp_path / "notify"), "WATCHDOG_USEC": "200000"})
+    first = receive(sock, 60)
+    assert first.splitlines() == ["READY=1", "STATUS=running: profile pneunet-gripper on sim (real time)"]
+    # READY only once both sockets are bound (ipc endpoints are files) and samples flow
+    for endpoint in (d.pub, d.cmd):
+        assert Path(endpoint.removeprefix("ipc://")).exists()
+    d.wait_welcome()
+    assert d.request({"cmd": "status"})["samples"] > 0
+    assert [receive(sock, 30) for _ in range(5)] == ["WATCHDOG=1"] * 5
+    d.proc.send_signal(signal.SIGTERM)
+    tail = []
+    while not tail or not tail[-1].startswith("STOPPING=1"):
+        tail.append(receive(sock, 30))
+    assert set(tail[:-1]) <= {"WATCHDOG=1"}
+    assert tail[-1].splitlines() == ["STOPPING=1", "STATUS=stopping: venting and closing"]
+    while True:
+        topic, last = d.next_message(timeout_s=30)
+        if topic == "log" and last["message"] == "controller stopped":
+            break
+    assert last["safe"] is True and last["valves"]  # vented: every valve in its safe position
+    assert d.proc.wait(30) == 0
+    sock.setblocking(False)
+    with pytest.raises(BlockingIOError):  # the daemon has exited: nothing came after STOPPING
+        sock.recv(4096)
+    sock.close()
+    [recording] = (tmp_path / "runs").glob("*.mcap")
+    report = asyncio.run(replay_file(recording))
+    assert report.closed  # flushed and finished, not cut off (a killed daemon loses up to flush_s)
+    assert report.t_last_s == pytest.approx(last["t_s"], abs=0.05)
+
+
+def test_the_ping_period_is_half_the_watchdog_timeout(tmp_path):
+    env = {"NOTIFY_SOCKET": str(tmp_path / "notify"), "WATCHDOG_USEC": "10000000"}
+    assert Notifier.from_env(env).ping_period_s == 5.0
+    assert Notifier.from_env({**env, "WATCHDOG_USEC": "0"}).ping_period_s is None
+    assert Notifier.from_env({"WATCHDOG_USEC": "10000000"}).ping_period_s is None  # nobody to ping
+
+
+def test_notifier_reaches_abstract_sockets_and_never_raises(tmp_path):
+    name = f"fluidsense-test-{tmp_path.name}"
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.bind("\0" + name)
+    try:
+        note = Notifier(f"@{name}")
+        assert note.send("READY=1", "STATUS=up")
+        assert receive(sock, 5) == "READY=1\nSTATUS=up"
+    finally:
+        sock.close()
+    # the listener is gone: a failed send is reported, not raised
+    assert note.send("WATCHDOG=1") is False
+    assert Notifier(str(tmp_path / "nobody")).send("READY=1") is False
+    assert Notifier(None).send("READY=1") is False and not Notifier(None).enabled
+
+
+@pytest.mark.parametrize("env, expected", [
+    ({}, None),
+    ({"WATCHDOG_USEC": "10000000"}, 10.0),
+    ({"WATCHDOG_USEC": "10000000", "WATCHDOG_PID": "4242"}, 10.0),
+    ({"WATCHDOG_USEC": "10000000", "WATCHDOG_PID": "4243"}, None),  # someone else's watchdog
+    ({"WATCHDOG_USEC": "0"}, None),
+    ({"WATCHDOG_USEC": "ten"}, None),
+])
+def test_watchdog_interval_from_the_environment(env, expected):
+    assert watchdog_interval(env, pid=4242) == expected
+
+
+# --------------------------------------------------------------- the watchdog
+def test_watchdog_logic():
+    loop = SimpleNamespace(loop_ticks=0, loop_running=True, virtual=False, idle=False)
+    dog = LoopWatchdog(loop)
+    assert not dog.alive()  # real time, no block since the last look
+    loop.loop_ticks += 1
+    assert dog.alive() and not dog.stalled
+    assert not dog.alive() and dog.stalled
+    loop.loop_ticks += 5
+    assert dog.alive() and not dog.stalled
+    loop.virtual, loop.idle = True, True  # parked, nothing waits on samples: time stands still
+    assert dog.alive() and dog.alive()
+    loop.idle = False  # something waits on samples and none come: stalled
+    assert not dog.alive()
+    loop.loop_ticks += 1
+    loop.loop_running = False  # the loop task ended
+    assert not dog.alive()
+
+
+def test_pings_stop_when_the_loop_stops_progressing(tmp_path):
+    """keep_alive with an injected sleep: three periods with blocks, then none."""
+    sock = notify_socket(tmp_path / "notify")
+    loop = SimpleNamespace(loop_ticks=0, loop_running=True, virtual=False, idle=False)
+    periods = []
+
+    async def sleep(period_s):
+        periods.append(period_s)
+        if len(periods) > 6:
+            raise asyncio.CancelledError
+        if len(periods) <= 3:
+            loop.loop_ticks += 100
+
+    with pytest.raises(asyncio.CancelledError):
+        run(keep_alive(Notifier(str(tmp_path / "notify")), LoopWatchdog(loop), 5.0, sleep=sleep))
+    got = []
+    sock.setblocking(False)
+    while True:
+        try:
+            got.append(sock.recv(64))
+        except BlockingIOError:
+            break
+    assert periods == [5.0] * 7
+    assert got == [b"WATCHDOG=1"] * 3
+
+
+def test_a_stalled_sample_loop_fails_the_watchdog(virtual_controller):
+    """A real controller in virtual time: idle is alive; a read that never returns while a
+    cycle waits on samples, or a valve command that never returns, is a stall."""
+
+    async def body(ctrl):
+        dog = LoopWatchdog(ctrl)
+        await asyncio.sleep(0)
+        idle = [dog.alive(), dog.alive()]
+        await ctrl.run_cycle()
+        after_cycle = dog.alive()
+
+        source = ctrl.backend.source
+        real_read, stuck, never = source.read_block, asyncio.Event(), asyncio.Event()
+        reads = 0
+
+        async def read_block():
+            nonlocal reads
+            reads += 1
+            if reads > 500:  # 5 s into the cycle
+                stuck.set()
+                await never.wait()
+            return await real_read()
+
+        source.read_block = read_block
+        fut = await ctrl.start_cycle()
+        await stuck.wait()
+        stalled_read = [dog.alive(), dog.alive()]
+        fut.cancel()
+        return idle, after_cycle, stalled_read
+
+    idle, after_cycle, stalled_read = virtual_controller(body)
+    assert idle == [True, True]
+    assert after_cycle is True
+    assert stalled_read == [True, False]  # progress before the stall, then none
+
+
+def test_a_loop_stuck_in_a_device_command_fails_the_watchdog(virtual_controller):
+    async def body(ctrl):
+        dog = LoopWatchdog(ctrl)
+        valves = ctrl.backend.valves
+        real_set, stuck, never = valves.set, asyncio.Event(), asyncio.Event()
+
+        async def set_valve(valve, open_, t):
+            if valve == "actuate" and open_:  # the sequencer opens it from inside the loop
+                stuck.set()
+                await never.wait()
+            return await real_set(valve, open_, t)
+
+        valves.set = set_valve
+        fut = await ctrl.start_cycle()
+        await stuck.wait()
+        verdicts = [dog.alive(), dog.alive()]
+        fut.cancel()
+        return verdicts
+
+    assert virtual_controller(body) == [True, False]
+
+
+# ------------------------------------------------------------------ the unit
+def unit_entries(path: Path) -> dict[str, list[str]]:
+    """``Section.Key`` -> values (systemd allows a key several times)."""
+    out: dict[str, list[str]] = {}
+    section = None
+    for raw in path.read_text().splitlines():
+        line = raw.strip()
+        if not line or line.startswith(("#", ";")):
+            continue
+        if line.startswith("["):
+            section = line.strip("[]")
+            continue
+        key, _, value = line.partition("=")
+        out.setdefault(f"{section}.{key.strip()}", []).append(value.strip())
+    return out
+
+
+def test_the_systemd_unit_is_a_notify_service_with_a_watchdog():
+    unit = unit_entries(UNIT)
+    one = {k: v[-1] for k, v in unit.items()}
+    assert one["Service.Type"] == "notify" and one["Service.NotifyAccess"] == "main"
+    assert one["Service.Restart"] == "on-failure" and one["Service.KillSignal"] == "SIGTERM"
+    assert one["Service.KillMode"] == "mixed"  # SIGTERM to the daemon only: it stops its sampler itself
+    # the loop can go no_data_s (0.5 s) plus a 1 s retry pause between iterations while
+    # a device is down: a ping period (half WatchdogSec) must cover that
+    watchdog_s = float(one["Service.WatchdogSec"].removesuffix("s"))
+    assert watchdog_s / 2 > 0.5 + 1.0
+    assert float(one["Service.TimeoutStopSec"].removesuffix("s")) > 5
+    assert one["Service.User"] != "root" and one["Service.NoNewPrivileges"] == "yes"
+    assert one["Service.ProtectSystem"] == "strict" and "runs" in one["Service.ReadWritePaths"]
+    assert one["Service.LimitRTPRIO"] == "40"  # the sampler's SCHED_FIFO priority (docs/sampler.md)
+    argv = shlex.split(one["Service.ExecStart"])
+    assert argv[0] == one["Service.WorkingDirectory"] + "/.venv/bin/fluidsense"  # make install's venv
+    assert argv[1:] == ["run", "--config", "/etc/fluidsense/cell.yaml"]
+
+
+def test_the_units_config_is_in_the_repository_and_validates(tmp_path):
+    """/etc/fluidsense/cell.yaml is installed from config/systemd/cell.yaml (the install
+    steps in docs/deployment.md say so); with /opt/fluidsense as this checkout it loads,
+    and it records where the unit lets the service write."""
+    unit = {k: v[-1] for k, v in unit_entries(UNIT).items()}
+    root = unit["Service.WorkingDirectory"]
+    assert re.search(r"install .*config/systemd/cell\.yaml /etc/fluidsense/cell\.yaml",
+                     (REPO / "docs" / "deployment.md").read_text())
+    installed = tmp_path / "cell.yaml"
+    installed.write_text(UNIT_CONFIG.read_text().replace(root, str(REPO)))
+    cfg = load_cell_config(installed)
+    assert cfg.driver.clock == "realtime" and cfg.recording.enabled
+    writable = [p.replace(root, str(REPO)) for p in unit["Service.ReadWritePaths"].split()]
+    assert cfg.recording.dir in writable
+
+
+@pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze is not installed")
+def test_systemd_analyze_verifies_the_unit(tmp_path):
+    """The unit as installed, with /opt/fluidsense pointing at this checkout so that the
+    executable exists (verify checks it)."""
+    unit = tmp_path / "fluidsense.service"
+    unit.write_text(UNIT.read_text().replace("/opt/fluidsense", str(REPO)))
+    out = subprocess.run(["systemd-analyze", "verify", "--man=no", str(unit)], capture_output=True, text=True,
+                         timeout=60)
+    problems = [line for line in (out.stdout + out.stderr).splitlines() if "fluidsense.service" in line]
+    assert out.returncode == 0 and not problems, out.stdout + out.stderr
+
+
+# ---------------------------------------------------------------- Dockerfile
+def dockerfile() -> list[tuple[str, str]]:
+    """(INSTRUCTION, arguments), continuation lines joined."""
+    text = re.sub(r"\\\n", " ", (REPO / "Dockerfile").read_text())
+    return [(line.split(None, 1)[0].upper(), line.split(None, 1)[1].strip())
+            for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")]
+
+
+def make_variable(name: str) -> str:
+    m = re.search(rf"^{name}\s*:?=\s*(\S+)", (REPO / "Makefile").read_text(), flags=re.M)
+    assert m, f"no {name} in the Makefile"
+    return m.group(1)
+
+
+def test_the_dockerfile_installs_as_the_makefile_and_runs_the_sim_cell():
+    steps = dockerfile()
+    makefile = (REPO / "Makefile").read_text()
+    # the same install the test target depends on: `make install`, after the sources are in
+    runs = [a for k, a in steps if k == "RUN"]
+    assert "make install" in runs
+    assert re.search(r"^install: \$\(STAMP\)$", makefile, flags=re.M)
+    assert re.search(r"^test: \$\(STAMP\)$", makefile, flags=re.M)
+    assert steps.index(("COPY", ". .")) < steps.index(("RUN", "make install"))
+    # a host .venv copied in would carry its stamp and make `make install` a no-op
+    ignored = (REPO / ".dockerignore").read_text().split()
+    assert make_variable("VENV") in ignored
+    # the base image satisfies requires-python
+    base = dict(steps)["FROM"]
+    version = re.search(r"python:(\d+)\.(\d+)", base)
+    required = re.search(r'requires-python = ">=(\d+)\.(\d+)"', (REPO / "pyproject.toml").read_text())
+    assert version and required and tuple(map(int, version.groups())) >= tuple(map(int, required.groups()))
+    # CMD: the venv's fluidsense on a config that exists in the image and validates
+    cmd = json.loads(dict(steps)["CMD"])
+    assert cmd[:4] == [f"{make_variable('VENV')}/bin/fluidsense", "run", "--config", cmd[3]]
+    cfg = load_cell_config(REPO / cmd[3])
+    assert cfg.driver.kind == "sim" and cfg.driver.clock == "realtime"
+    # events on every interface of the container; commands on loopback only
+    assert cfg.publisher.pub.startswith("tcp://0.0.0.0:")
+    assert cfg.publisher.cmd.startswith("tcp://127.0.0.1:") and cfg.publisher.cmd_curve is None
+    exposed = " ".join(a for k, a in steps if k == "EXPOSE").split()
+    assert exposed == [cfg.publisher.pub.rsplit(":", 1)[1]]
+    assert dict(steps)["STOPSIGNAL"] == "SIGTERM"

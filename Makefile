@@ -47,7 +47,7 @@ faults: $(STAMP)
 	mkdir -p docs/safety
 	$(BIN)/fluidsense bench faults --json > docs/safety/faults.json
 
-# Soak figures of docs/soak.md: 8 hours of sample time in virtual time (~5-10 minutes).
+# Soak figures of docs/soak.md: 8 hours of sample time in virtual time (~10 minutes).
 soak: $(STAMP)
 	mkdir -p docs/soak
 	$(BIN)/fluidsense bench soak --virtual-hours 8 --json > docs/soak/soak-8h.json

@@ -5,9 +5,12 @@ A backend's devices (valves, regulator, arm) talk through one or more ``Link``s 
 Modbus client, the ur_rtde worker process). The source is the backend's heartbeat:
 every block it delivers also checks every link, so a link lost while the cell is idle
 still becomes a fault within one block. After a loss every read raises
-``LinkLostError`` until the next reconnection attempt (exponential backoff); a
-successful one restarts the sampler and reopens the links, and sample time carries on
-from the first connection's origin, the gap reported as missed slots.
+``LinkLostError`` until a reconnection succeeds; attempts run in a task of their own
+(exponential backoff between them), because reopening links and starting a sampler
+process takes longer than the controller waits for one block (under load, more than
+its 0.5 s: attempts cut off by that wait never succeeded). A successful one restarts the
+sampler and reopens the links, and sample time carries on from the first connection's
+origin, the gap reported as missed slots.
 """
 
 from __future__ import annotations
@@ -63,6 +66,7 @@ class PolledCellSource(SampleSource):
         self._lost: LinkLostError | None = None
         self._retry_at = 0.0
         self._backoff = reconnect.first_s
+        self._reconnecting: asyncio.Task[None] | None = None
 
     @property
     def clock_origin_s(self) -> float | None:
@@ -123,19 +127,26 @@ class PolledCellSource(SampleSource):
         await self._close_all()
 
     async def _try_reconnect(self) -> None:
+        """Returns once reconnected; otherwise raises LinkLostError at once, starting an
+        attempt in the background when the backoff allows one."""
         loop = asyncio.get_running_loop()
-        if loop.time() < self._retry_at:
-            raise LinkLostError(f"{self.name}: disconnected ({self._lost}); next attempt in "
-                                f"{self._retry_at - loop.time():.1f} s") from self._lost
-        try:
-            await self._connect()
-        except (DriverError, OSError) as exc:
+        task = self._reconnecting
+        if task is not None and task.done():
+            self._reconnecting = None
+            exc = task.exception() if not task.cancelled() else asyncio.CancelledError()
+            if exc is None:
+                log.warning("%s: reconnected", self.name)
+                self._lost = None
+                return
             self._backoff = min(2 * self._backoff, self.reconnect.max_s)
             self._retry_at = loop.time() + self._backoff
             log.warning("%s: reconnection failed (%s); next attempt in %.1f s", self.name, exc, self._backoff)
             raise LinkLostError(f"{self.name}: reconnection failed: {exc}") from exc
-        log.warning("%s: reconnected", self.name)
-        self._lost = None
+        if task is None and loop.time() >= self._retry_at:
+            self._reconnecting = asyncio.create_task(self._connect(), name=f"{self.name}-reconnect")
+        state = "reconnecting" if self._reconnecting is not None else \
+            f"next attempt in {self._retry_at - loop.time():.1f} s"
+        raise LinkLostError(f"{self.name}: disconnected ({self._lost}); {state}") from self._lost
 
     async def _close_all(self) -> None:
         if self.sampler is not None:
@@ -150,4 +161,11 @@ class PolledCellSource(SampleSource):
                 log.error("%s: closing %s: %s", self.name, link.name, exc)
 
     async def _stop(self) -> None:
+        if self._reconnecting is not None:
+            self._reconnecting.cancel()
+            try:
+                await self._reconnecting  # _connect closes what it opened
+            except (asyncio.CancelledError, Exception):  # noqa: BLE001 - stopping anyway: the outcome no longer matters
+                pass
+            self._reconnecting = None
         await self._close_all()

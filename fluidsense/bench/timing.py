@@ -185,18 +185,17 @@ def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, loa
     lateness = (t - k / rate) * 1e6
     uniq = np.unique(k)
     pct = np.percentile
+    newest_ms, in_daemon_ms = np.array(newest_age) * 1e3, np.array(in_daemon) * 1e3
     return {
         "source": source, "rate_hz": rate, "seconds": seconds, "load_processes": n_load, "samples": int(len(t)),
         "lost": int(uniq[-1] - uniq[0] + 1 - len(uniq)), "duplicated": int(len(k) - len(uniq)),
         "late_fraction": float(np.mean(lateness > late_us)), "late_threshold_us": late_us,
-        "lateness_us": {"p50": float(pct(lateness, 50)), "p99": float(pct(lateness, 99)),
-                        "p999": float(pct(lateness, 99.9)), "max": float(lateness.max())},
-        "e2e_latency_ms": {"p50": float(pct(newest_age, 50) * 1e3), "p99": float(pct(newest_age, 99) * 1e3),
-                           "max": float(np.max(newest_age) * 1e3)},
+        "lateness_us": _pcts(lateness, p999=True),
+        "e2e_latency_ms": _pcts(newest_ms),
         "e2e_latency_oldest_ms": {"p50": float(pct(oldest_age, 50) * 1e3), "p99": float(pct(oldest_age, 99) * 1e3)},
         # the newest sample's age split at the daemon's send: source + daemon, then ZeroMQ to here
-        "to_daemon_send_ms": _pcts(np.array(in_daemon) * 1e3),
-        "daemon_send_to_subscriber_ms": _pcts((np.array(newest_age) - np.array(in_daemon)) * 1e3),
+        "to_daemon_send_ms": _pcts(in_daemon_ms),
+        "daemon_send_to_subscriber_ms": _pcts(newest_ms - in_daemon_ms),
         "cpu_percent": 100.0 * cpu,
         "recording": record, "recorded_mb": recorded / 2**20,
         "modbus_read_us": rtt,
@@ -228,13 +227,15 @@ def _modbus_read_times(cfg: Path, n: int = 5000) -> dict[str, float]:
     finally:
         poller.close()
     took *= 1e6
-    return {"reads": n, "p50": float(np.percentile(took, 50)), "p99": float(np.percentile(took, 99)),
-            "p999": float(np.percentile(took, 99.9)), "max": float(took.max()),
+    return {"reads": n, **_pcts(took, p999=True),
             "over_1ms_fraction": float(np.mean(took > 1000.0))}
 
 
-def _pcts(x: np.ndarray) -> dict[str, float]:
-    return {"p50": float(np.percentile(x, 50)), "p99": float(np.percentile(x, 99)), "max": float(x.max())}
+def _pcts(x: np.ndarray, p999: bool = False) -> dict[str, float]:
+    out = {"p50": float(np.percentile(x, 50)), "p99": float(np.percentile(x, 99))}
+    if p999:
+        out["p999"] = float(np.percentile(x, 99.9))
+    return {**out, "max": float(x.max())}
 
 
 def run(args: argparse.Namespace) -> int:

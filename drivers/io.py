@@ -18,6 +18,7 @@ from typing import Annotated, Literal
 from pydantic import Field, model_validator
 
 from .models import StrictModel
+from .sampler.config import SamplerOptions  # noqa: F401 - drivers' configs take it from here
 from .units import KPA
 
 RAW_MAX = 65535  # UR Modbus analog registers are unsigned 16-bit counts
@@ -248,18 +249,6 @@ class Reconnect(StrictModel):
     first_s: float = Field(0.5, gt=0, le=60)
     max_s: float = Field(10.0, gt=0, le=600)
     connect_timeout_s: float = Field(15.0, gt=0, le=120, description="time allowed to connect each time")
-
-
-class SamplerOptions(StrictModel):
-    """Real-time settings of the sampler process that polls the analog inputs
-    (docs/sampler.md); the poller and the channels come from the driver."""
-
-    cpu: Literal["auto", "none"] | Annotated[int, Field(ge=0, le=4095)] = "auto"
-    rt_priority: Annotated[int, Field(ge=1, le=99)] | None = 40
-    late_threshold_us: float = Field(50.0, gt=0)
-    spin_us: float = Field(75.0, ge=0, le=10_000, description="docs/performance.md")
-    max_consecutive_failures: int = Field(10, ge=1, le=1_000_000)
-    silence_timeout_s: float = Field(1.0, gt=0, le=600)
 
 
 class UrArmConfig(StrictModel):

@@ -6,7 +6,7 @@
   missed / failed accounting), with an injectable clock;
 - :mod:`.process`: the process entry point (real-time settings, ZeroMQ PUSH);
 - :mod:`.source`: ``SampledSource``, the daemon's side;
-- :mod:`.config`: ``SamplerConfig``.
+- :mod:`.config`: ``SamplerConfig`` and its real-time part ``SamplerOptions`` (a driver config's ``sampler`` section).
 
 The daemon-side names are imported lazily so that the sampler process, which imports
 this package on its way to ``.process``, loads neither pydantic nor zmq.asyncio.

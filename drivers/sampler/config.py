@@ -20,14 +20,11 @@ class PollerSpec(StrictModel):
     kwargs: dict[str, JsonValue] = Field(default_factory=dict, description="JSON keyword arguments")
 
 
-class SamplerConfig(StrictModel):
-    """A polled source: one read of every channel per slot, in a dedicated process."""
+class SamplerOptions(StrictModel):
+    """The real-time settings of a sampler process, which a production driver's config
+    exposes as its ``sampler`` section (docs/sampler.md); the poller and the channels come
+    from the driver."""
 
-    poller: PollerSpec
-    channels: tuple[ChannelName, ...] = Field(min_length=1, max_length=64,
-                                              description="names of the values read() returns, in order")
-    rate_hz: float = Field(1000.0, gt=0, le=10_000, description="slots per second")
-    block_size: int = Field(10, ge=1, le=10_000, description="samples per block handed to the daemon")
     late_threshold_us: float = Field(
         50.0, gt=0, description="a read that starts more than this after its slot's deadline counts as late")
     spin_us: float = Field(75.0, ge=0, le=10_000,
@@ -42,6 +39,16 @@ class SamplerConfig(StrictModel):
         "the kernel's threaded interrupt handlers (50), which a network poller depends on")
     silence_timeout_s: float = Field(1.0, gt=0, le=600,
                                      description="no message from the sampler for this long means it is gone")
+
+
+class SamplerConfig(SamplerOptions):
+    """A polled source: one read of every channel per slot, in a dedicated process."""
+
+    poller: PollerSpec
+    channels: tuple[ChannelName, ...] = Field(min_length=1, max_length=64,
+                                              description="names of the values read() returns, in order")
+    rate_hz: float = Field(1000.0, gt=0, le=10_000, description="slots per second")
+    block_size: int = Field(10, ge=1, le=10_000, description="samples per block handed to the daemon")
     start_timeout_s: float = Field(30.0, gt=0, le=600,
                                    description="time allowed to spawn the process and open the poller")
     stop_timeout_s: float = Field(2.0, gt=0, le=60, description="time allowed for a clean stop before SIGTERM")

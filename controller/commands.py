@@ -89,11 +89,11 @@ def parse(frames: list[bytes]) -> Any:
 
 
 class CommandServer:
-    def __init__(self, endpoint: str, handler: Callable[[Any], Awaitable[dict[str, Any]]],
+    def __init__(self, endpoint: str, handler: Callable[[Any], Awaitable[dict[str, Any]]] | None,
                  context: zmq.asyncio.Context | None = None, curve: tuple[str, str] | None = None):
         """``curve``: (server secret key file, directory of allowed client public keys)."""
         self.endpoint = endpoint
-        self._handler = handler
+        self.handler = handler
         self._ctx = context or zmq.asyncio.Context.instance()
         self._auth = None
         self._sock = self._ctx.socket(zmq.REP)
@@ -120,7 +120,7 @@ class CommandServer:
             self.rejected += 1
             return {"ok": False, "error": str(exc)}
         try:
-            return {"ok": True, **(await self._handler(cmd))}
+            return {"ok": True, **(await self.handler(cmd))}
         except FluidsenseError as exc:
             self.rejected += 1
             return {"ok": False, "error": str(exc)}

@@ -21,15 +21,17 @@ from typing import Any
 import numpy as np
 
 from drivers.base import Backend, SampleBlock
-from drivers.errors import (CommandError, DeviceTimeoutError, FaultError, LinkLostError, NotSupportedError,
-                            SafetyError, SequenceError)
+from drivers.errors import (CommandError, DeviceTimeoutError, FaultError, FluidsenseError, LinkLostError,
+                            NotSupportedError, SafetyError, SequenceError)
+from drivers.faults import Fault, FaultKind
 
 from .commands import AbortCmd, CycleCmd, ResetCmd, SceneCmd, ShutdownCmd, StatusCmd, TaskCmd
 from .config import CellConfig
 from .cycle import CycleResult, Recorder, Reference, analyse, make_reference, transition_dict
+from .latch import SafetyLatch, vented_word
 from .publisher import NullPublisher, Publisher
 from .sequencer import Command, FlowProfileCmd, Sequencer, SetpointCmd, State, ValveCmd
-from .supervisor import Fault, Supervisor
+from .supervisor import Supervisor
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +48,10 @@ def _unit(channel: str) -> str:
 
 def _reference_key(p0_pa: float) -> float:
     return round(p0_pa / KPA, 3)
+
+
+def _word(open_: bool) -> str:
+    return "open" if open_ else "closed"
 
 
 def _command_dict(cmd: Command) -> dict[str, Any]:
@@ -102,8 +108,7 @@ class Controller:
         self.now = 0.0
         self.references: dict[float, Reference] = {}
         self.results: deque[CycleResult] = deque(maxlen=100)
-        self.fault: Fault | None = None
-        self.last_vent: tuple[Fault, float] | None = None  # the last fault and when the vent was commanded
+        self.latch = SafetyLatch(backend)
         self._recorder: Recorder | None = None
         self._cycle_future: asyncio.Future[CycleResult] | None = None
         self._cycle_opts: dict[str, Any] = {}
@@ -132,8 +137,24 @@ class Controller:
         self.sinks: list[Sink] = []
         self._measured: asyncio.Future[CycleResult] | None = None
         self._hold = False
+        # background I/O started from the loop: reading the valve outputs back, kicking the box watchdog
+        self._readback: asyncio.Task | None = None
+        self._kick: asyncio.Task | None = None
+        self._next_kick = 0.0
+        self._vented_seen: bool | None = None  # the last ``vented`` published, to log changes
+        self._deferred: Fault | None = None  # a fault found outside the loop, latched after its next block
+        self._disagreed = False  # the last read-back disagreed with what was commanded
 
     # ------------------------------------------------------------- lifecycle
+    @property
+    def fault(self) -> Fault | None:
+        return self.latch.fault
+
+    @property
+    def last_vent(self) -> tuple[Fault, float] | None:
+        """The latched fault and the sample time its safe state was commanded."""
+        return None if self.latch.fault is None else (self.latch.fault, self.latch.vent_t)
+
     @property
     def virtual(self) -> bool:
         return self.backend.source.virtual
@@ -144,7 +165,7 @@ class Controller:
             self.backend.arm.use_clock(self.clock)
         if self.backend.regulator is not None:
             self.backend.regulator.set_limits(self.profile.limits.min_pa, self.profile.limits.max_pa)
-        await self.backend.safe_state(self.now)
+        await self.latch.command_safe_state(self.now)
         self._task = asyncio.create_task(self._loop(), name="fluidsense-sample-loop")
 
     async def stop(self) -> None:
@@ -160,13 +181,15 @@ class Controller:
             await self._apply_guarded(cmds)
         if self._recorder is not None:  # report the interrupted cycle rather than drop it
             self._finish_cycle()
-        if self._task is not None:
-            self._task.cancel()
+        for task in (self._task, self._readback, self._kick):
+            if task is None:
+                continue
+            task.cancel()
             try:
-                await self._task
-            except asyncio.CancelledError:
+                await task
+            except (asyncio.CancelledError, Exception):  # noqa: BLE001 - a loop that died is reported by its owner
                 pass
-            self._task = None
+        self._task = self._readback = self._kick = None
         self._fail_waiters(CommandError("controller stopped"))
         await self.backend.stop(self.now)
         self._flush_pressure()
@@ -184,11 +207,16 @@ class Controller:
     async def __aexit__(self, *exc: object) -> None:
         await self.stop()
 
-    async def wait_shutdown(self) -> None:
-        """Returns when a shutdown command arrives or the sample loop ends."""
-        waiter = asyncio.create_task(self._shutdown.wait())
-        done, _ = await asyncio.wait({waiter, self._task}, return_when=asyncio.FIRST_COMPLETED)
-        waiter.cancel()
+    async def wait_shutdown_command(self) -> None:
+        """Returns when a shutdown command arrives."""
+        await self._shutdown.wait()
+
+    @property
+    def loop_task(self) -> asyncio.Task[None]:
+        """The sample loop: it never ends by itself; if it does, that is a bug."""
+        if self._task is None:
+            raise CommandError("controller is not running")
+        return self._task
 
     # ------------------------------------------------------------ public API
     async def run_cycle(self, *, p0_kpa: float | None = None, label: str | None = None,
@@ -214,6 +242,8 @@ class Controller:
         lim = self.profile.limits
         if not lim.min_kpa <= p0 <= lim.max_kpa:
             raise SafetyError(f"p0 {p0} kPa outside the profile's limits [{lim.min_kpa}, {lim.max_kpa}] kPa")
+        if self.backend.watchdog is not None:
+            await self.backend.watchdog.ensure_running()
         cmds = self.sequencer.start(self.now, p0 * KPA, hold=hold)
         self._cycle_opts = {"label": label, "store_reference": store_reference}
         self._hold = hold
@@ -290,9 +320,9 @@ class Controller:
         return True
 
     def reset(self) -> None:
-        if self.fault is not None:
-            log.warning("fault reset by operator: %s", self.fault.detail)
-        self.fault = None
+        """Clear a latched fault. Refused (FaultError) until the device has confirmed the
+        safe state: after a lost link, only once it is back and reads vented."""
+        self.latch.clear()
         # the overrun baseline forms again from the next blocks: a loop still catching up
         # on the stall it was reset for is not a second overrun (it once latched one)
         self._wall_lag0 = None
@@ -315,10 +345,14 @@ class Controller:
             except asyncio.CancelledError:
                 self.emit("task", {"task": file, "event": "aborted"})
                 raise
-            except Exception as exc:  # noqa: BLE001 - reported on the task topic; the daemon goes on
+            except FluidsenseError as exc:  # the task could not go on: reported; the daemon goes on
                 log.error("task %s failed: %s", file, exc)
                 if self.sequencer.busy:
                     await self.abort(f"task failed: {exc}")
+            except Exception as exc:  # noqa: BLE001 - a bug in a task: vent, say why
+                log.exception("task %s failed", file)
+                await self._enter_fault(Fault(FaultKind.INTERNAL, None, self.now,
+                                              f"task {file}: {type(exc).__name__}: {exc}"))
 
         self._task_name = file
         self._task_job = asyncio.get_running_loop().create_task(job(), name=f"task {file}")
@@ -338,14 +372,29 @@ class Controller:
             "profile": self.profile.name,
             "fault": None if self.fault is None else {"kind": self.fault.kind, "detail": self.fault.detail,
                                                       "t_s": self.fault.t},
-            "valves": self.backend.valves.state,
+            "valves": self.backend.valves.reported, "valves_age_s": self.backend.valves.age_s(),
+            "valves_commanded": self.backend.valves.state, "vented": vented_word(self.latch.vented()),
             "references_kpa": sorted(self.references),
             "samples": self.samples, "missed": self.missed, "last_cycle": last,
             "task": None if self._task_job is None else {"file": self._task_name, "running": not self._task_job.done()},
         }
 
     async def handle_command(self, cmd: Any) -> dict[str, Any]:
-        """Dispatch a validated command-socket request."""
+        """Dispatch a validated command-socket request. A refused request is an error
+        reply; anything else that raises is a bug: the cell is vented (internal fault)
+        and the reply says so."""
+        try:
+            return await self._dispatch(cmd)
+        except FluidsenseError:
+            raise
+        except Exception as exc:  # noqa: BLE001
+            log.exception("command %s failed", getattr(cmd, "cmd", "?"))
+            await self._enter_fault(Fault(FaultKind.INTERNAL, None, self.now,
+                                          f"{type(exc).__name__} handling {getattr(cmd, 'cmd', '?')!r}: {exc}"))
+            raise CommandError(f"internal error: {type(exc).__name__}: {exc}; the cell was put in its safe state "
+                               "(send reset to go on)") from exc
+
+    async def _dispatch(self, cmd: Any) -> dict[str, Any]:
         if isinstance(cmd, StatusCmd):
             return self.status()
         if isinstance(cmd, CycleCmd):
@@ -395,7 +444,9 @@ class Controller:
 
     async def _loop(self) -> None:
         """Pull blocks for ever. A source that fails or goes silent faults the cell (vent)
-        and the loop keeps trying: the daemon outlives its devices."""
+        and the loop keeps trying: the daemon outlives its devices. Anything else that
+        raises while a block is handled (a bug, a sink, a device) trips the latch as an
+        internal fault and the loop goes on with the next block, in the safe state."""
         failures = 0
         while True:
             if self.virtual and not self._has_demand():
@@ -413,17 +464,27 @@ class Controller:
             except Exception as exc:  # noqa: BLE001 - every device failure is a fault, none ends the loop
                 failures += 1
                 self.loop_ticks += 1
-                if self.fault is None:
-                    await self._enter_fault(self._read_fault(exc))
+                await self._enter_fault(self._read_fault(exc))
                 self._fail_waiters(FaultError(f"no samples: {exc}"))
                 # pace the retries (the driver reconnects); wall time, but no control decision
                 await asyncio.sleep(min(0.05 * 2 ** min(failures, 5), 1.0) if not self.virtual else 0)
                 continue
             failures = 0
             t0 = time.perf_counter()
-            await self._on_block(block)
+            try:
+                await self._on_block(block)
+            except asyncio.CancelledError:
+                raise
+            except Exception as exc:  # noqa: BLE001 - a bug must vent, not end the loop
+                log.exception("the sample loop failed on block %d", block.seq)
+                await self._enter_fault(Fault(FaultKind.INTERNAL, None, self.now,
+                                              f"{type(exc).__name__} in the sample loop: {exc}"))
             self._proc_s.append(time.perf_counter() - t0)
             self.loop_ticks += 1
+            if not self.virtual:
+                # a loop that is always behind its source never reaches an await that
+                # suspends: without this, signals and commands would wait for ever
+                await asyncio.sleep(0)
 
     async def _read(self) -> SampleBlock:
         if self.virtual:
@@ -436,11 +497,12 @@ class Controller:
 
     def _read_fault(self, exc: Exception) -> Fault:
         if isinstance(exc, (asyncio.TimeoutError, DeviceTimeoutError)):
-            return Fault("no_data", None, self.now, f"no samples for {self.cfg.supervision.no_data_s} s")
+            return Fault(FaultKind.NO_DATA, None, self.now, f"no samples for {self.cfg.supervision.no_data_s} s")
         if isinstance(exc, LinkLostError):
-            return Fault("link_lost", None, self.now, str(exc))
-        log.error("sample source failed: %s", exc, exc_info=exc)
-        return Fault("driver", None, self.now, f"{type(exc).__name__}: {exc}")
+            return Fault(FaultKind.LINK_LOST, None, self.now, str(exc))
+        if self.fault is None:
+            log.error("sample source failed: %s", exc, exc_info=exc)
+        return Fault(FaultKind.DRIVER, None, self.now, f"{type(exc).__name__}: {exc}")
 
     def _overrun(self, block: SampleBlock) -> Fault | None:
         """Real time only: how far the loop is behind its samples."""
@@ -452,7 +514,7 @@ class Controller:
             return None
         behind = lag - self._wall_lag0
         if behind > self.cfg.supervision.overrun_s:
-            return Fault("overrun", None, block.t_end, f"the loop is {behind:.3f} s behind its samples")
+            return Fault(FaultKind.OVERRUN, None, block.t_end, f"the loop is {behind:.3f} s behind its samples")
         return None
 
     async def _on_block(self, block: SampleBlock) -> None:
@@ -471,6 +533,7 @@ class Controller:
         cmds = self.sequencer.on_time(self.now)
         if cmds:
             await self._apply_guarded(cmds)
+        self._background_io()
         self._publish_transitions()
         if self._measured is not None and not self._measured.done() and self._measurement_due():
             self._measured.set_result(self._analyse(final=False))
@@ -480,12 +543,17 @@ class Controller:
         for sink in list(self.sinks):
             try:
                 sink.on_block(block)
-            except Exception as exc:  # noqa: BLE001 - a broken sink must not stop the loop
-                log.error("sink %s dropped: %s", type(sink).__name__, exc)
-                self.sinks.remove(sink)
+            except Exception as exc:  # noqa: BLE001
+                self._drop_sink(sink, exc)
         self._release_waiters()
         if self.now >= self._next_heartbeat:
             self._heartbeat()
+        await self._latch_deferred()
+
+    async def _latch_deferred(self) -> None:
+        deferred, self._deferred = self._deferred, None
+        if deferred is not None and self.fault is None:
+            await self._enter_fault(deferred)
 
     async def _apply(self, cmds: list[Command]) -> None:
         for cmd in cmds:
@@ -505,30 +573,66 @@ class Controller:
             self._to_sinks("command", _command_dict(cmd))
 
     async def _apply_guarded(self, cmds: list[Command]) -> None:
-        """Apply commands outside the sample loop (start, abort); a failure faults the cell."""
+        """Apply commands; a device that does not carry one out faults the cell."""
         try:
             await self._apply(cmds)
         except Exception as exc:  # noqa: BLE001
             log.error("command failed: %s", exc)
-            await self._enter_fault(Fault("command", None, self.now, str(exc)))
+            await self._enter_fault(Fault(FaultKind.COMMAND, None, self.now, str(exc)))
 
     async def _enter_fault(self, fault: Fault) -> None:
-        self.fault = fault
-        log.error("FAULT %s at t=%.3f: %s", fault.kind, fault.t, fault.detail)
+        """Every fault goes through here: the latch commands and confirms the safe state;
+        the cycle ends with what it measured; whoever waits on samples gets the fault."""
+        if self.fault is not None:  # the first cause stands
+            log.debug("%s while %s is latched: %s", fault.kind, self.fault.kind, fault.detail)
+            return
         self.sequencer.fault(self.now, f"fault: {fault.kind}")
-        vented = True
-        try:
-            await self.backend.safe_state(self.now)
-        except Exception as exc:  # noqa: BLE001 - report, keep going
-            vented = False
-            log.error("could not reach the safe state: %s (a real cell must vent on its own: "
-                      "normally-open vent path)", exc)
-        self.emit("fault", {"kind": fault.kind, "channel": fault.channel, "fault_t_s": fault.t,
-                            "vent_t_s": self.now, "detail": fault.detail, "vented": vented})
-        self.last_vent = (fault, self.now)
+        event = await self.latch.trip(fault, self.now)
+        self.emit("fault", event)
+        self._vented_seen = self.latch.vented()
         self._publish_transitions()
         if self._recorder is not None:
             self._finish_cycle()
+        self._fail_waiters(FaultError(f"{fault.kind}: {fault.detail}"))
+
+    def _background_io(self) -> None:
+        """Started from the loop, run beside it: the valve outputs read back once per
+        heartbeat period (status and ``vented`` say what the device reports), and the box
+        watchdog kicked four times per timeout. Both only while the loop makes progress: a
+        stalled loop stops the box watchdog's heartbeat, which is the point."""
+        dog = self.backend.watchdog
+        if dog is not None and self.now >= self._next_kick and (self._kick is None or self._kick.done()):
+            self._next_kick = self.now + dog.timeout_s / 4
+            self._kick = asyncio.create_task(self._guarded_io(dog.kick(), "kicking the box watchdog"))
+        if self.backend.valves.reports_outputs and (self._readback is None or self._readback.done()) \
+                and self.now >= self._next_heartbeat:
+            self._readback = asyncio.create_task(self._read_outputs())
+
+    async def _read_outputs(self) -> None:
+        wrong = await self._guarded_io(self.backend.valves.disagreement(), "reading the valve outputs back")
+        # twice in a row: one read can meet a write still on its way to a UR box's outputs
+        if wrong and self._disagreed and self.fault is None:
+            commanded = self.backend.valves.state
+            self._defer_fault(f"the device reports {', '.join(f'{v} {_word(o)}' for v, o in wrong.items())}; "
+                              f"commanded {', '.join(f'{v} {_word(commanded[v])}' for v in wrong)}",
+                              FaultKind.COMMAND)
+        self._disagreed = bool(wrong)
+        vented = self.latch.vented()
+        if self.fault is not None and vented != self._vented_seen:
+            self._vented_seen = vented
+            self.emit("log", {"level": "INFO" if vented else "WARNING",
+                              "message": f"{self.fault.kind} fault: vented {vented_word(vented)} as the device reports",
+                              "vented": vented_word(vented), "outputs": self.backend.valves.reported})
+
+    async def _guarded_io(self, work: Awaitable[Any], what: str) -> Any:
+        try:
+            async with asyncio.timeout(max(1.0, self.cfg.publisher.heartbeat_s)):
+                return await work
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - the outputs are then unknown; the source faults a lost link
+            log.debug("%s failed: %s", what, exc)
+            return None
 
     def _holding(self) -> bool:
         """Inflated, measured, waiting: where a leak shows as a steady decay."""
@@ -576,17 +680,39 @@ class Controller:
         self.sinks.append(sink)
 
     def emit(self, topic: str, payload: dict[str, Any]) -> None:
-        """Publish an event and hand it to every sink."""
-        self.pub.send(topic, self.now, payload)
+        """Publish an event and hand it to every sink. Never raises: a publisher or sink
+        that fails is an internal fault, latched by the loop after the block (emit runs
+        inside the fault path too, where raising would lose the fault)."""
+        try:
+            self.pub.send(topic, self.now, payload)
+        except Exception as exc:  # noqa: BLE001
+            log.exception("publishing %s failed", topic)
+            self._defer_fault(f"publishing {topic!r} failed: {type(exc).__name__}: {exc}")
         self._to_sinks(topic, payload)
 
     def _to_sinks(self, topic: str, payload: dict[str, Any]) -> None:
         for sink in list(self.sinks):
             try:
                 sink.on_event(topic, self.now, payload)
-            except Exception as exc:  # noqa: BLE001 - a broken sink must not stop the loop
-                log.error("sink %s dropped: %s", type(sink).__name__, exc)
-                self.sinks.remove(sink)
+            except Exception as exc:  # noqa: BLE001 - dropped, and a fault: what it kept is incomplete
+                self._drop_sink(sink, exc)
+
+    def _drop_sink(self, sink: Sink, exc: Exception) -> None:
+        """A sink that reports a failure it knows (a full disk stops a recording) is dropped
+        and control goes on; anything else it raises is a bug: dropped and a fault."""
+        self.sinks.remove(sink)
+        if isinstance(exc, FluidsenseError):
+            log.error("sink %s dropped: %s", type(sink).__name__, exc)
+            return
+        log.error("sink %s failed and was dropped: %s", type(sink).__name__, exc, exc_info=exc)
+        self._defer_fault(f"sink {type(sink).__name__} failed: {type(exc).__name__}: {exc}")
+
+    def _defer_fault(self, detail: str, kind: FaultKind = FaultKind.INTERNAL) -> None:
+        """A fault found outside the loop's flow (sync code, background I/O): latched by
+        the loop after its next block."""
+        if self._deferred is None:
+            self._deferred = Fault(kind, None, self.now, detail)
+        self._demand.set()  # virtual time: the loop must run to latch it
 
     def _publish_transitions(self) -> None:
         for tr in self.sequencer.drain_transitions():

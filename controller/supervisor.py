@@ -16,24 +16,15 @@ about blocks not arriving rather than their content.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
 
 import numpy as np
 
 from drivers.base import SampleBlock
+from drivers.faults import Fault, FaultKind
 
 from .config import Profile, Supervision
 
 KPA = 1e3
-
-
-@dataclass(frozen=True)
-class Fault:
-    kind: str  # over_pressure, under_pressure, sensor_nan, sensor_range, sensor_stuck, leak, protective_stop,
-    # no_data, link_lost, overrun, driver, command
-    channel: str | None
-    t: float
-    detail: str
 
 
 def _slope(t: np.ndarray, p: np.ndarray) -> tuple[float, float]:
@@ -68,7 +59,7 @@ class Supervisor:
     def check(self, block: SampleBlock, holding: bool = False, arm_stopped: bool = False) -> Fault | None:
         """``holding``: the actuator is inflated and its windows are done (equilibrium)."""
         if arm_stopped:
-            return Fault("protective_stop", None, block.t_end, "the arm is protective-stopped")
+            return Fault(FaultKind.PROTECTIVE_STOP, None, block.t_end, "the arm is protective-stopped")
         for j, ch in enumerate(block.channels):
             if not ch.startswith("p_"):
                 continue
@@ -83,21 +74,21 @@ class Supervisor:
         bad = ~np.isfinite(v)
         if bad.any():
             k = int(np.argmax(bad))
-            return Fault("sensor_nan", ch, float(t[k]), f"{ch} reads NaN")
+            return Fault(FaultKind.SENSOR_NAN, ch, float(t[k]), f"{ch} reads NaN")
         lo, hi = self.rails.get(ch, (-np.inf, np.inf))
         rail = (v <= lo) | (v >= hi)
         if rail.any():
             k = int(np.argmax(rail))
-            return Fault("sensor_range", ch, float(t[k]), f"{ch} at its range limit ({v[k] / KPA:.2f} kPa)")
+            return Fault(FaultKind.SENSOR_RANGE, ch, float(t[k]), f"{ch} at its range limit ({v[k] / KPA:.2f} kPa)")
         over = v > self.max_pa
         if over.any():
             k = int(np.argmax(over))
-            return Fault("over_pressure", ch, float(t[k]),
+            return Fault(FaultKind.OVER_PRESSURE, ch, float(t[k]),
                          f"{ch} {v[k] / KPA:.2f} kPa above the limit {self.max_pa / KPA:.2f} kPa")
         under = v < self.min_pa
         if under.any():
             k = int(np.argmax(under))
-            return Fault("under_pressure", ch, float(t[k]),
+            return Fault(FaultKind.UNDER_PRESSURE, ch, float(t[k]),
                          f"{ch} {v[k] / KPA:.2f} kPa below the limit {self.min_pa / KPA:.2f} kPa")
         if self.stuck_check.get(ch, True):
             return self._check_stuck(ch, t, v)
@@ -110,7 +101,7 @@ class Supervisor:
             since = float(t[changed[-1]])
         self._last[ch] = (float(v[-1]), since)
         if t[-1] - since >= self.cfg.stuck_s:
-            return Fault("sensor_stuck", ch, since + self.cfg.stuck_s,
+            return Fault(FaultKind.SENSOR_STUCK, ch, since + self.cfg.stuck_s,
                          f"{ch} has read {v[-1] / KPA:.3f} kPa for {t[-1] - since:.2f} s")
         return None
 
@@ -142,6 +133,6 @@ class Supervisor:
             limits.append(max(self.cfg.leak_kpa_per_s, 3.0 * se / KPA))
         if all(r > lim for r, lim in zip(slopes, limits)):
             rate, limit = min(slopes), max(limits)
-            return Fault("leak", "p_act", float(block.t_end),
+            return Fault(FaultKind.LEAK, "p_act", float(block.t_end),
                          f"held pressure falls {rate:.2f} kPa/s towards atmosphere (limit {limit:.2f} kPa/s)")
         return None

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import abc
 import logging
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -140,11 +141,23 @@ class ValveBank(Device):
     actuator. Each valve has a safe position (``safe``: name -> open): together they
     leave the actuator vented and the tank isolated."""
 
+    #: the device can report its outputs (``_read_positions``)
+    reports_outputs = False
+
     def __init__(self, name: str, safe: dict[str, bool]) -> None:
         super().__init__(name)
         self.names = tuple(safe)
         self.safe_positions = dict(safe)
         self._state: dict[str, bool] = dict(safe)
+        #: positions as the device last reported them, and when (time.monotonic()); None
+        #: until read, and for a device that cannot report its outputs
+        self.reported: dict[str, bool] | None = None
+        self.reported_at: float | None = None
+        #: why the outputs cannot be known now (the last read or write failed), else None
+        self.report_error: str | None = None
+        #: writes so far: a read-back that saw no write during it can be held against
+        #: what was commanded
+        self.writes = 0
 
     def is_open(self, valve: str) -> bool:
         return self._state[self._check(valve)]
@@ -165,7 +178,7 @@ class ValveBank(Device):
     async def set(self, valve: str, open: bool, t: float) -> None:
         self._require_connected()
         self._check(valve)
-        await self._set(valve, bool(open), t)
+        await self._write(valve, bool(open), t)
         if self._state[valve] != bool(open):
             log.debug("valve %s -> %s at t=%.3f", valve, "open" if open else "closed", t)
         self._state[valve] = bool(open)
@@ -176,13 +189,69 @@ class ValveBank(Device):
         first: Exception | None = None
         for valve, position in self.safe_positions.items():
             try:
-                await self._set(valve, position, t)
+                await self._write(valve, position, t)
                 self._state[valve] = position
             except Exception as exc:  # noqa: BLE001 - keep venting the others
                 log.error("could not put valve %s in its safe position: %s", valve, exc)
                 first = first or exc
         if first is not None:
             raise DriverError("safe state incomplete: a valve did not move") from first
+
+    async def read_back(self) -> dict[str, bool] | None:
+        """The valve positions the device reports now (its output register, not what was
+        last commanded); None when this device cannot report them. A failed read raises."""
+        self._require_connected()
+        try:
+            positions = await self._read_positions()
+        except Exception as exc:
+            self.report_error = f"read failed: {exc}"
+            raise
+        if positions is not None:
+            self.reported, self.reported_at, self.report_error = dict(positions), time.monotonic(), None
+        return positions
+
+    async def _write(self, valve: str, open: bool, t: float) -> None:
+        self.writes += 1
+        try:
+            await self._set(valve, open, t)
+        except Exception as exc:
+            self.report_error = f"write failed: {exc}"
+            raise
+
+    async def disagreement(self) -> dict[str, bool] | None:
+        """Read back; the valves the device reports otherwise than commanded (a device
+        that does not do what it was told: an output held by the box, a stuck driver),
+        or None when they agree, cannot be read, or a write came during the read."""
+        before, commanded = self.writes, self.state
+        positions = await self.read_back()
+        if positions is None or self.writes != before:
+            return None
+        wrong = {v: p for v, p in positions.items() if commanded.get(v) != p}
+        return wrong or None
+
+    async def confirm_safe(self, t: float) -> bool | None:
+        """Every valve to its safe position, then read back: True when the device reports
+        the safe positions, False when it reports anything else, None when it cannot
+        report. Raises when a write or the read fails (the link is down)."""
+        await self.safe(t)
+        confirmed = self.reports_safe(await self.read_back())
+        if confirmed is False:
+            log.error("%s: the safe state was written but the device reports %s", self.name, self.reported)
+        return confirmed
+
+    def reports_safe(self, positions: dict[str, bool] | None) -> bool | None:
+        """Whether read-back ``positions`` are the safe ones (None: nothing was read)."""
+        if positions is None:
+            return None
+        return all(p == self.safe_positions.get(v) for v, p in positions.items())
+
+    def age_s(self) -> float | None:
+        """Seconds since the device last reported its outputs (None: never)."""
+        return None if self.reported_at is None else time.monotonic() - self.reported_at
+
+    async def _read_positions(self) -> dict[str, bool] | None:
+        """Backends that can read their outputs back override this."""
+        return None
 
     @abc.abstractmethod
     async def _set(self, valve: str, open: bool, t: float) -> None: ...
@@ -316,6 +385,33 @@ class SceneControl(Device):
         return self.truth()
 
 
+class BoxWatchdog(Device):
+    """The far side's watchdog: equipment that puts the valves in their safe state by
+    itself when the service's heartbeat stops for ``timeout_s`` (the PC, the daemon or
+    the link died). The controller's sample loop calls ``kick`` while it makes progress,
+    so a stalled loop stops the heartbeat too."""
+
+    def __init__(self, name: str, timeout_s: float) -> None:
+        super().__init__(name)
+        self.timeout_s = timeout_s
+
+    async def kick(self) -> None:
+        self._require_connected()
+        await self._kick()
+
+    async def ensure_running(self) -> None:
+        """Before a cycle: what the watchdog guards runs (after the watchdog fired, the box
+        holds its outputs safe until it does)."""
+        self._require_connected()
+        await self._ensure_running()
+
+    @abc.abstractmethod
+    async def _kick(self) -> None: ...
+
+    async def _ensure_running(self) -> None:
+        return None
+
+
 @dataclass
 class Backend:
     """One cell: the devices a driver provides. Optional devices are None when absent."""
@@ -327,11 +423,14 @@ class Backend:
     flow: FlowController | None = None
     scene: SceneControl | None = None
     arm: Arm | None = None
+    watchdog: BoxWatchdog | None = None
     extras: dict[str, Any] = field(default_factory=dict)
 
-    async def safe_state(self, t: float) -> None:
-        """Actuator vented, tank isolated, no flow commanded, arm stopped. Tries
-        everything, raises the first failure."""
+    async def safe_state(self, t: float) -> bool | None:
+        """Actuator vented, tank isolated, no flow commanded, arm stopped; then the valve
+        outputs read back from the device. Returns True when the device confirms every
+        valve in its safe position, False when it reports otherwise, None when it cannot
+        report them. Tries everything, raises the first failure."""
         first: Exception | None = None
         steps = (self.valves.safe, self.flow.stop_flow if self.flow is not None else None,
                  self.arm.stop_motion if self.arm is not None else None)
@@ -344,9 +443,14 @@ class Backend:
                 first = first or exc
         if first is not None:
             raise DriverError(f"safe state incomplete: {first}") from first
+        # the read-back comes last: it waits for the device, and stopping the arm must not
+        return self.valves.reports_safe(await self.valves.read_back())
 
     def devices(self) -> list[Device]:
-        found = [self.source, self.valves, self.regulator, self.flow, self.scene, self.arm]
+        """In set-up order. The source comes last: a production source opens the links
+        and, before its first sample, puts the (already set up) valves in their safe
+        positions and reads them back."""
+        found = [self.valves, self.regulator, self.flow, self.scene, self.arm, self.watchdog, self.source]
         return [d for d in found if d is not None]
 
     async def setup(self) -> None:

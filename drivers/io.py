@@ -260,3 +260,15 @@ class UrArmConfig(StrictModel):
     status_hz: float = Field(50.0, ge=1, le=500, description="pose and safety state updates")
     upper_range_registers: bool = Field(
         False, description="ur_rtde on RTDE registers 24-47 (when another program uses 0-23)")
+
+
+class BoxWatchdogConfig(StrictModel):
+    """The control box vents the gripper by itself when the service's heartbeat stops
+    (drivers/ur/watchdog.py, docs/safety.md): run-state output actions plus, with an arm,
+    ur_rtde's RTDE watchdog on its control script, without one, fluidsense's watchdog
+    program watching ``heartbeat_register``."""
+
+    timeout_s: float = Field(0.5, ge=0.05, le=10.0, description="no heartbeat for this long: the box vents")
+    heartbeat_register: int = Field(200, ge=128, le=255, description="cells without an arm: the Modbus general "
+                                    "purpose register the daemon increments and the box's program watches")
+    script_port: Port = Field(30003, description="the box's URScript port (the watchdog is sent there at set-up)")

@@ -11,6 +11,11 @@ process takes longer than the controller waits for one block (under load, more t
 its 0.5 s: attempts cut off by that wait never succeeded). A successful one restarts the
 sampler and reopens the links, and sample time carries on from the first connection's
 origin, the gap reported as missed slots.
+
+Each connection, the first one included, then runs the backend's ``on_connect`` steps
+before any sample is delivered: the valves go to their safe positions and are read back
+(a box that kept its outputs while the link was down must not stay inflated), and the
+box-side watchdog is installed. A step that fails fails the connection.
 """
 
 from __future__ import annotations
@@ -19,8 +24,9 @@ import abc
 import asyncio
 import dataclasses
 import logging
+from collections.abc import Awaitable, Callable
 
-from .base import SampleBlock, SampleSource
+from .base import SampleBlock, SampleSource, ValveBank
 from .errors import DriverError, LinkLostError
 from .io import Reconnect, SamplerOptions
 from .sampler.config import PollerSpec, SamplerConfig
@@ -45,6 +51,14 @@ class Link(abc.ABC):
     def check(self) -> None: ...
 
 
+async def confirm_safe_on_connect(valves: ValveBank) -> None:
+    """A connection's first act: every valve to its safe position, read back. The box kept
+    its outputs while the link was down (an inflated gripper stays inflated)."""
+    if await valves.confirm_safe(float("nan")) is False:
+        raise LinkLostError(f"{valves.name}: the device does not report the safe positions after they were written")
+    log.info("%s: safe positions written and read back", valves.name)
+
+
 def sampler_config(poller: str, kwargs: dict, channels: tuple[str, ...], rate_hz: float, block_size: int,
                    options: SamplerOptions, start_timeout_s: float) -> SamplerConfig:
     return SamplerConfig(poller=PollerSpec(factory=poller, kwargs=kwargs), channels=channels, rate_hz=rate_hz,
@@ -67,6 +81,8 @@ class PolledCellSource(SampleSource):
         self._retry_at = 0.0
         self._backoff = reconnect.first_s
         self._reconnecting: asyncio.Task[None] | None = None
+        #: run after the links open, before the sampler starts, at every connection
+        self.on_connect: list[Callable[[], Awaitable[None]]] = []
 
     @property
     def clock_origin_s(self) -> float | None:
@@ -81,6 +97,8 @@ class PolledCellSource(SampleSource):
             for link in self.links:
                 await asyncio.wait_for(link.open(), self.reconnect.connect_timeout_s)
                 opened.append(link)
+            for step in self.on_connect:
+                await asyncio.wait_for(step(), self.reconnect.connect_timeout_s)
             sampler = SampledSource(self.cfg, name=f"{self.name}-sampler")
             await sampler.setup()
         except BaseException as exc:

@@ -14,6 +14,7 @@ import zmq
 
 from controller.commands import CommandServer
 from controller.config import CellConfig, load_cell_config
+from controller.latch import vented_word
 from controller.publisher import Publisher
 from controller.service import Controller
 from drivers.config import build_backend
@@ -36,33 +37,58 @@ def load(path: str | Path | None, overrides: dict[str, Any] | None = None) -> Ce
     return load_cell_config(path or default_config_path(), overrides)
 
 
+def bind_publisher(cfg: CellConfig, hwm: int | None = None) -> Publisher:
+    try:
+        return Publisher(cfg.publisher.pub, **({} if hwm is None else {"hwm": hwm}))
+    except zmq.ZMQError as exc:
+        raise ConfigError(f"publisher.pub: cannot bind {cfg.publisher.pub}: {exc}") from exc
+
+
+def bind_command_server(cfg: CellConfig) -> CommandServer:
+    """The command socket, bound; its handler is installed once the controller runs."""
+    curve = cfg.publisher.cmd_curve
+    try:
+        return CommandServer(cfg.publisher.cmd, None,
+                             curve=None if curve is None else (curve.server_secret_file, curve.clients_dir))
+    except (zmq.ZMQError, OSError, ValueError) as exc:
+        raise ConfigError(f"publisher.cmd: cannot bind {cfg.publisher.cmd}: {exc}") from exc
+
+
 @contextlib.asynccontextmanager
 async def controller(cfg: CellConfig, publish: bool = False, record: bool = False,
-                     pub_hwm: int | None = None) -> AsyncIterator[Controller]:
+                     pub_hwm: int | None = None, publisher: Publisher | None = None) -> AsyncIterator[Controller]:
     """A started controller on the configured backend; vents and closes on exit. With
     ``record`` (the daemon) it records as ``cfg.recording`` says, from sample time 0.
-    ``pub_hwm`` replaces the publisher's high-water mark (the soak bench fills it fast)."""
-    pub = None
-    if publish:
-        try:
-            pub = Publisher(cfg.publisher.pub, **({} if pub_hwm is None else {"hwm": pub_hwm}))
-        except zmq.ZMQError as exc:
-            raise ConfigError(f"publisher.pub: cannot bind {cfg.publisher.pub}: {exc}") from exc
-    backend = build_backend(cfg.driver, cfg.profile.hardware)
-    ctrl = Controller(cfg, backend, pub)
+    ``publisher``: already bound (the daemon binds every socket before it touches a
+    device); else ``publish`` binds one here, with ``pub_hwm`` as its high-water mark
+    (the soak bench fills it fast). Whatever fails on the way in, what was started is
+    undone: the devices vented and closed, the sockets closed."""
+    pub = publisher or (bind_publisher(cfg, pub_hwm) if publish else None)
+    ctrl: Controller | None = None
     try:
-        if record and cfg.recording.enabled:
-            from controller.recording import RecordingSink
+        backend = build_backend(cfg.driver, cfg.profile.hardware)
+        ctrl = Controller(cfg, backend, pub)
+        await ctrl.start()
+        try:
+            if record and cfg.recording.enabled:
+                from controller.recording import RecordingSink
 
-            ctrl.add_sink(RecordingSink(cfg, backend.source, lambda: ctrl.references))
-        async with ctrl:
+                # no await since start(): the loop has not handled a block yet
+                ctrl.add_sink(RecordingSink(cfg, backend.source, lambda: ctrl.references))
             yield ctrl
+        finally:
+            await ctrl.stop()
     finally:
         if pub is not None:
-            # the last message says where the valves were left, for whoever checks the safe state
-            pub.send("log", ctrl.now, {"level": "INFO", "message": "controller stopped",
-                                       "valves": backend.valves.state, "safe": backend.valves.in_safe_state})
-            pub.close()
+            if ctrl is not None:
+                # the last message says where the valves were left, for whoever checks the safe state
+                valves = ctrl.backend.valves
+                pub.send("log", ctrl.now, {"level": "INFO", "message": "controller stopped",
+                                           "valves": valves.state, "safe": valves.in_safe_state,
+                                           "valves_reported": valves.reported,
+                                           "vented": vented_word(ctrl.latch.vented())})
+            if publisher is None:
+                pub.close()
 
 
 def _task_runner(ctrl: Controller, tasks_dir: Path):
@@ -94,6 +120,8 @@ async def _first_iteration(ctrl: Controller) -> None:
         await ctrl.wait(0)
     except FaultError as exc:
         log.warning("ready without samples: %s", exc)
+    except CommandError:  # the loop ended before its first block: the daemon stops, not ready
+        pass
 
 
 async def _until_stopped(ctrl: Controller, cfg: CellConfig, notifier: Notifier,
@@ -123,38 +151,52 @@ async def _until_stopped(ctrl: Controller, cfg: CellConfig, notifier: Notifier,
 
 async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: Notifier | None = None) -> int:
     """The service: publish, accept commands, until SIGTERM/SIGINT or a shutdown command.
-    Under systemd (``Type=notify``) it reports READY once both sockets are bound and the
-    sample loop runs, pings the watchdog while the loop is alive, and STOPPING on the way out."""
+    Both sockets are bound before any device is touched; a failure on the way in undoes
+    what was started. Under systemd (``Type=notify``) it reports READY once the sample
+    loop runs, pings the watchdog while the loop is alive, and STOPPING on the way out.
+
+    Returns 0 after a requested stop. A core task that ends by itself (the sample loop or
+    the command socket: a bug) stops the daemon the same way, vented, and returns 1, so
+    that systemd's ``Restart=on-failure`` starts it again."""
     notifier = notifier or Notifier.from_env()
     tasks_dir = tasks_dir or REPO_ROOT / "config" / "tasks"
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
+    pub = bind_publisher(cfg)
+    try:
+        server = bind_command_server(cfg)
+    except BaseException:
+        pub.close()
+        raise
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, stop.set)
-    async with controller(cfg, publish=True, record=True) as ctrl:
-        ctrl.task_runner = _task_runner(ctrl, tasks_dir)
-        try:
-            curve = cfg.publisher.cmd_curve
-            server = CommandServer(cfg.publisher.cmd, ctrl.handle_command,
-                                   curve=None if curve is None else (curve.server_secret_file, curve.clients_dir))
-        except (zmq.ZMQError, OSError, ValueError) as exc:
-            raise ConfigError(f"publisher.cmd: cannot bind {cfg.publisher.cmd}: {exc}") from exc
-        serve = asyncio.create_task(server.serve(), name="command-socket")
-        stopper = asyncio.create_task(stop.wait())
-        shutdown = asyncio.create_task(ctrl.wait_shutdown())
-        done = await _until_stopped(ctrl, cfg, notifier, stopper, shutdown, serve)
-        notifier.send("STOPPING=1", "STATUS=stopping: venting and closing")
-        for task in (stopper, shutdown, serve):
-            task.cancel()
-        if serve in done and not serve.cancelled() and serve.exception() is not None:
-            log.error("command socket failed: %s", serve.exception())
+    failed: list[str] = []
+    try:
+        async with controller(cfg, publisher=pub, record=True) as ctrl:
+            ctrl.task_runner = _task_runner(ctrl, tasks_dir)
+            server.handler = ctrl.handle_command
+            serve = asyncio.create_task(server.serve(), name="command-socket")
+            stopper = asyncio.create_task(stop.wait(), name="stop-signal")
+            shutdown = asyncio.create_task(ctrl.wait_shutdown_command(), name="shutdown-command")
+            core = {serve: "the command socket", ctrl.loop_task: "the sample loop"}
+            done = await _until_stopped(ctrl, cfg, notifier, stopper, shutdown, *core)
+            notifier.send("STOPPING=1", "STATUS=stopping: venting and closing")
+            for task, name in core.items():
+                if task in done:
+                    cause = task.exception() if not task.cancelled() else None
+                    failed.append(f"{name} ended: {cause!r}" if cause is not None else f"{name} ended")
+            for task in (stopper, shutdown, serve):
+                task.cancel()
+            for reason in failed:
+                log.critical("%s; venting and exiting with status 1 for a restart", reason)
+            log.info("stopping: venting and closing")
+    finally:
         server.close()
-        log.info("stopping: venting and closing")
-        fault = ctrl.fault
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        loop.remove_signal_handler(sig)
-    notifier.close()
-    return 0 if fault is None or fault.kind != "driver" else 1
+        pub.close()
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            loop.remove_signal_handler(sig)
+        notifier.close()
+    return 1 if failed else 0
 
 
 __all__ = ["FluidsenseError", "controller", "load", "run_daemon", "default_config_path"]

@@ -82,9 +82,12 @@ def write_cell(tmp_path: Path, data: dict) -> Path:
     return path
 
 
-def simcell_config(tmp_path: Path, kind: str, host: str, profile: str | None = None) -> Path:
-    """config/cell-{kind}-sim.yaml moved to ``host``, with ipc endpoints in the test's directory."""
+def simcell_config(tmp_path: Path, kind: str, host: str, profile: str | None = None,
+                   driver: dict | None = None) -> Path:
+    """config/cell-{kind}-sim.yaml moved to ``host``, with ipc endpoints in the test's
+    directory; ``driver`` replaces keys of its driver section."""
     data = yaml.safe_load((CONFIG / f"cell-{kind}-sim.yaml").read_text())
+    data["driver"].update(driver or {})
     data["driver"]["host"] = host
     data["profile"] = str(CONFIG / "profiles" / (profile or data["profile"].rsplit("/", 1)[-1]))
     pub, cmd = ipc_endpoints(tmp_path)
@@ -93,13 +96,13 @@ def simcell_config(tmp_path: Path, kind: str, host: str, profile: str | None = N
 
 
 @contextlib.contextmanager
-def free_simcell(tmp_path: Path, kind: str, profile: str | None = None):
+def free_simcell(tmp_path: Path, kind: str, profile: str | None = None, driver: dict | None = None):
     """``fluidsense simcell`` for a ``kind`` (ur, modbus) cell config on a free 127.0.0.x;
     yields (the box process, the cell config). The box must end cleanly."""
     from drivers.sim.controlbox.process import EmulatorProcess
 
     for _ in range(5):
-        cell = simcell_config(tmp_path, kind, free_loopback(SIMCELL_PORTS), profile)
+        cell = simcell_config(tmp_path, kind, free_loopback(SIMCELL_PORTS), profile, driver)
         box = EmulatorProcess(command=[sys.executable, "-m", "fluidsense.cli", "simcell", "--config", str(cell)])
         try:
             box.start(timeout_s=30)

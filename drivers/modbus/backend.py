@@ -9,11 +9,12 @@ import logging
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
-from ..base import Backend, Regulator, ValveBank
+from ..base import Backend, BoxWatchdog, Regulator, ValveBank
 from ..errors import ConfigError, DriverError, LinkLostError
 from ..hardware import Hardware, RegulatedCircuit, TankCircuit
-from ..io import AnalogScale, RegulatorWiring, Wiring
-from ..remote import Link, PolledCellSource, sampler_config
+from ..io import AnalogScale, BoxWatchdogConfig, RegulatorWiring, Wiring
+from ..remote import Link, PolledCellSource, confirm_safe_on_connect, sampler_config
+from ..ur.watchdog import runstate_program, safe_levels, send_script, watchdog_program
 from .config import ModbusDriverConfig, RegisterMap
 
 log = logging.getLogger(__name__)
@@ -92,6 +93,8 @@ class ModbusValves(ValveBank):
     """Valves on digital outputs: through the set/clear mask registers when the map has
     them (no read-modify-write race with other masters), else read-modify-write."""
 
+    reports_outputs = True
+
     def __init__(self, link: ModbusLink, wiring: Wiring, regs: RegisterMap, safe: dict[str, bool]):
         super().__init__("modbus-valves", safe)
         self.link, self.wiring, self.regs = link, wiring.valves, regs
@@ -104,6 +107,24 @@ class ModbusValves(ValveBank):
             return
         (bits,) = await self.link.read(self.regs.digital_outputs)
         await self.link.write(self.regs.digital_outputs, (bits | bit) if level else (bits & ~bit))
+
+    async def _read_positions(self) -> dict[str, bool]:
+        (bits,) = await self.link.read(self.regs.digital_outputs)
+        return {name: bool(bits >> w.output & 1) == w.level(True) for name, w in self.wiring.items()}
+
+
+class ModbusHeartbeat(BoxWatchdog):
+    """Cells without an arm: the daemon increments a general purpose register that the
+    box's watchdog program watches (drivers/ur/watchdog.py)."""
+
+    def __init__(self, link: ModbusLink, cfg: BoxWatchdogConfig):
+        super().__init__("modbus-heartbeat", cfg.timeout_s)
+        self.link, self.register = link, cfg.heartbeat_register
+        self.beats = 0
+
+    async def _kick(self) -> None:
+        self.beats = (self.beats + 1) & 0xFFFF
+        await self.link.write(self.register, self.beats)
 
 
 class ModbusRegulator(Regulator):
@@ -133,22 +154,32 @@ def modbus_inputs(cfg: ModbusDriverConfig, channels: tuple[str, ...]) -> list[li
 
 def build(cfg: ModbusDriverConfig, hw: Hardware) -> Backend:
     from ..ur.backend import scene_link, worker_link  # noqa: PLC0415 - no ur_rtde import on this side
-    from ..ur.devices import UrArm  # noqa: PLC0415
+    from ..ur.devices import UrArm, WorkerKick  # noqa: PLC0415
 
     link = ModbusLink(cfg)
     links: list[Link] = [link]
-    arm = None
+    arm = watchdog = None
+    script = None
+    levels = safe_levels(cfg.wiring.valves, hw.circuit.safe_valves)
     if cfg.arm is not None:
-        worker = worker_link(cfg.host, cfg.arm, io=False)
+        worker = worker_link(cfg.host, cfg.arm, io=False, watchdog=cfg.watchdog)
         links.append(worker)
         arm = UrArm(worker, cfg.arm)
+        if cfg.watchdog is not None:  # ur_rtde's script is the box's program: its RTDE watchdog
+            watchdog, script = WorkerKick(worker, cfg.watchdog), runstate_program(levels)
+    elif cfg.watchdog is not None:  # the box runs fluidsense's watchdog program
+        watchdog = ModbusHeartbeat(link, cfg.watchdog)
+        script = watchdog_program(levels, cfg.watchdog.heartbeat_register, cfg.watchdog.timeout_s)
     poller = {"host": cfg.host, "port": cfg.port, "device_id": cfg.device_id, "timeout_s": cfg.timeout_s,
               "inputs": modbus_inputs(cfg, hw.channels)}
     sampler = sampler_config("drivers.modbus.poller:ModbusAnalogPoller", poller, hw.channels, cfg.rate_hz,
                              cfg.block_size, cfg.sampler, cfg.reconnect.connect_timeout_s)
     regulated = isinstance(hw.circuit, (TankCircuit, RegulatedCircuit))
     regulator = ModbusRegulator(link, cfg.wiring.regulator, cfg.registers, cfg.analog) if regulated else None
-    return Backend(name="modbus", source=PolledCellSource("modbus", sampler, links, cfg.reconnect),
-                   valves=ModbusValves(link, cfg.wiring, cfg.registers, hw.circuit.safe_valves),
-                   regulator=regulator, arm=arm, scene=scene_link(cfg.host, cfg.sim_control_port),
-                   extras={"link": link})
+    source = PolledCellSource("modbus", sampler, links, cfg.reconnect)
+    valves = ModbusValves(link, cfg.wiring, cfg.registers, hw.circuit.safe_valves)
+    source.on_connect.append(lambda: confirm_safe_on_connect(valves))
+    if script is not None:
+        source.on_connect.append(lambda: send_script(cfg.host, cfg.watchdog.script_port, script))
+    return Backend(name="modbus", source=source, valves=valves, regulator=regulator, arm=arm,
+                   scene=scene_link(cfg.host, cfg.sim_control_port), watchdog=watchdog, extras={"link": link})

@@ -6,7 +6,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from ..io import AnalogScale, Host, Port, Reconnect, SamplerOptions, UrArmConfig, Wiring
+from ..io import AnalogScale, BoxWatchdogConfig, Host, Port, Reconnect, SamplerOptions, UrArmConfig, Wiring
 from ..models import StrictModel
 
 Register = Annotated[int, Field(ge=0, le=65535)]
@@ -56,5 +56,8 @@ class ModbusDriverConfig(StrictModel):
     arm: UrArmConfig | None = UrArmConfig()
     sampler: SamplerOptions = SamplerOptions()
     reconnect: Reconnect = Reconnect()
+    watchdog: BoxWatchdogConfig | None = Field(
+        BoxWatchdogConfig(), description="the box vents by itself when the service stops (null: no box-side "
+        "watchdog, e.g. a Modbus I/O module that cannot run one; docs/safety.md says what that leaves)")
     sim_control_port: Port | None = Field(
         None, description="simulated cells only (fluidsense simcell): its control port; absent on a real cell")

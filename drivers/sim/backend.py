@@ -97,6 +97,7 @@ class SimCell:
         tau = getattr(c, "regulator_tau_s", 0.05)
         self.plant = Plant(net, valves, p_reg_abs=self.p_atm, regulator_tau_s=tau)
         self.valve_names = tuple(c.safe_valves)
+        self.outputs = dict(c.safe_valves)  # the valve driver's output register, as commanded
         self.setpoint_pa = 0.0
         self.regulator_error_pa = 0.0
         self.detached_at: float | None = None
@@ -224,6 +225,8 @@ class SimCell:
 
     # ------------------------------------------------------------- commands
     def command_valve(self, valve: str, open_: bool, t: float) -> None:
+        if valve in self.outputs:
+            self.outputs[valve] = open_
         t_eff = max(t, self.t_last) + self.hw.circuit.valve_delay_s
         self._invalidate(t_eff)
         self.plant.schedule_valve(t_eff, valve, open_)
@@ -387,12 +390,17 @@ class SimSource(SampleSource):
 
 
 class SimValves(ValveBank):
+    reports_outputs = True
+
     def __init__(self, cell: SimCell):
         super().__init__("sim-valves", cell.hw.circuit.safe_valves)
         self.cell = cell
 
     async def _set(self, valve: str, open: bool, t: float) -> None:
         self.cell.command_valve(valve, open, t)
+
+    async def _read_positions(self) -> dict[str, bool]:
+        return dict(self.cell.outputs)
 
 
 class SimRegulator(Regulator):

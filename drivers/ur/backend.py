@@ -5,11 +5,12 @@ from __future__ import annotations
 
 from ..base import Backend
 from ..hardware import Hardware, RegulatedCircuit, TankCircuit
-from ..io import Wiring
-from ..remote import PolledCellSource, sampler_config
+from ..io import BoxWatchdogConfig, Wiring
+from ..remote import PolledCellSource, confirm_safe_on_connect, sampler_config
 from .config import UrDriverConfig
-from .devices import UrArm, UrRegulator, UrValves
+from .devices import UrArm, UrRegulator, UrValves, WorkerKick
 from .link import WorkerLink
+from .watchdog import runstate_program, safe_levels, send_script
 
 
 def rtde_inputs(wiring: Wiring, channels: tuple[str, ...]) -> list[list[float]]:
@@ -23,9 +24,12 @@ def rtde_inputs(wiring: Wiring, channels: tuple[str, ...]) -> list[list[float]]:
     return out
 
 
-def worker_link(host: str, arm, io: bool) -> WorkerLink:
+def worker_link(host: str, arm, io: bool, watchdog: BoxWatchdogConfig | None = None) -> WorkerLink:
+    """``watchdog``: arm ur_rtde's RTDE watchdog so that the control script stops (and the
+    box's run-state output actions vent) when the daemon stops kicking it."""
     return WorkerLink({"host": arm.host or host, "io": io, "control": True, "status_hz": arm.status_hz,
-                       "upper_range_registers": arm.upper_range_registers})
+                       "upper_range_registers": arm.upper_range_registers,
+                       "watchdog_hz": None if watchdog is None else 1.0 / watchdog.timeout_s})
 
 
 def scene_link(host: str, port: int | None):
@@ -37,7 +41,7 @@ def scene_link(host: str, port: int | None):
 
 
 def build(cfg: UrDriverConfig, hw: Hardware) -> Backend:
-    link = worker_link(cfg.host, cfg.arm, io=True)
+    link = worker_link(cfg.host, cfg.arm, io=True, watchdog=cfg.watchdog)
     poller = {"host": cfg.host, "frequency": cfg.rate_hz, "inputs": rtde_inputs(cfg.wiring, hw.channels),
               "upper_range_registers": cfg.arm.upper_range_registers}
     sampler = sampler_config("drivers.ur.poller:RtdeAnalogPoller", poller, hw.channels, cfg.rate_hz,
@@ -45,6 +49,12 @@ def build(cfg: UrDriverConfig, hw: Hardware) -> Backend:
     source = PolledCellSource("ur", sampler, [link], cfg.reconnect)
     regulated = isinstance(hw.circuit, (TankCircuit, RegulatedCircuit))
     regulator = UrRegulator(link, cfg.wiring.regulator, cfg.analog) if regulated else None
-    return Backend(name="ur", source=source, valves=UrValves(link, cfg.wiring.valves, hw.circuit.safe_valves),
-                   regulator=regulator, arm=UrArm(link, cfg.arm), scene=scene_link(cfg.host, cfg.sim_control_port),
-                   extras={"link": link})
+    valves = UrValves(link, cfg.wiring.valves, hw.circuit.safe_valves)
+    source.on_connect.append(lambda: confirm_safe_on_connect(valves))
+    watchdog = None
+    if cfg.watchdog is not None:
+        watchdog = WorkerKick(link, cfg.watchdog)
+        script = runstate_program(safe_levels(cfg.wiring.valves, hw.circuit.safe_valves))
+        source.on_connect.append(lambda: send_script(cfg.host, cfg.watchdog.script_port, script))
+    return Backend(name="ur", source=source, valves=valves, regulator=regulator, arm=UrArm(link, cfg.arm),
+                   scene=scene_link(cfg.host, cfg.sim_control_port), watchdog=watchdog, extras={"link": link})

@@ -7,7 +7,7 @@ from typing import Literal
 
 from pydantic import Field, ValidationInfo, field_validator
 
-from ..io import AnalogScale, Host, Port, Reconnect, SamplerOptions, UrArmConfig, Wiring
+from ..io import AnalogScale, BoxWatchdogConfig, Host, Port, Reconnect, SamplerOptions, UrArmConfig, Wiring
 from ..models import StrictModel
 
 #: highest RTDE output rate per controller generation (UR's RTDE guide)
@@ -30,6 +30,9 @@ class UrDriverConfig(StrictModel):
     arm: UrArmConfig = UrArmConfig()
     sampler: SamplerOptions = SamplerOptions()
     reconnect: Reconnect = Reconnect()
+    watchdog: BoxWatchdogConfig | None = Field(
+        BoxWatchdogConfig(), description="the box vents by itself when the service stops (null: no box-side "
+        "watchdog, e.g. a Modbus I/O module that cannot run one; docs/safety.md says what that leaves)")
     sim_control_port: Port | None = Field(
         None, description="simulated cells only (fluidsense simcell): its control port, through which "
         "tasks lay out objects and score themselves; absent on a real robot")

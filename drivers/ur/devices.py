@@ -6,9 +6,9 @@ from __future__ import annotations
 import logging
 import math
 
-from ..base import Arm, Pose, Regulator, ValveBank
+from ..base import Arm, BoxWatchdog, Pose, Regulator, ValveBank
 from ..errors import DriverError, SafetyError
-from ..io import AnalogScale, RegulatorWiring, UrArmConfig, ValveWiring
+from ..io import AnalogScale, BoxWatchdogConfig, RegulatorWiring, UrArmConfig, ValveWiring
 from .link import WorkerLink
 from .worker import SCRIPT_START_S
 
@@ -16,6 +16,8 @@ log = logging.getLogger(__name__)
 
 
 class UrValves(ValveBank):
+    reports_outputs = True
+
     def __init__(self, link: WorkerLink, wiring: dict[str, ValveWiring], safe: dict[str, bool]):
         super().__init__("ur-valves", safe)
         self.link, self.wiring = link, wiring
@@ -23,6 +25,28 @@ class UrValves(ValveBank):
     async def _set(self, valve: str, open: bool, t: float) -> None:
         w = self.wiring[valve]
         await self.link.call("digital_out", output=w.output, level=w.level(open))
+
+    async def _read_positions(self) -> dict[str, bool]:
+        # a status taken after the last write reached the box: the worker's next one may
+        # predate it by up to one RTDE period
+        status = await self.link.fresh_status()
+        bits = int(status["digital_outputs"])
+        return {name: bool(bits >> w.output & 1) == w.level(True) for name, w in self.wiring.items()}
+
+
+class WorkerKick(BoxWatchdog):
+    """Kicks ur_rtde's RTDE watchdog through the worker; the control script stops (and the
+    box's run-state output actions vent) when the kicks stop (drivers/ur/watchdog.py)."""
+
+    def __init__(self, link: WorkerLink, cfg: BoxWatchdogConfig):
+        super().__init__("ur-rtde-watchdog", cfg.timeout_s)
+        self.link = link
+
+    async def _kick(self) -> None:
+        self.link.notify("kick")
+
+    async def _ensure_running(self) -> None:
+        await self.link.call("ensure_program", timeout_s=SCRIPT_START_S + 2.0)
 
 
 class UrRegulator(Regulator):

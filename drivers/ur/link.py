@@ -13,6 +13,7 @@ import json
 import logging
 import os
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -140,6 +141,18 @@ class WorkerLink(Link):
         if "error" in reply:
             raise DriverError(f"{self.name}: {op}: {reply['error']}")
         return reply
+
+    def notify(self, op: str, **fields: Any) -> None:
+        """A request the worker does not answer (``kick``): written, not waited for."""
+        self.check()
+        self._proc.stdin.write((json.dumps({"op": op, **fields}) + "\n").encode())
+
+    async def fresh_status(self) -> dict[str, Any]:
+        """A status the worker took after everything written so far reached the robot (two
+        status periods: the robot's reply to a write lags it by up to one)."""
+        period = 1.0 / float(self.args.get("status_hz", 50.0))
+        since = time.monotonic() + 2 * period
+        return await self.wait_status(lambda s: s["t"] >= since, self.stale_s + 2 * period)
 
     async def wait_status(self, done, timeout_s: float) -> dict[str, Any]:
         """Wait until ``done(status)``; the status that satisfied it."""

@@ -9,10 +9,13 @@ talks to it with JSON lines on stdin/stdout and kills it when it stops answering
 Protocol. First line out: ``{"ready": true}`` or ``{"error": "..."}``. In:
 ``{"id": N, "op": OP, ...}`` with OP one of ``digital_out`` (output, level),
 ``analog_out`` (channel, domain, ratio), ``move_l`` (pose, speed, acc), ``stop_l``
-(acc); out: ``{"id": N, "ok": true, ...}`` or ``{"id": N, "error": "..."}``. Every
-``1/status_hz`` s, ``{"status": {...}}``: pose, safety mode, protective stop, whether
-the control script runs, and the latest move's id and result (``arrived``,
-``stopped``). End of input: disconnect and exit 0.
+(acc), ``ensure_program`` (upload the control script again if it stopped); out:
+``{"id": N, "ok": true, ...}`` or ``{"id": N, "error": "..."}``. ``kick``
+(no id, no answer) kicks the control script's RTDE watchdog, armed at ``watchdog_hz``
+when the args give one: the script stops when the daemon stops asking for kicks. Every
+``1/status_hz`` s, ``{"status": {...}}``: pose, digital outputs, safety mode, protective
+stop, whether the control script runs, and the latest move's id and result
+(``arrived``, ``stopped``). End of input: disconnect and exit 0.
 
 Everything runs on one thread: ur_rtde's objects are not documented as thread-safe.
 SIGINT and SIGTERM are ignored: the daemon vents through this process after a stop
@@ -43,6 +46,7 @@ class Worker:
         self.move_id = 0
         self.move: dict[str, Any] | None = None  # the running move: id, target, since
         self.move_result: str | None = None
+        self.watchdog_armed = False
 
     def connect(self) -> None:
         import rtde_receive  # noqa: PLC0415 - only in this process
@@ -50,7 +54,8 @@ class Worker:
         host, upper = self.args["host"], bool(self.args.get("upper_range_registers", False))
         self.receive = rtde_receive.RTDEReceiveInterface(host, float(self.args.get("status_hz", 50.0)),
                                                          ["timestamp", "actual_TCP_pose", "safety_mode", "safety_status_bits",
-                                                          "runtime_state", "robot_mode"], False, upper)
+                                                          "runtime_state", "robot_mode",
+                                                          "actual_digital_output_bits"], False, upper)
         if self.args.get("io", True):
             import rtde_io  # noqa: PLC0415
 
@@ -103,6 +108,11 @@ class Worker:
         self.move_result = None
         return {"move_id": self.move_id}
 
+    def _op_ensure_program(self, req):
+        """The control script runs (uploaded again after its watchdog or a protective stop
+        ended it): until it does, the box holds the valve outputs at their safe levels."""
+        self._ensure_script(self._need(self.control, "control"))
+
     def _op_stop_l(self, req):
         control = self._need(self.control, "control")
         if control.isProgramRunning():
@@ -118,6 +128,22 @@ class Worker:
             if time.monotonic() > deadline:
                 raise RuntimeError("the control script does not run (robot not in remote control, or stopped?)")
             time.sleep(0.01)  # polling the robot's state, not a timing assumption
+        self.watchdog_armed = False  # a new script starts without one
+
+    def kick(self) -> None:
+        """The daemon's heartbeat. The RTDE watchdog is armed at the first kick, not at
+        connection: between the two the daemon still starts its sampler, and a watchdog
+        armed early would stop the script before the daemon could ever kick it."""
+        hz = self.args.get("watchdog_hz")
+        if self.control is None or not hz:
+            return
+        try:
+            if not self.watchdog_armed:
+                self.control.setWatchdog(float(hz))
+                self.watchdog_armed = True
+            self.control.kickWatchdog()
+        except Exception:  # noqa: BLE001, S110 - a lost robot shows in the next status
+            pass
 
     # -- status --------------------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
@@ -127,6 +153,7 @@ class Worker:
         if self.move is not None:
             self._follow_move(pose, running)
         return {"t": time.monotonic(), "connected": bool(r.isConnected()), "pose": pose,
+                "digital_outputs": int(r.getActualDigitalOutputBits()),
                 "safety_mode": int(r.getSafetyMode()), "protective_stop": bool(r.isProtectiveStopped()),
                 "robot_mode": int(r.getRobotMode()), "program_running": running,
                 "move_id": self.move_id, "move_result": self.move_result}
@@ -155,7 +182,7 @@ class Worker:
                     pass
 
 
-OPS = ("digital_out", "analog_out", "move_l", "stop_l")
+OPS = ("digital_out", "analog_out", "move_l", "stop_l", "ensure_program")
 
 
 def main(argv: list[str]) -> int:
@@ -189,8 +216,13 @@ def main(argv: list[str]) -> int:
                 buffer += chunk
                 while b"\n" in buffer:
                     line, _, buffer = buffer.partition(b"\n")
-                    if line.strip():
-                        worker.emit(worker.handle(json.loads(line)))
+                    if not line.strip():
+                        continue
+                    req = json.loads(line)
+                    if req.get("op") == "kick":
+                        worker.kick()
+                    else:
+                        worker.emit(worker.handle(req))
             if time.monotonic() >= next_status:
                 worker.emit({"status": worker.status()})
                 next_status = max(next_status + period, time.monotonic())

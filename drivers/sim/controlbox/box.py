@@ -12,6 +12,7 @@ import abc
 import enum
 import logging
 import math
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -100,6 +101,14 @@ class ControlBox:
         self.input_times: dict[str, float] = {}
         self.protective_since: float | None = None
         self.shutdown_requested: Callable[[], None] | None = None
+        #: digital output -> URScript run-state choice (set_runstate_*_digital_output_to_value)
+        self.runstate: dict[int, int] = {}
+        #: every change of the digital outputs: (model time, outputs after, who changed them)
+        self.journal: deque[tuple[float, int, str]] = deque(maxlen=500)
+        #: the network as a person at the cell leaves it (sim control ``network``); the
+        #: emulator closes and reopens its ports when this is asked for
+        self.network_up = True
+        self.network_requested: Callable[[bool], None] | None = None
 
     # -- time ----------------------------------------------------------------------------------
     def now(self) -> float:
@@ -123,11 +132,45 @@ class ControlBox:
             except ProgramError as exc:
                 log.error("program %s failed: %s", self.program.name, exc)
                 self.stop_program(f"runtime error: {exc}")
-                return
-            if not running:
-                log.info("program %s ended", self.program.name)
-                self.program = None
-                self.runtime_state = RuntimeState.STOPPED
+            else:
+                if not running:
+                    log.info("program %s ended", self.program.name)
+                    self.program = None
+                    self.runtime_state = RuntimeState.STOPPED
+        if not self.program_running:
+            self._hold_runstate()
+
+    # -- run-state output actions ----------------------------------------------------------------
+    #: choice -> level while no program runs (0 preserves the output, as do the choices that
+    #: act on drive power or on unscheduled stops only, not emulated)
+    _RUNSTATE_STOPPED_LEVEL = {1: False, 2: True, 3: False}
+
+    def set_runstate(self, output: int, state: int) -> None:
+        if not 0 <= state <= 7:
+            raise ProgramError(f"run-state {state} for output {output}: expected 0..7")
+        self.runstate[output] = state
+        log.info("output %d: run-state %d", output, state)
+
+    def _held(self) -> tuple[int, int]:
+        """(mask, bits) of the outputs a run-state action holds while no program runs."""
+        mask = bits = 0
+        if self.program_running:
+            return 0, 0
+        for output, state in self.runstate.items():
+            level = self._RUNSTATE_STOPPED_LEVEL.get(state)
+            if level is not None:
+                mask |= 1 << output
+                bits |= int(level) << output
+        return mask, bits
+
+    def _hold_runstate(self) -> None:
+        """While no program runs, outputs with a run-state action are held at its level
+        (writes to them are ignored meanwhile)."""
+        mask, bits = self._held()
+        if mask and self.model.digital_outputs & mask != bits:
+            self.sync()
+            self.model.set_digital_outputs(mask, bits)
+            self._outputs_changed("runstate")
 
     def _watch_safety(self, t: float) -> None:
         model = self.model
@@ -192,12 +235,14 @@ class ControlBox:
         return self.program is not None and self.runtime_state == RuntimeState.PLAYING
 
     # -- outputs (every writer goes through here so the model hears about changes) ---------------
-    def set_digital_outputs(self, mask: int, bits: int) -> None:
+    def set_digital_outputs(self, mask: int, bits: int, by: str) -> None:
+        """``by``: who asks (modbus, rtde, a program), for the journal."""
         self.sync()
+        mask &= ~self._held()[0]
         before = self.model.digital_outputs
         self.model.set_digital_outputs(mask, bits)
         if self.model.digital_outputs != before:
-            self._outputs_changed()
+            self._outputs_changed(by)
 
     def set_analog_output(self, channel: int, value: float, domain: AnalogDomain) -> None:
         self.sync()
@@ -206,7 +251,9 @@ class ControlBox:
         if self.model.analog_output(channel) != before:
             self._outputs_changed()
 
-    def _outputs_changed(self) -> None:
+    def _outputs_changed(self, by: str | None = None) -> None:
+        if by is not None:
+            self.journal.append((self.model.t, self.model.digital_outputs, by))
         self.model.on_outputs_changed(self.model.t)
 
     # -- RTDE inputs -------------------------------------------------------------------------------
@@ -218,18 +265,19 @@ class ControlBox:
             self.input_times[name] = t
             if name.startswith("input_"):
                 self.registers.write(name, value)
-        changed = self._apply_digital(values) | self._apply_analog(values)
+        digital = self._apply_digital(values)
+        analog = self._apply_analog(values)
         if "speed_slider_mask" in values and values["speed_slider_mask"] & 1:
             self.model.speed_fraction = min(1.0, max(0.0, float(self.input_values.get("speed_slider_fraction", 1.0))))
-        if changed:
-            self._outputs_changed()
+        if digital or analog:
+            self._outputs_changed("rtde" if digital else None)
 
     def _apply_digital(self, values: dict[str, Any]) -> bool:
         changed = False
         for mask_name, value_name, first in _DIGITAL_GROUPS:
             if mask_name not in values:
                 continue
-            mask = int(values[mask_name]) << first
+            mask = int(values[mask_name]) << first & ~self._held()[0]
             bits = int(self.input_values.get(value_name, 0)) << first
             before = self.model.digital_outputs
             self.model.set_digital_outputs(mask, bits)
@@ -314,4 +362,7 @@ class ControlBox:
             "input_double_registers": list(self.registers.doubles["input"]),
             "output_int_registers": list(self.registers.ints["output"]),
             "output_double_registers": list(self.registers.doubles["output"]),
+            "runstate": {str(o): s for o, s in sorted(self.runstate.items())},
+            "output_journal": [list(e) for e in self.journal],
+            "network_up": self.network_up,
         }

@@ -41,6 +41,8 @@ class Emulator:
         ]
         self._stop = asyncio.Event()
         self._started: list = []
+        self.box.network_requested = self.set_network
+        self._network: asyncio.Task | None = None
 
     async def start(self) -> None:
         """Listen on every port; raises DriverError naming the one that failed."""
@@ -56,6 +58,25 @@ class Emulator:
 
     def stop(self) -> None:
         self._stop.set()
+
+    def set_network(self, up: bool) -> None:
+        """A pulled (or plugged) cable: every robot port closes (or listens again); the
+        box, its program and its outputs carry on either way."""
+        if up == self.box.network_up:
+            return
+        self.box.network_up = up
+        log.warning("network %s", "up: listening again" if up else "down: every port closed")
+        previous = self._network
+
+        async def change() -> None:
+            if previous is not None:
+                await previous
+            if up:
+                await self.start()
+            else:
+                await self.close()
+
+        self._network = asyncio.get_running_loop().create_task(change())
 
     async def run(self) -> None:
         """The controller cycle at the RTDE rate, until ``stop()``."""

@@ -134,18 +134,18 @@ class UrModbus:
         box, m = self.box, self.box.model
         for reg, value in writes.items():
             if reg == 1:
-                box.set_digital_outputs(_STANDARD_MASK, register_to_standard(value))
+                box.set_digital_outputs(_STANDARD_MASK, register_to_standard(value), "modbus")
             elif reg == 2:
                 mask = register_to_standard(value)
-                box.set_digital_outputs(mask, mask)
+                box.set_digital_outputs(mask, mask, "modbus")
             elif reg == 3:
-                box.set_digital_outputs(register_to_standard(value), 0)
+                box.set_digital_outputs(register_to_standard(value), 0, "modbus")
             elif reg == 31:
-                box.set_digital_outputs(_CONFIGURABLE_MASK, (value & 0xFF) << 8)
+                box.set_digital_outputs(_CONFIGURABLE_MASK, (value & 0xFF) << 8, "modbus")
             elif reg == 32:
-                box.set_digital_outputs((value & 0xFF) << 8, (value & 0xFF) << 8)
+                box.set_digital_outputs((value & 0xFF) << 8, (value & 0xFF) << 8, "modbus")
             elif reg == 33:
-                box.set_digital_outputs((value & 0xFF) << 8, 0)
+                box.set_digital_outputs((value & 0xFF) << 8, 0, "modbus")
             elif reg in (5, 7):
                 m.set_analog_input((reg - 5) // 2, domain=_domain(value))
             elif 128 <= reg <= 255:

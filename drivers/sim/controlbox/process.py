@@ -125,6 +125,10 @@ class EmulatorProcess:
     def set(self, **fields: Any) -> dict[str, Any]:
         return self.command({"cmd": "set", **fields})["state"]
 
+    def network(self, up: bool) -> dict[str, Any]:
+        """Pull (``up=False``) or plug back the box's network cable; the box runs on."""
+        return self.command({"cmd": "network", "up": up})["state"]
+
     def wait_for(self, predicate: Callable[[dict[str, Any]], bool], timeout_s: float = 10.0,
                  what: str = "condition") -> dict[str, Any]:
         """Poll the state until ``predicate(state)``; the state that satisfied it."""

@@ -1,6 +1,8 @@
 """Script port (30003): clients send URScript programs as text; a complete program
-replaces the running one. Only ur_rtde's control script is emulated (see urscript.py);
-anything else is logged and ignored, and the robot keeps doing what it did.
+replaces the running one, a secondary program (``sec``) runs beside it. Only ur_rtde's
+control script (urscript.py), fluidsense's box watchdog and run-state statements
+(watchdog.py) are emulated; anything else is logged and ignored, and the robot keeps
+doing what it did.
 
 The real port also streams the robot state at 500 Hz to every client (the "realtime"
 interface); that stream is not emulated, ur_rtde does not read it.
@@ -12,9 +14,10 @@ import asyncio
 import logging
 import re
 
-from .box import ControlBox
+from .box import ControlBox, ProgramError
 from .tcp import TcpServer
 from .urscript import program_from_source, split_programs
+from .watchdog import run_secondary
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +57,16 @@ class ScriptServer(TcpServer):
         return rest
 
     def _run(self, name: str, source: str) -> None:
-        program = program_from_source(name, source)
+        if source.lstrip().startswith("sec"):
+            self.box.sync()
+            if not run_secondary(self.box, name, source):
+                log.warning("secondary program %s not run: only run-state statements are emulated", name)
+            return
+        try:
+            program = program_from_source(name, source)
+        except ProgramError as exc:
+            log.error("script %s not run: %s", name, exc)
+            return
         if program is None:
             first = source.strip().splitlines()[0][:80] if source.strip() else ""
             log.warning("script %s not run: only ur_rtde's control script is emulated (%r, %d bytes)",

@@ -95,9 +95,18 @@ class ClearFaultsCommand(StrictModel):
     id: Any = None
 
 
+class NetworkCommand(StrictModel):
+    """The box's network cable: ``up: false`` closes every robot port and every connection
+    to them (a pulled cable), the box itself runs on; ``up: true`` listens again."""
+
+    cmd: Literal["network"]
+    id: Any = None
+    up: bool
+
+
 _PLANT = (SceneCommand, WorldCommand, TruthCommand, InjectCommand, ClearFaultsCommand)
 Command = TypeAdapter(Annotated[StateCommand | SetCommand | SceneCommand | WorldCommand | TruthCommand
-                                | InjectCommand | ClearFaultsCommand, Field(discriminator="cmd")])
+                                | InjectCommand | ClearFaultsCommand | NetworkCommand, Field(discriminator="cmd")])
 
 
 def handle(box: ControlBox, line: str) -> dict[str, Any]:
@@ -114,6 +123,10 @@ def handle(box: ControlBox, line: str) -> dict[str, Any]:
             return reply
         if isinstance(command, SetCommand):
             _apply(box, command)
+        elif isinstance(command, NetworkCommand):
+            if box.network_requested is None:
+                raise NotSupportedError("this box's network cannot be pulled")
+            box.network_requested(command.up)
         reply["state"] = box.snapshot()
     except (FluidsenseError, ValueError) as exc:
         reply.update(ok=False, error=str(exc))

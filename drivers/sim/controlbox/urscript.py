@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 from ...errors import CommandError, SafetyError
 from .box import ControlBox, Program, ProgramError
 from .motion import Pose
+from .watchdog import WatchdogProgram
 
 log = logging.getLogger(__name__)
 
@@ -352,4 +353,6 @@ def program_from_source(name: str, source: str) -> Program | None:
     """The emulated program for ``source``, or None when it cannot be run here."""
     if name == "rtde_control" and "RTDE Control Script" in source:
         return RtdeControlScript.from_source(source)
+    if name == WatchdogProgram.name:
+        return WatchdogProgram.from_source(source)
     return None

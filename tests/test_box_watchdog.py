@@ -1,0 +1,257 @@
+"""The box vents the gripper by itself when the service stops, and the service's first act
+on a link that comes back is to write the safe outputs and read them back.
+
+The first tests run the emulated box in-process in virtual time (its clock is a
+variable) on the very programs drivers/ur/watchdog.py generates. The others run
+``fluidsense simcell`` in its own process against the production drivers; their times
+are read on the box's own clock (its model time), the clock its watchdog keeps.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import time
+
+import pytest
+
+from controller.config import load_cell_config
+from controller.service import Controller
+from drivers.config import build_backend
+from drivers.errors import FaultError
+from drivers.sim.controlbox.box import ControlBox, IdleProgram, RuntimeState
+from drivers.sim.controlbox.config import ControlBoxConfig
+from drivers.sim.controlbox.model import KinematicModel
+from drivers.sim.controlbox.scriptport import ScriptServer
+from drivers.sim.controlbox.watchdog import WatchdogProgram
+from drivers.ur.watchdog import runstate_program, safe_levels, watchdog_program
+
+from .conftest import CONFIG, Daemon, free_simcell
+
+TIMEOUT_S = 0.5
+REGISTER = 200
+# sorting gripper wiring: supply on 0 (normally open: energised isolates), actuate on 1
+LEVELS = {0: True, 1: False}  # the safe state: tank isolated (0 high), gripper vented (1 low)
+INFLATED = 0b11  # tank isolated, actuation valve open: the gripper holds pressure
+
+
+class Box:
+    """An emulated box with a clock the test moves, ticking like the real one."""
+
+    def __init__(self) -> None:
+        self.t = 0.0
+        self.box = ControlBox(ControlBoxConfig(), KinematicModel(), clock=lambda: self.t)
+        self.beats = 0
+        self.last_beat = 0.0
+
+    def run(self, seconds: float, beat_every_s: float | None = None) -> None:
+        end, next_beat = self.t + seconds, self.t
+        while self.t < end - 1e-9:
+            if beat_every_s is not None and self.t >= next_beat:
+                self.beats += 1
+                self.box.model.set_general_purpose(REGISTER - 128, self.beats)
+                self.last_beat = self.t
+                next_beat += beat_every_s
+            self.t += 0.002
+            self.box.tick()
+
+    def run_until(self, t: float) -> None:
+        self.run(t - self.t)
+
+    @property
+    def outputs(self) -> int:
+        return self.box.model.digital_outputs & 0b11
+
+
+def test_the_generated_levels_follow_the_wiring():
+    cfg = load_cell_config(CONFIG / "cell-modbus-sim.yaml")
+    assert safe_levels(cfg.driver.wiring.valves, cfg.profile.hardware.circuit.safe_valves) == LEVELS
+
+
+def test_the_watchdog_program_vents_after_its_timeout_and_again_after_each_silence():
+    b = Box()
+    program = WatchdogProgram.from_source(watchdog_program(LEVELS, REGISTER, TIMEOUT_S))
+    assert program.register == REGISTER and program.timeout_s == TIMEOUT_S and program.vent == LEVELS
+    assert b.box.run_program(program)
+    b.box.set_digital_outputs(0b11, INFLATED, "modbus")
+    b.run(3.0, beat_every_s=0.1)
+    assert b.outputs == INFLATED  # beating: the program leaves the outputs alone
+    b.run_until(b.last_beat + TIMEOUT_S - 0.01)
+    assert b.outputs == INFLATED
+    b.run_until(b.last_beat + TIMEOUT_S + 0.01)
+    assert b.outputs == 0b01  # silent for the timeout: vented, tank isolated
+    t_vent, outputs, by = b.box.journal[-1]
+    assert by == "watchdog" and outputs & 0b11 == 0b01
+    assert TIMEOUT_S < t_vent - b.last_beat <= TIMEOUT_S + 2 * 0.002 + 1e-9  # seen one cycle late, vented the next
+    b.run(0.5, beat_every_s=0.1)  # the service is back and inflates again
+    b.box.set_digital_outputs(0b11, INFLATED, "modbus")
+    b.run(1.0, beat_every_s=0.1)
+    assert b.outputs == INFLATED
+    b.run_until(b.last_beat + TIMEOUT_S + 0.01)
+    assert b.outputs == 0b01 and program.vents == 2
+
+
+def test_runstate_actions_hold_the_outputs_safe_while_no_program_runs():
+    b = Box()
+    b.box.run_program(IdleProgram("anything"))
+    server = ScriptServer(b.box, "127.0.0.1", 0)
+    server._consume(runstate_program(LEVELS))  # a secondary program: the running one goes on
+    assert b.box.runtime_state == RuntimeState.PLAYING and b.box.runstate == {0: 2, 1: 1}
+    b.box.set_digital_outputs(0b11, INFLATED, "rtde")
+    b.run(0.1)
+    assert b.outputs == INFLATED  # a program runs: outputs are the service's
+    b.box.stop_program("RTDE watchdog")
+    b.run(0.01)
+    assert b.outputs == 0b01  # no program: safe levels
+    b.box.set_digital_outputs(0b10, 0b10, "modbus")
+    b.run(0.01)
+    assert b.outputs == 0b01  # and held there
+
+
+# ------------------------------------------------------------------ against fluidsense simcell
+QUICK = {"reconnect": {"first_s": 0.2, "max_s": 0.5, "connect_timeout_s": 15.0}}
+NO_ARM = {**QUICK, "arm": None}
+
+
+def _p_act_kpa(cfg, state) -> float:
+    s = cfg.driver.wiring.sensors["p_act"]
+    return s.transfer.to_pa(state["analog_inputs"][s.analog_input]["value"]) / 1e3
+
+
+async def _until(predicate, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{what} not reached within {timeout_s} s")
+        await asyncio.sleep(0.02)  # polling a condition, bounded by the timeout
+
+
+async def _box(call, *args):
+    """The box's sim-control pipe blocks: off the event loop, one call at a time."""
+    return await asyncio.to_thread(call, *args)
+
+
+async def _inflate(ctrl, box, cfg) -> dict:
+    await ctrl.start_cycle(hold=True)
+    await _until(lambda: ctrl.sequencer.state.value == "hold", 60, "the gripper holding")
+    state = await _box(box.state)
+    assert state["digital_outputs"] & 0b11 == INFLATED and _p_act_kpa(cfg, state) > 20
+    return state
+
+
+def _journal_after(state, t: float) -> list:
+    return [e for e in state["output_journal"] if e[0] > t]
+
+
+def _vent_s(cfg) -> float:
+    """How long the plant itself takes from a closed empty grip to below 1 kPa once the
+    actuation valve vents (virtual time, the simulated cell alone): the physical floor."""
+    from controller.config import CellConfig
+    from drivers.config import SimDriverConfig
+
+    sim = CellConfig(driver=SimDriverConfig(clock="virtual", seed=1), profile=cfg.profile)
+
+    async def body():
+        async with Controller(sim, build_backend(sim.driver, sim.profile.hardware)) as ctrl:
+            await ctrl.start_cycle(hold=True)
+            await ctrl.measured()
+            cell, t0 = ctrl.backend.extras["cell"], ctrl.now
+            release = asyncio.ensure_future(ctrl.release())
+            while cell.true_values()["p_act"] >= 1e3:
+                await ctrl.wait(0.005)
+            await release
+            return ctrl.now - t0
+
+    return asyncio.run(body())
+
+
+def test_a_link_lost_without_a_box_watchdog_vents_as_the_first_act_when_it_returns(tmp_path):
+    with free_simcell(tmp_path, "modbus", profile="sorting-gripper-quick.yaml",
+                      driver={**NO_ARM, "watchdog": None}) as (box, cell):
+        cfg = load_cell_config(cell)
+        vent_s = _vent_s(cfg)  # 1.47 s for this gripper from its 29.6 kPa grip
+
+        async def body():
+            ctrl = Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware))
+            async with ctrl:
+                await _inflate(ctrl, box, cfg)
+                down = await _box(box.network, False)
+                await _until(lambda: ctrl.fault is not None, 10, "a fault")
+                assert ctrl.fault.kind in ("link_lost", "no_data")
+                status = ctrl.status()
+                assert status["vented"] == "unknown"
+                with pytest.raises(FaultError, match="not confirmed the safe state"):
+                    ctrl.reset()
+                still = await _box(box.state)  # nothing vents the box: the hazard this guards
+                assert still["digital_outputs"] & 0b11 == INFLATED and _p_act_kpa(cfg, still) > 20
+                up = await _box(box.network, True)
+                await _until(lambda: ctrl.latch.vented() is True, 30, "the device confirming the safe state")
+                after = await _box(box.wait_for, lambda s: _p_act_kpa(cfg, s) < 1.0, 30, "the gripper vented")
+                writes = _journal_after(after, up["t"])
+                # the first output the box received after the link returned was the safe state,
+                # and from it the gripper vented as fast as its vent path allows (no later than
+                # the same plant vents in virtual time, plus this test's polling of the box)
+                assert writes and writes[0][1] & 0b11 == 0b01 and writes[0][2] == "modbus"
+                assert after["t"] - writes[0][0] < vent_s + 0.3
+                ctrl.reset()
+                result = await asyncio.wait_for(ctrl.run_cycle(), 60)
+                return down, status, result
+
+        down, status, result = asyncio.run(asyncio.wait_for(body(), 240))
+        # while down, status shows the last report from the device (inflated), and its age
+        assert status["valves"] == {"supply": False, "actuate": True} and status["valves_age_s"] > 0
+        assert result.ok
+
+
+def test_a_link_lost_is_vented_by_the_box_watchdog_program_within_its_timeout(tmp_path):
+    with free_simcell(tmp_path, "modbus", profile="sorting-gripper-quick.yaml", driver=NO_ARM) as (box, cell):
+        cfg = load_cell_config(cell)
+        assert cfg.driver.watchdog.timeout_s == TIMEOUT_S
+
+        async def body():
+            ctrl = Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware))
+            async with ctrl:
+                before = await _inflate(ctrl, box, cfg)
+                assert before["program"] == "fluidsense_watchdog"
+                down = await _box(box.network, False)
+                vented = await _box(box.wait_for, lambda s: s["digital_outputs"] & 0b11 == 0b01, 10, "the box venting")
+                await _until(lambda: ctrl.fault is not None, 10, "a fault")
+                fault_event = ctrl.fault
+                await _box(box.network, True)
+                await _until(lambda: ctrl.latch.vented() is True, 30, "the device confirming the safe state")
+                ctrl.reset()
+                return down, vented, fault_event
+
+        down, vented, fault = asyncio.run(asyncio.wait_for(body(), 240))
+        (t_vent, outputs, by), = [e for e in _journal_after(vented, down["t"]) if e[2] == "watchdog"]
+        # the last heartbeat came at most a kick period (timeout / 4) before the cable was pulled
+        assert t_vent - down["t"] <= TIMEOUT_S + 0.01
+        assert fault.kind in ("link_lost", "no_data")
+
+
+@pytest.mark.parametrize("kind, driver", [("ur", QUICK), ("modbus", NO_ARM)])
+def test_a_killed_daemon_is_vented_by_the_box_within_the_watchdog_timeout(kind, driver, tmp_path):
+    """SIGKILL: the daemon vents nothing. With an arm, ur_rtde's script stops when its
+    RTDE watchdog is no longer kicked (or its client goes); without one, fluidsense's
+    watchdog program sees the heartbeat register stop. Either way the box vents."""
+    with free_simcell(tmp_path, kind, profile="sorting-gripper-quick.yaml", driver=driver) as (box, cell):
+        cfg = load_cell_config(cell)
+        daemon = Daemon(cell, new_session=True)
+        try:
+            daemon.wait_welcome()
+            assert "cycle_id" in daemon.request({"cmd": "cycle"})
+            while daemon.next_message("state", timeout_s=60)[1]["to"] != "hold":
+                pass
+            before = box.state()
+            assert before["digital_outputs"] & 0b11 == INFLATED
+            os.killpg(daemon.proc.pid, signal.SIGKILL)  # the daemon and its helper processes
+            daemon.proc.wait(30)
+            vented = box.wait_for(lambda s: s["digital_outputs"] & 0b11 == 0b01, 10, "the box venting")
+            down = box.wait_for(lambda s: _p_act_kpa(cfg, s) < 1.0, 30, "the gripper vented")
+        finally:
+            daemon.close()
+        (t_vent, _, by), *_ = _journal_after(vented, before["t"])
+        assert by in ("watchdog", "runstate")
+        assert t_vent - before["t"] <= TIMEOUT_S + 0.25  # the kill came after the state was read
+        assert down["digital_outputs"] & 0b11 == 0b01

@@ -6,8 +6,6 @@ import asyncio
 import contextlib
 import json
 import os
-import random
-import socket
 import subprocess
 import sys
 import uuid
@@ -16,6 +14,8 @@ from pathlib import Path
 import pytest
 import yaml
 import zmq
+
+from drivers.sim.controlbox.process import SIMCELL_PORTS, free_loopback  # noqa: F401 - tests import them from here
 
 REPO = Path(__file__).resolve().parent.parent
 CONFIG = REPO / "config"
@@ -39,29 +39,6 @@ def sim_config(tmp_path: Path, *, clock: str = "virtual", seed: int = 1, scene: 
     return path
 
 
-_rng = random.Random()
-
-
-def _bindable(host: str, port: int) -> bool:
-    with socket.socket() as s:
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            s.bind((host, port))
-        except OSError:
-            return False
-    return True
-
-
-def free_loopback(ports) -> str:
-    """A 127.0.0.x address on which every one of ``ports`` is free: ur_rtde's ports are
-    fixed, and other sessions run their own control boxes on this machine."""
-    for _ in range(500):
-        host = f"127.0.0.{_rng.randint(20, 250)}"
-        if all(_bindable(host, p) for p in ports):
-            return host
-    raise RuntimeError("no free 127.0.0.x address")
-
-
 def pytest_collection_modifyitems(config, items):
     """``hardware`` tests need a real robot cell: they run only when selected with
     ``-m hardware`` (and FLUIDSENSE_HARDWARE_CONFIG names its cell config)."""
@@ -73,7 +50,6 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(skip)
 
 
-SIMCELL_PORTS = (30004, 29999, 30003, 5020, 30010)  # RTDE, dashboard, script, Modbus, sim control
 
 
 def write_cell(tmp_path: Path, data: dict) -> Path:

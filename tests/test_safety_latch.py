@@ -220,3 +220,50 @@ def test_a_command_socket_that_dies_stops_the_daemon_with_status_1(tmp_path, mon
     monkeypatch.setattr(CommandServer, "serve", broken_serve)
     code = asyncio.run(asyncio.wait_for(app.run_daemon(_daemon_cfg(tmp_path)), HANG_S))
     assert code == 1
+
+
+@pytest.mark.parametrize("state", ["idle", "actuating", "faulted", "starved"])
+def test_sigterm_ends_the_daemon_vented_in_every_state(state, tmp_path, monkeypatch):
+    """SIGTERM in each state: the daemon vents and returns 0. ``starved``: every block
+    takes longer to handle than it lasts, so the loop is always behind its source (before
+    the loop yielded each block, signals then waited for ever)."""
+    import os
+    import signal
+    import time as _time
+
+    from fluidsense import app
+
+    built = {}
+
+    def build(cfg, hw):
+        built["backend"] = backend = build_backend(cfg, hw)
+        return backend
+
+    monkeypatch.setattr(app, "build_backend", build)
+    if state == "starved":
+        real = Controller._on_block
+
+        async def slow(self, block):
+            _time.sleep(0.012)  # deliberately blocks the loop longer than a 10 ms block lasts
+            await real(self, block)
+
+        monkeypatch.setattr(Controller, "_on_block", slow)
+
+    async def main():
+        daemon = asyncio.ensure_future(app.run_daemon(_daemon_cfg(tmp_path)))
+        while "backend" not in built or not built["backend"].source.connected:
+            await asyncio.sleep(0.01)  # polling start-up, bounded by HANG_S below
+        backend = built["backend"]
+        cell = backend.extras["cell"]
+        if state == "actuating":
+            backend.valves._state["actuate"] = True  # as a cycle leaves it, without running one
+            cell.command_valve("actuate", True, cell.t_last)
+        elif state == "faulted":
+            cell.inject("sensor_nan", cell.t_next)
+        while not (state != "faulted" or cell.outputs == backend.valves.safe_positions) or cell.t_next < 0.5:
+            await asyncio.sleep(0.01)
+        os.kill(os.getpid(), signal.SIGTERM)
+        return await asyncio.wait_for(daemon, HANG_S), cell.outputs, backend.valves.safe_positions
+
+    code, outputs, safe = asyncio.run(main())
+    assert code == 0 and outputs == safe

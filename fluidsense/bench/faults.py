@@ -2,10 +2,13 @@
 
 Each fault kind is injected at random moments of a cycle on the simulated cell (virtual
 time; the loop overrun, which only exists in real time, in real time by blocking the
-loop). For each: whether the supervisor reported it (within two cycles: a leak injected
-while the actuator vents only shows once it is held again), how long after the first bad
-sample the vent was commanded (in samples; target: within one block), and how long the
-physics took to make it visible. Then clean cycles, counting false alarms.
+loop; ``internal``, an exception raised inside the sample loop). For each: whether the
+supervisor reported it (within two cycles: a leak injected while the actuator vents only
+shows once it is held again), how long after the first bad sample the vent was commanded
+(in samples; target: within one block), and how long the physics took to make it
+visible. Then clean cycles, counting false alarms. With ``--box-runs N`` (N > 0), what
+only the control box can vent, against ``fluidsense simcell`` (see _box_faults.py):
+a killed daemon, a pulled cable, a cable back in, and SIGTERM.
 """
 
 from __future__ import annotations
@@ -24,13 +27,16 @@ DESCRIPTION = __doc__
 SEED = 1
 EXPECTED = {"over_pressure": {"over_pressure"}, "leak": {"leak"}, "sensor_nan": {"sensor_nan"},
             "sensor_stuck": {"sensor_stuck"}, "sensor_range": {"sensor_range"}, "no_data": {"no_data"},
-            "link_lost": {"link_lost"}, "protective_stop": {"protective_stop"}, "overrun": {"overrun"}}
+            "link_lost": {"link_lost"}, "protective_stop": {"protective_stop"}, "overrun": {"overrun"},
+            "internal": {"internal"}}
 
 
 def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("--injections", type=int, default=20, help="per fault kind (default 20)")
     p.add_argument("--clean-cycles", type=int, default=1000, help="clean cycles for false alarms (default 1000)")
     p.add_argument("--overrun-injections", type=int, default=5, help="real-time loop stalls (default 5)")
+    p.add_argument("--box-runs", type=int, default=5,
+                   help="per box scenario against fluidsense simcell, real time (default 5; 0 skips them)")
     p.add_argument("--seed", type=int, default=SEED)
     p.add_argument("--json", action="store_true")
 
@@ -56,7 +62,10 @@ async def inject_once(ctrl, kind: str, t_offset: float) -> dict[str, Any]:
     rate = ctrl.backend.source.rate_hz
     fut = await ctrl.start_cycle()
     t_inj = ctrl.now + t_offset
-    cell.inject(kind, t_inj)
+    if kind == "internal":
+        _raise_in_loop(ctrl, t_inj)
+    else:
+        cell.inject(kind, t_inj)
     for _ in range(2):
         try:
             await fut
@@ -75,6 +84,19 @@ async def inject_once(ctrl, kind: str, t_offset: float) -> dict[str, Any]:
     await ctrl.wait(3.0)  # the repaired cell vents (still latched, so no new fault) ...
     ctrl.reset()  # ... then the operator resets
     return out
+
+
+def _raise_in_loop(ctrl, t: float) -> None:
+    """A bug in the sample loop at sample time ``t`` (once): the supervisor's check raises."""
+    check = ctrl.supervisor.check
+
+    def broken(block, **kwargs):
+        if block.t_end >= t:
+            ctrl.supervisor.check = check
+            raise RuntimeError("injected: a bug in the sample loop")
+        return check(block, **kwargs)
+
+    ctrl.supervisor.check = broken
 
 
 async def _injections(kinds, n: int, seed: int) -> list[dict[str, Any]]:
@@ -158,16 +180,19 @@ async def _overrun(n: int, seed: int) -> list[dict[str, Any]]:
 
 
 def run_bench(injections: int = 20, clean_cycles: int = 1000, overrun_injections: int = 5,
-              seed: int = SEED) -> dict[str, Any]:
+              seed: int = SEED, box_runs: int = 0) -> dict[str, Any]:
     from drivers.sim.backend import FAULTS
 
+    from ._box_faults import run_box_faults
+
     t0 = time.perf_counter()
-    recs = asyncio.run(_injections(FAULTS, injections, seed))
+    kinds = [*FAULTS, "internal"]
+    recs = asyncio.run(_injections(kinds, injections, seed))
     if overrun_injections:
         recs += asyncio.run(_overrun(overrun_injections, seed))
     cycles, alarms = asyncio.run(_clean(clean_cycles, seed))
     faults = []
-    for kind in [*FAULTS, *(["overrun"] if overrun_injections else [])]:
+    for kind in [*kinds, *(["overrun"] if overrun_injections else [])]:
         rs = [r for r in recs if r["kind"] == kind]
         lat = [r["vent_latency_samples"] for r in rs if r["detected"]]
         delay = [r["detect_delay_s"] for r in rs if r["detected"]]
@@ -177,17 +202,21 @@ def run_bench(injections: int = 20, clean_cycles: int = 1000, overrun_injections
                        "detect_delay_s_max": max(delay) if delay else None,
                        "vented_fraction": sum(bool(r.get("vented")) for r in rs) / len(rs),
                        "misreported": sorted({r["reported"] for r in rs if r.get("reported") and not r["detected"]})})
+    box = run_box_faults(box_runs) if box_runs > 0 else []
     return {"faults": faults, "clean_cycles": cycles, "false_alarms": len(alarms), "false_alarm_kinds": alarms[:10],
-            "block_size": 10, "wall_s": time.perf_counter() - t0}
+            "block_size": 10, "box": box, "wall_s": time.perf_counter() - t0}
 
 
 def run(args: argparse.Namespace) -> int:
-    res = run_bench(args.injections, args.clean_cycles, args.overrun_injections, args.seed)
+    res = run_bench(args.injections, args.clean_cycles, args.overrun_injections, args.seed, args.box_runs)
     if args.json:
         print(json.dumps(res, indent=1))
         return 0
     for f in res["faults"]:
         print(f"{f['fault']:>16}: {f['injections']} injected, {100 * f['detected_fraction']:.0f} % detected, vent within "
               f"{f['vent_latency_samples_max']} samples, physics delay up to {f['detect_delay_s_max']} s")
+    for b in res["box"]:
+        print(f"{b['scenario']:>16} ({b['driver']}): {b['runs'] - b['failed']}/{b['runs']} ran, latency median "
+              f"{b['latency_s_median']} s, max {b['latency_s_max']} s" + (f"; failures: {b['failures']}" if b["failed"] else ""))
     print(f"clean cycles {res['clean_cycles']}: {res['false_alarms']} false alarms; {res['wall_s']:.0f} s")
     return 0

@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import json
 import os
+import random
 import select
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -159,3 +161,29 @@ class EmulatorProcess:
                 self._buffer += chunk
         line, _, self._buffer = self._buffer.partition(b"\n")
         return line.decode(errors="replace")
+
+
+#: the ports ``fluidsense simcell`` listens on: RTDE, dashboard, script, Modbus, sim control
+SIMCELL_PORTS = (30004, 29999, 30003, 5020, 30010)
+_rng = random.Random()
+
+
+def _bindable(host: str, port: int) -> bool:
+    with socket.socket() as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((host, port))
+        except OSError:
+            return False
+    return True
+
+
+def free_loopback(ports: Sequence[int] = SIMCELL_PORTS) -> str:
+    """A 127.0.0.x address on which every one of ``ports`` is free: ur_rtde's ports are
+    fixed, and other boxes (other tests, other sessions) run on this machine."""
+    for _ in range(500):
+        host = f"127.0.0.{_rng.randint(20, 250)}"
+        if all(_bindable(host, p) for p in ports):
+            return host
+    raise DriverError("no free 127.0.0.x address")
+

@@ -255,3 +255,24 @@ def test_a_killed_daemon_is_vented_by_the_box_within_the_watchdog_timeout(kind, 
         assert by in ("watchdog", "runstate")
         assert t_vent - before["t"] <= TIMEOUT_S + 0.25  # the kill came after the state was read
         assert down["digital_outputs"] & 0b11 == 0b01
+
+
+def test_fluidsense_watchdog_prints_what_the_driver_installs(tmp_path):
+    import subprocess
+    import sys
+
+    import yaml
+
+    from .conftest import REPO, write_cell
+
+    data = yaml.safe_load((CONFIG / "cell-modbus-sim.yaml").read_text())
+    data["driver"]["arm"] = None
+    data["profile"] = str(CONFIG / "profiles" / "sorting-gripper.yaml")
+    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "watchdog", "--config", str(write_cell(tmp_path, data))],
+                         capture_output=True, text=True, timeout=60, cwd=REPO)
+    assert out.returncode == 0, out.stderr
+    program = WatchdogProgram.from_source(out.stdout)
+    assert program.vent == LEVELS and program.register == REGISTER and program.timeout_s == TIMEOUT_S
+    refused = subprocess.run([sys.executable, "-m", "fluidsense.cli", "watchdog", "--config", str(CONFIG / "cell-sim.yaml")],
+                             capture_output=True, text=True, timeout=60, cwd=REPO)
+    assert refused.returncode == 2 and "driver.kind" in refused.stderr and "Traceback" not in refused.stderr

@@ -14,7 +14,7 @@ from ..errors import ConfigError, DriverError, LinkLostError
 from ..hardware import Hardware, RegulatedCircuit, TankCircuit
 from ..io import AnalogScale, BoxWatchdogConfig, RegulatorWiring, Wiring
 from ..remote import Link, PolledCellSource, confirm_safe_on_connect, sampler_config
-from ..ur.watchdog import runstate_program, safe_levels, send_script, watchdog_program
+from ..ur.watchdog import box_script, send_script
 from .config import ModbusDriverConfig, RegisterMap
 
 log = logging.getLogger(__name__)
@@ -159,17 +159,16 @@ def build(cfg: ModbusDriverConfig, hw: Hardware) -> Backend:
     link = ModbusLink(cfg)
     links: list[Link] = [link]
     arm = watchdog = None
-    script = None
-    levels = safe_levels(cfg.wiring.valves, hw.circuit.safe_valves)
     if cfg.arm is not None:
         worker = worker_link(cfg.host, cfg.arm, io=False, watchdog=cfg.watchdog)
         links.append(worker)
         arm = UrArm(worker, cfg.arm)
         if cfg.watchdog is not None:  # ur_rtde's script is the box's program: its RTDE watchdog
-            watchdog, script = WorkerKick(worker, cfg.watchdog), runstate_program(levels)
+            watchdog = WorkerKick(worker, cfg.watchdog)
     elif cfg.watchdog is not None:  # the box runs fluidsense's watchdog program
         watchdog = ModbusHeartbeat(link, cfg.watchdog)
-        script = watchdog_program(levels, cfg.watchdog.heartbeat_register, cfg.watchdog.timeout_s)
+    script = None if cfg.watchdog is None else \
+        box_script(cfg.wiring.valves, hw.circuit.safe_valves, cfg.watchdog, arm=cfg.arm is not None)
     poller = {"host": cfg.host, "port": cfg.port, "device_id": cfg.device_id, "timeout_s": cfg.timeout_s,
               "inputs": modbus_inputs(cfg, hw.channels)}
     sampler = sampler_config("drivers.modbus.poller:ModbusAnalogPoller", poller, hw.channels, cfg.rate_hz,

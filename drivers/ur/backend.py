@@ -10,7 +10,7 @@ from ..remote import PolledCellSource, confirm_safe_on_connect, sampler_config
 from .config import UrDriverConfig
 from .devices import UrArm, UrRegulator, UrValves, WorkerKick
 from .link import WorkerLink
-from .watchdog import runstate_program, safe_levels, send_script
+from .watchdog import box_script, send_script
 
 
 def rtde_inputs(wiring: Wiring, channels: tuple[str, ...]) -> list[list[float]]:
@@ -54,7 +54,7 @@ def build(cfg: UrDriverConfig, hw: Hardware) -> Backend:
     watchdog = None
     if cfg.watchdog is not None:
         watchdog = WorkerKick(link, cfg.watchdog)
-        script = runstate_program(safe_levels(cfg.wiring.valves, hw.circuit.safe_valves))
+        script = box_script(cfg.wiring.valves, hw.circuit.safe_valves, cfg.watchdog, arm=True)
         source.on_connect.append(lambda: send_script(cfg.host, cfg.watchdog.script_port, script))
     return Backend(name="ur", source=source, valves=valves, regulator=regulator, arm=UrArm(link, cfg.arm),
                    scene=scene_link(cfg.host, cfg.sim_control_port), watchdog=watchdog, extras={"link": link})

@@ -30,7 +30,7 @@ import logging
 from collections.abc import Mapping
 
 from ..errors import LinkLostError
-from ..io import ValveWiring
+from ..io import BoxWatchdogConfig, ValveWiring
 
 log = logging.getLogger(__name__)
 
@@ -111,6 +111,16 @@ def watchdog_program(levels: Mapping[int, bool], heartbeat_register: int, timeou
         "end",
         "",
     ])
+
+
+def box_script(valves: Mapping[str, ValveWiring], safe: Mapping[str, bool], cfg: BoxWatchdogConfig,
+               arm: bool) -> str:
+    """What a cell installs on its box: with an arm (ur_rtde's script is the program, its
+    RTDE watchdog stops it), the run-state actions; without one, the watchdog program."""
+    levels = safe_levels(valves, safe)
+    if arm:
+        return runstate_program(levels)
+    return watchdog_program(levels, cfg.heartbeat_register, cfg.timeout_s)
 
 
 async def send_script(host: str, port: int, text: str, timeout_s: float = 2.0) -> None:

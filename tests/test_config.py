@@ -66,7 +66,7 @@ def test_missing_section(tmp_path):
 
 
 @pytest.mark.parametrize("section, change, field, reason", [
-    ("sequence", {"p0_kpa": 95.0}, "(top level)", "sequence.p0_kpa (95.0) is outside limits"),
+    ("sequence", {"p0_kpa": 95.0}, "sequence.p0_kpa", "95.0 is outside limits"),
     ("sequence", {"method": "flow_control"}, "sequence", "needs a flow_profile"),
     ("sequence", {"windows": [{"name": "eq", "start_s": 4, "end_s": 30}]}, "sequence", "after the valve closes"),
     ("actuator", {"kind": "gripper", "v0_ml": "lots"}, "actuator.v0_ml", "valid number"),

@@ -8,6 +8,8 @@ relative to the file that names it); their errors then name the profile file.
 from __future__ import annotations
 
 import math
+import os
+import stat
 from pathlib import Path
 from typing import Any, Literal
 
@@ -15,6 +17,7 @@ from pydantic import BaseModel, Field, field_validator, model_validator
 
 from drivers.config import DriverConfig
 from drivers.errors import ConfigError
+from drivers.files import one_line
 from drivers.hardware import Actuator, Circuit, FlowSensor, GripperActuator, Hardware, Sensor, TankCircuit
 from drivers.models import FieldError, Integer, Real, StrictModel
 from drivers.scenes import Scene
@@ -369,9 +372,16 @@ def _check_files(cfg: CellConfig, path: Path) -> None:
     is validated without these: its files belong to another machine and time)."""
     if cfg.driver.kind == "replay":  # relative to the working directory (docs/recording.md)
         referenced_file(cfg.driver.file, path, "driver.file")
-    rec = Path(cfg.recording.dir)
-    if cfg.recording.enabled and rec.exists() and not rec.is_dir():
-        raise ConfigError(f"{path}: recording.dir: {cfg.recording.dir} exists and is not a directory")
+    if not cfg.recording.enabled:
+        return
+    try:
+        st = os.stat(cfg.recording.dir)
+    except FileNotFoundError:
+        return  # the recorder creates it
+    except OSError as exc:  # a name too long, a path through a file
+        raise ConfigError(f"{path}: recording.dir: {exc.strerror or exc}") from exc
+    if not stat.S_ISDIR(st.st_mode):
+        raise ConfigError(f"{path}: recording.dir: {one_line(cfg.recording.dir)} exists and is not a directory")
 
 
 def load_cell_config(path: str | Path, overrides: dict[str, Any] | None = None) -> CellConfig:

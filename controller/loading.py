@@ -18,17 +18,12 @@ import yaml
 from pydantic import BaseModel, ValidationError
 
 from drivers.errors import ConfigError
-from drivers.files import YAML_MAX_BYTES, check_name, decode_utf8, describe, read_bounded
+from drivers.files import YAML_MAX_BYTES, check_name, decode_utf8, describe, one_line, read_bounded
 from drivers.models import FieldError
 
 from . import yamlfile
 
 M = TypeVar("M", bound=BaseModel)
-
-
-def one_line(text: str) -> str:
-    """A reason as one line: a value quoted from the file may hold line breaks."""
-    return text.replace("\r", "\\r").replace("\n", "\\n")
 
 
 def _field_path(loc: tuple, data: Any) -> str:

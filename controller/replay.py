@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from drivers.errors import EndOfRecording, RecordingError
+from drivers.files import one_line
 from drivers.recording import REFERENCE, Record, to_json
 from drivers.replay import ReplaySource
 
@@ -140,7 +141,8 @@ def check_event(rec: Record) -> None:
         if key not in rec.data:
             raise BadEvent(f"{rec.topic}.{key}: missing (at t = {rec.t_s:g} s)")
         if not ok(rec.data[key]):
-            raise BadEvent(f"{rec.topic}.{key}: expected {what}, got {str(rec.data[key])[:40]} (at t = {rec.t_s:g} s)")
+            raise BadEvent(f"{rec.topic}.{key}: expected {what}, got {one_line(str(rec.data[key])[:40])} "
+                           f"(at t = {rec.t_s:g} s)")
     if rec.topic == REFERENCE and len(rec.data["t_rel_s"]) != len(rec.data["p_pa"]):
         raise BadEvent(f"{rec.topic}.p_pa: {len(rec.data['p_pa'])} pressures for {len(rec.data['t_rel_s'])} times")
 

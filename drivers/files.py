@@ -100,6 +100,14 @@ def decode_utf8(data: bytes, path: str | Path, error: type[FluidsenseError] = Co
         raise error(f"{path}:{line}:{column}: cannot read: not UTF-8 text (byte 0x{data[exc.start]:02x})") from exc
 
 
+def one_line(text: str) -> str:
+    """A reason as one line of plain text: a key or value quoted from the file may hold
+    line breaks (``str.splitlines`` knows eight) or terminal control sequences."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)
+
+
 def nested_within(data: object, depth: int) -> bool:
     """Whether parsed JSON has no more than ``depth`` levels of containers (checked
     without recursion, so any depth is safe to ask about)."""
@@ -113,5 +121,5 @@ def nested_within(data: object, depth: int) -> bool:
     return True
 
 
-__all__ = ["MB", "YAML_MAX_BYTES", "check_name", "decode_utf8", "describe", "nested_within", "open_regular",
+__all__ = ["MB", "YAML_MAX_BYTES", "check_name", "decode_utf8", "describe", "nested_within", "one_line", "open_regular",
            "read_bounded"]

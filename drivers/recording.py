@@ -34,7 +34,7 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 from .base import SampleBlock
 from .chunks import MAX_CHUNK_BYTES, ChunkError, chunk_records
 from .errors import RecordingError
-from .files import nested_within, open_regular
+from .files import nested_within, one_line, open_regular
 
 log = logging.getLogger(__name__)
 
@@ -239,7 +239,7 @@ class RecordingWriter:
 
 
 def _one_line(exc: Exception) -> str:
-    return " ".join(f"{type(exc).__name__}: {exc}".split())
+    return one_line(" ".join(f"{type(exc).__name__}: {exc}".split()))
 
 
 @dataclass(frozen=True)

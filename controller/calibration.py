@@ -196,7 +196,8 @@ class CalibrationFile(StrictModel):
     """What a calibration file must hold (what ``Calibration.save`` writes)."""
 
     format: Literal["fluidsense-calibration/1"]
-    profile: str = Field(min_length=1, max_length=80)
+    profile: str = Field(min_length=1, max_length=80, pattern=r"^[^\x00-\x1f]+$",
+                         description="the profile's name (sense looks it up in config/profiles/)")
     method: str = Field(max_length=40)
     feature: Literal[tuple(FEATURES)]  # type: ignore[valid-type]
     feature_unit: str = Field(max_length=20)

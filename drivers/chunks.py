@@ -64,7 +64,7 @@ def decompress(chunk: Chunk) -> bytes:
         data = chunk.data
     elif declared > MAX_RATIO * max(size, 1):
         raise ChunkError(f"a chunk of {size} bytes declares {declared} uncompressed, more than {MAX_RATIO} "
-                         "times its size (a decompression bomb?)")
+                         "times its size: refused as a decompression bomb")
     elif chunk.compression == "zstd":
         data = _zstd(chunk.data, declared)
     elif chunk.compression == "lz4":

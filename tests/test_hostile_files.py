@@ -305,6 +305,8 @@ CALIBRATIONS = {
     "lengths": (lambda g: json.dumps({**g, "y": [1.0, 2.0]}), "y: 2 features for 4 targets"),
     "coefficients": (lambda g: json.dumps({**g, "coeffs": [1.0, 2.0, 3.0]}),
                      "coeffs: a linear fit has 2 coefficients, got 3"),
+    "nul in the profile name": (lambda g: json.dumps({**g, "profile": "linear\u0000actuator"}),
+                                "profile: String should match pattern '^[^\\x00-\\x1f]+$'"),
     "other format": (lambda g: json.dumps({**g, "format": "x"}),
                      "format: not a calibration file (format is not 'fluidsense-calibration/1')"),
 }

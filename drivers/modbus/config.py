@@ -6,8 +6,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from ..io import AnalogScale, Host, Port, Reconnect, SamplerOptions, UrArmConfig, Wiring
-from ..io import BLOCK_SIZE
+from ..io import BLOCK_SIZE, AnalogScale, Host, Port, Reconnect, SamplerOptions, UrArmConfig, Wiring
 from ..models import Integer, Real, StrictModel
 
 Register = Annotated[Integer, Field(ge=0, le=65535)]

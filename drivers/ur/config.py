@@ -7,8 +7,7 @@ from typing import Literal
 
 from pydantic import Field, ValidationInfo, field_validator
 
-from ..io import AnalogScale, Host, Port, Reconnect, SamplerOptions, UrArmConfig, Wiring
-from ..io import BLOCK_SIZE
+from ..io import BLOCK_SIZE, AnalogScale, Host, Port, Reconnect, SamplerOptions, UrArmConfig, Wiring
 from ..models import Integer, Real, StrictModel
 
 #: highest RTDE output rate per controller generation (UR's RTDE guide)

@@ -196,10 +196,11 @@ class Profile(StrictModel):
         per cycle) + the sensor's offset + noise (sd ``noise_sd_kpa``, every sample) +
         up to one quantum. The margin takes 4 sd of the regulator (beyond it: 3e-5 of
         cycles) and 6 sd of the noise (2e4 samples x 1e-9 each: 2e-5 of cycles), plus the
-        largest |offset| and quantum. With the default sensors that is about 1.1 kPa; on
-        the simulated gripper at P0 = 63 kPa, limits 0.25 kPa above P0 faulted 26 of 40
-        cycles and 0.5 kPa none of 40. Real regulators may overshoot a step: give their
-        datasheet's repeatability (or more) in the circuit so the margin covers it."""
+        largest |offset| and quantum. With the default sensors that is about 1.1 kPa. On
+        the simulated gripper at P0 = 63 kPa (offset 0 on the tank sensor) a limit 0.25 kPa
+        above P0 faulted 26 of 40 cycles, 0.5 kPa 1 of 400, 0.75 kPa none of 400. Real
+        regulators may overshoot a step: give their datasheet's repeatability (or more)
+        in the circuit so the margin covers it."""
         sensors = [self.sensor, *([self.tank_sensor] if self.circuit.has_tank_sensor else [])]
         regulator_sd = getattr(self.circuit, "regulator_repeatability_kpa", 0.0)
         return (max(abs(s.offset_kpa) for s in sensors) + max(s.quantum_kpa for s in sensors)

@@ -220,7 +220,8 @@ def test_windows_hold_a_few_samples(tmp_path, sequence, field):
 
 def test_files_a_config_names_must_exist(tmp_path):
     missing = tmp_path / "gone.yaml"
-    assert refused_at(tmp_path, cell(tmp_path, profile=str(missing))) == f"profile: {missing}: No such file or directory"
+    assert refused_at(tmp_path, cell(tmp_path, profile=str(missing))) == \
+        f"profile: {missing}: No such file or directory"
     replay = cell(tmp_path)
     replay["driver"] = {"kind": "replay", "file": str(tmp_path / "run.mcap")}
     assert refused_at(tmp_path, replay) == f"driver.file: {tmp_path}/run.mcap: No such file or directory"

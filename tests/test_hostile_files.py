@@ -171,7 +171,8 @@ def test_ordinary_aliases_and_merge_keys_still_load(tmp_path):
     path = write(tmp_path, "anchors.yaml", text)
     with pytest.raises(ConfigError, match=r"endpoint: unknown field"):  # aliases resolve; the extra key is refused
         load_cell_config(path)
-    profile = write(tmp_path, "merge.yaml", "name: p\nsequence:\n  windows:\n    - &w {name: eq, start_s: 4, end_s: 5}\n"
+    profile = write(tmp_path, "merge.yaml", "name: p\nsequence:\n  windows:\n"
+                    "    - &w {name: eq, start_s: 4, end_s: 5}\n"
                     "    - {<<: *w, name: late, start_s: 5, end_s: 6}\n")
     assert [w.name for w in load_profile(profile).sequence.windows] == ["eq", "late"]
 
@@ -182,7 +183,8 @@ def test_a_duplicate_key_names_the_key_and_both_lines(tmp_path):
     path = write(tmp_path, "dup.yaml", text + "driver: {kind: sim}\n")
     first = text.splitlines().index(next(line for line in text.splitlines() if line.startswith("driver:"))) + 1
     last = len(text.splitlines()) + 1
-    assert refused(load_cell_config, path) == f"{path}:{last}:1: driver: key 'driver' given twice (first at line {first})"
+    assert refused(load_cell_config, path) == \
+        f"{path}:{last}:1: driver: key 'driver' given twice (first at line {first})"
     nested = write(tmp_path, "nested.yaml", "name: p\nsequence:\n  p0_kpa: 40\n  charge_s: 5\n  p0_kpa: 60\n")
     assert refused(load_profile, nested) == f"{nested}:5:3: sequence.p0_kpa: key 'p0_kpa' given twice (first at line 3)"
 
@@ -247,8 +249,8 @@ def test_a_date_shaped_name_stays_a_string(tmp_path):
 
 
 FILE_MODULES = ["drivers.hardware", "drivers.scenes", "drivers.world", "drivers.config", "drivers.sampler.config",
-                "drivers.io", "drivers.ur.config", "drivers.modbus.config", "controller.config", "controller.calibration",
-                "tasks.config"]
+                "drivers.io", "drivers.ur.config", "drivers.modbus.config", "controller.config",
+                "controller.calibration", "tasks.config"]
 
 
 def _numbers(schema) -> list[dict]:
@@ -358,7 +360,8 @@ def test_task_run_with_a_hostile_task_file_exits_2(tmp_path):
     task["cell"] = str(CONFIG / "cell-sorting-sim.yaml")
     task["motion"]["speed_m_s"] = "fast"
     path = write(tmp_path, "task.yaml", yaml.safe_dump(task))
-    one_error(fluidsense("task", "run", str(path), cwd=tmp_path), f"{path}: motion.speed_m_s: Input should be a valid number")
+    one_error(fluidsense("task", "run", str(path), cwd=tmp_path),
+              f"{path}: motion.speed_m_s: Input should be a valid number")
     task["motion"]["speed_m_s"] = 0.25
     task["cell"] = "no-such-cell.yaml"
     path.write_text(yaml.safe_dump(task))

@@ -15,12 +15,17 @@ import json
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
 import numpy as np
+from pydantic import Field, JsonValue, model_validator
 from scipy import optimize, stats
 
 from drivers.errors import ConfigError, FluidsenseError
+from drivers.files import MB, check_name, decode_utf8, nested_within, read_bounded
+from drivers.models import FieldError, Integer, Real, StrictModel
+
+from .loading import validate
 
 FIT_DEGREE = {"linear": 1, "poly2": 2, "poly3": 3}
 FORMAT = "fluidsense-calibration/1"
@@ -155,16 +160,70 @@ class Calibration:
 
     @classmethod
     def load(cls, path: str | Path) -> Calibration:
-        path = Path(path)
+        """A calibration file, checked as untrusted input: a regular file of at most
+        ``MAX_FILE_BYTES``, UTF-8 JSON without NaN or infinity, every field of the right
+        type, the curve consistent with its points. Errors: ``FILE: field: reason``."""
+        path = check_name(path)
+        text = decode_utf8(read_bounded(path, MAX_FILE_BYTES, "a calibration file"), path)
         try:
-            data = json.loads(path.read_text())
-        except OSError as exc:
-            raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+            data = json.loads(text, parse_constant=_refuse_constant)
         except json.JSONDecodeError as exc:
-            raise ConfigError(f"{path}: not a calibration file (JSON: {exc})") from exc
+            raise ConfigError(f"{path}:{exc.lineno}:{exc.colno}: not a calibration file: JSON: {exc.msg}") from exc
+        except ValueError as exc:  # NaN, Infinity
+            raise ConfigError(f"{path}: not a calibration file: {exc}") from exc
+        except RecursionError as exc:
+            raise ConfigError(f"{path}: not a calibration file: JSON nested too deeply") from exc
+        if not nested_within(data, MAX_DEPTH):
+            raise ConfigError(f"{path}: not a calibration file: JSON nested more than {MAX_DEPTH} levels deep")
         if not isinstance(data, dict) or data.get("format") != FORMAT:
-            raise ConfigError(f"{path}: not a calibration file (format is not {FORMAT!r})")
-        try:
-            return cls(**data)
-        except TypeError as exc:
-            raise ConfigError(f"{path}: calibration file has unexpected fields: {exc}") from exc
+            raise ConfigError(f"{path}: format: not a calibration file (format is not {FORMAT!r})")
+        return cls(**validate(CalibrationFile, data, path).model_dump())
+
+
+def _refuse_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a number a calibration can hold")
+
+
+# The largest calibration the profile's plan allows (200 targets x 1000 cycles, two
+# numbers a point) is about 10 MB of indented JSON; the shipped protocols write a few KB.
+MAX_FILE_BYTES = 16 * MB
+MAX_POINTS = 200 * 1000
+MAX_DEPTH = 16  # the scene and window objects are flat
+JsonObject = Annotated[dict[str, JsonValue], Field(max_length=100)]
+
+
+class CalibrationFile(StrictModel):
+    """What a calibration file must hold (what ``Calibration.save`` writes)."""
+
+    format: Literal["fluidsense-calibration/1"]
+    profile: str = Field(min_length=1, max_length=80, pattern=r"^[^\x00-\x1f]+$",
+                         description="the profile's name (sense looks it up in config/profiles/)")
+    method: str = Field(max_length=40)
+    feature: Literal[tuple(FEATURES)]  # type: ignore[valid-type]
+    feature_unit: str = Field(max_length=20)
+    scene: JsonObject
+    target: str = Field(min_length=1, max_length=80)
+    target_unit: str = Field(max_length=20)
+    fit: Literal[tuple(FIT_DEGREE)]  # type: ignore[valid-type]
+    coeffs: list[Real] = Field(min_length=2, max_length=4)
+    x: list[Real] = Field(max_length=MAX_POINTS)
+    y: list[Real] = Field(max_length=MAX_POINTS)
+    window: JsonObject = Field(default_factory=dict)
+    date: str = Field("", max_length=64)
+    seed: Integer | None = None
+    cycles: Integer = Field(0, ge=0)
+    drop_first: Integer = Field(0, ge=0)
+    residual_sd: Real = Field(0.0, ge=0)
+    r2: Real = 0.0
+
+    @model_validator(mode="after")
+    def _consistent(self) -> CalibrationFile:
+        deg = FIT_DEGREE[self.fit]
+        if len(self.coeffs) != deg + 1:
+            raise FieldError("coeffs", f"a {self.fit} fit has {deg + 1} coefficients, got {len(self.coeffs)}")
+        if len(self.x) != len(self.y):
+            raise FieldError("y", f"{len(self.y)} features for {len(self.x)} targets")
+        if len(set(self.x)) <= deg or len(self.x) <= deg + 1:
+            raise FieldError("x", f"a {self.fit} fit needs more than {deg + 1} points over at least {deg + 1} "
+                             f"distinct targets, got {len(self.x)} over {len(set(self.x))}")
+        return self

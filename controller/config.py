@@ -7,28 +7,34 @@ relative to the file that names it); their errors then name the profile file.
 
 from __future__ import annotations
 
+import math
+import os
+import stat
 from pathlib import Path
-from typing import Any, Literal, TypeVar
+from typing import Any, Literal
 
-import yaml
-from pydantic import BaseModel, Field, ValidationError, model_validator
+from pydantic import BaseModel, Field, field_validator, model_validator
 
 from drivers.config import DriverConfig
 from drivers.errors import ConfigError
+from drivers.files import one_line
 from drivers.hardware import Actuator, Circuit, FlowSensor, GripperActuator, Hardware, Sensor, TankCircuit
-from drivers.models import StrictModel
+from drivers.models import FieldError, Integer, Real, StrictModel
 from drivers.scenes import Scene
 from drivers.units import KPA
 
-M = TypeVar("M", bound=BaseModel)
+from .loading import load_model, read_yaml, referenced_file, validate
+
+__all__ = ["CellConfig", "Profile", "SequenceConfig", "load_cell_config", "load_model", "load_profile", "read_yaml",
+           "validate"]
 
 
 class Window(StrictModel):
     """A measurement window, in seconds after the actuation valve opens."""
 
     name: str = Field(min_length=1, max_length=40)
-    start_s: float = Field(ge=0)
-    end_s: float = Field(gt=0)
+    start_s: Real = Field(ge=0)
+    end_s: Real = Field(gt=0)
 
     @model_validator(mode="after")
     def _ordered(self) -> Window:
@@ -41,9 +47,9 @@ class FlowProfile(StrictModel):
     """Flow-control programme (paper, Methods "Flow control with pressure measurement"):
     ramp from 0 to ``flow_slpm`` in ``ramp_s``, hold ``hold_s``, then zero."""
 
-    flow_slpm: float = Field(0.3, gt=0, le=100)
-    ramp_s: float = Field(5.0, ge=0, le=600)
-    hold_s: float = Field(4.0, ge=0, le=600)
+    flow_slpm: Real = Field(0.3, gt=0, le=100)
+    ramp_s: Real = Field(5.0, ge=0, le=600)
+    hold_s: Real = Field(4.0, ge=0, le=600)
 
 
 class SequenceConfig(StrictModel):
@@ -57,25 +63,25 @@ class SequenceConfig(StrictModel):
     """
 
     method: Literal["tank", "pressure_flow", "flow_control"] = "tank"
-    p0_kpa: float = Field(63.0, ge=-100, le=1000,
+    p0_kpa: Real = Field(63.0, ge=-100, le=1000,
                           description="tank charge pressure (tank) or regulated pressure (pressure_flow)")
-    charge_s: float = Field(10.0, gt=0, le=600)
-    isolate_s: float = Field(10.0, ge=0, le=600)
-    actuate_s: float = Field(20.0, gt=0, le=3600)
-    vent_s: float = Field(10.0, gt=0, le=600)
-    offset_s: float = Field(1.0, gt=0, le=60, description="sensor offset: mean of this long before opening")
+    charge_s: Real = Field(10.0, gt=0, le=600)
+    isolate_s: Real = Field(10.0, ge=0, le=600)
+    actuate_s: Real = Field(20.0, gt=0, le=3600)
+    vent_s: Real = Field(10.0, gt=0, le=600)
+    offset_s: Real = Field(1.0, gt=0, le=60, description="sensor offset: mean of this long before opening")
     windows: list[Window] = Field(default_factory=lambda: [Window(name="eq", start_s=4.0, end_s=5.0)],
                                   min_length=1, max_length=16)
     flow_window: Window | None = Field(
         None, description="integrate the flow into the actuator over this window (pressure_flow: V_eq)")
     flow_profile: FlowProfile | None = Field(None, description="flow_control: the flow programme")
-    isolate_actuator_at_s: float | None = Field(
+    isolate_actuator_at_s: Real | None = Field(
         None, gt=0, description="close the actuation valve this long after opening and hold the actuator "
         "isolated until VENT (needs a circuit with a separate vent valve)")
-    contact_threshold_kpa: float = Field(0.5, gt=0, le=100, description="dP level for t_c by threshold")
-    onset_kpa: float = Field(0.15, gt=0, le=100, description="dP level taken as the first rise (t_c at onset): "
+    contact_threshold_kpa: Real = Field(0.5, gt=0, le=100, description="dP level for t_c by threshold")
+    onset_kpa: Real = Field(0.15, gt=0, le=100, description="dP level taken as the first rise (t_c at onset): "
                              "about five times the noise of a smoothed dP")
-    smoothing_samples: int = Field(21, ge=3, le=1001, description="local quadratic regression span")
+    smoothing_samples: Integer = Field(21, ge=3, le=1001, description="local quadratic regression span")
 
     @model_validator(mode="after")
     def _consistent(self) -> SequenceConfig:
@@ -107,8 +113,8 @@ class SequenceConfig(StrictModel):
 class Limits(StrictModel):
     """Pressure envelope of the actuator (gauge). Nothing may command beyond it."""
 
-    max_kpa: float = Field(gt=-100, le=1000)
-    min_kpa: float = Field(ge=-101, le=1000)
+    max_kpa: Real = Field(gt=-100, le=1000)
+    min_kpa: Real = Field(ge=-101, le=1000)
 
     @model_validator(mode="after")
     def _ordered(self) -> Limits:
@@ -130,9 +136,9 @@ class CalibrationPlan(StrictModel):
 
     scene: Scene = Field(description="scene whose target field is varied")
     target: str = Field(min_length=1, description="the scene field that is the sensing target")
-    values: list[float] = Field(min_length=2, max_length=200)
-    cycles: int = Field(8, ge=1, le=1000)
-    drop_first: int = Field(1, ge=0, le=100)
+    values: list[Real] = Field(min_length=2, max_length=200)
+    cycles: Integer = Field(8, ge=1, le=1000)
+    drop_first: Integer = Field(1, ge=0, le=100)
     feature: Literal["p_eq", "v_eq", "dp_eq", "dp_max", "t_c_slope", "t_c_threshold", "t_c2"] = "p_eq"
     fit: Literal["linear", "poly2", "poly3"] = "linear"
 
@@ -163,9 +169,14 @@ class Profile(StrictModel):
     def _consistent(self) -> Profile:
         seq, circuit = self.sequence, self.circuit
         p0 = seq.p0_kpa
-        if seq.method != "flow_control" and not self.limits.min_kpa <= p0 <= self.limits.max_kpa:
-            raise ValueError(f"sequence.p0_kpa ({p0}) is outside limits "
-                             f"[{self.limits.min_kpa}, {self.limits.max_kpa}] kPa")
+        if seq.method != "flow_control":
+            lo, hi, margin = self.limits.min_kpa, self.limits.max_kpa, self.p0_margin_kpa
+            if not lo <= p0 <= hi:
+                raise FieldError("sequence.p0_kpa", f"{p0} is outside limits [{lo}, {hi}] kPa")
+            if not lo + margin <= p0 <= hi - margin:
+                raise FieldError("sequence.p0_kpa", f"{p0} is within {margin:.2f} kPa of limits [{lo}, {hi}] kPa: "
+                                 "the readings around P0 would cross the limit and fault the cycle (sensor offset, "
+                                 "noise and regulator repeatability); lower P0 or widen the limits")
         needs = {"tank": "tank", "pressure_flow": "regulated", "flow_control": "flow"}[seq.method]
         if circuit.kind != needs:
             raise ValueError(f"sequence.method {seq.method!r} needs circuit.kind {needs!r}, got {circuit.kind!r}")
@@ -176,6 +187,26 @@ class Profile(StrictModel):
         return self
 
     @property
+    def p0_margin_kpa(self) -> float:
+        """How far inside the limits P0 must stay. The supervisor compares every raw reading
+        of every pressure channel with the limits; the tank sensor reads P0 for the whole
+        charge (charge_s + isolate_s: 2e4 samples per cycle at 1 kHz with the defaults),
+        and the actuator sensor gets there with the regulated methods. A reading is P0 +
+        the regulator's error for this charge (sd ``regulator_repeatability_kpa``, once
+        per cycle) + the sensor's offset + noise (sd ``noise_sd_kpa``, every sample) +
+        up to one quantum. The margin takes 4 sd of the regulator (beyond it: 3e-5 of
+        cycles) and 6 sd of the noise (2e4 samples x 1e-9 each: 2e-5 of cycles), plus the
+        largest |offset| and quantum. With the default sensors that is about 1.1 kPa. On
+        the simulated gripper at P0 = 63 kPa (offset 0 on the tank sensor) a limit 0.25 kPa
+        above P0 faulted 26 of 40 cycles, 0.5 kPa 1 of 400, 0.75 kPa none of 400. Real
+        regulators may overshoot a step: give their datasheet's repeatability (or more)
+        in the circuit so the margin covers it."""
+        sensors = [self.sensor, *([self.tank_sensor] if self.circuit.has_tank_sensor else [])]
+        regulator_sd = getattr(self.circuit, "regulator_repeatability_kpa", 0.0)
+        return (max(abs(s.offset_kpa) for s in sensors) + max(s.quantum_kpa for s in sensors)
+                + 4.0 * regulator_sd + 6.0 * max(s.noise_sd_kpa for s in sensors))
+
+    @property
     def hardware(self) -> Hardware:
         return Hardware(circuit=self.circuit, actuator=self.actuator, sensor=self.sensor,
                         tank_sensor=self.tank_sensor, flow_sensor=self.flow_sensor)
@@ -184,10 +215,10 @@ class Profile(StrictModel):
 class Supervision(StrictModel):
     """Thresholds of the safety supervisor (controller/supervisor.py)."""
 
-    stuck_s: float = Field(0.25, gt=0, le=60, description="a pressure reading that does not change for this long is stuck")
-    leak_kpa_per_s: float = Field(0.1, gt=0, le=100, description="decay towards atmosphere while held that is a leak")
-    no_data_s: float = Field(0.5, gt=0, le=60, description="real time: no block for this long is a fault")
-    overrun_s: float = Field(0.25, gt=0, le=60, description="real time: the loop this far behind the samples is a fault")
+    stuck_s: Real = Field(0.25, gt=0, le=60, description="a pressure reading that does not change for this long is stuck")
+    leak_kpa_per_s: Real = Field(0.1, gt=0, le=100, description="decay towards atmosphere while held that is a leak")
+    no_data_s: Real = Field(0.5, gt=0, le=60, description="real time: no block for this long is a fault")
+    overrun_s: Real = Field(0.25, gt=0, le=60, description="real time: the loop this far behind the samples is a fault")
 
 
 class CurveKeys(StrictModel):
@@ -212,8 +243,30 @@ class PublisherConfig(StrictModel):
     pub: str = Field("tcp://127.0.0.1:5560", min_length=6, pattern=r"^(tcp|ipc|inproc)://")
     cmd: str = Field("tcp://127.0.0.1:5561", min_length=6, pattern=r"^(tcp|ipc|inproc)://")
     cmd_curve: CurveKeys | None = None
-    pressure_batch_s: float = Field(0.1, gt=0, le=10, description="pressure samples are sent in batches this long")
-    heartbeat_s: float = Field(1.0, gt=0, le=60)
+    pressure_batch_s: Real = Field(0.1, gt=0, le=10, description="pressure samples are sent in batches this long")
+    heartbeat_s: Real = Field(1.0, gt=0, le=60)
+
+    @field_validator("pub", "cmd")
+    @classmethod
+    def _endpoint(cls, endpoint: str) -> str:
+        scheme, _, rest = endpoint.partition("://")
+        if scheme == "tcp":
+            host, colon, port = rest.rpartition(":")
+            if not colon or not host:
+                raise ValueError(f"{endpoint!r}: expected tcp://HOST:PORT")
+            # libzmq binds a wildcard port ("*", 0) or one past 65535 to a random port, where
+            # no client configured with this file would ever find the daemon
+            if not (port.isascii() and port.isdigit() and 1 <= int(port) <= 65535):
+                raise ValueError(f"{endpoint!r}: the port must be a number in 1..65535, got {port!r}")
+        elif not rest:
+            raise ValueError(f"{endpoint!r}: no address after {scheme}://")
+        return endpoint
+
+    @model_validator(mode="after")
+    def _distinct(self) -> PublisherConfig:
+        if self.pub == self.cmd:
+            raise FieldError("cmd", f"{self.cmd!r} is also the pub endpoint: each socket needs its own")
+        return self
 
     @model_validator(mode="after")
     def _remote_needs_keys(self) -> PublisherConfig:
@@ -230,17 +283,26 @@ class RecordingConfig(StrictModel):
     enabled: bool = Field(True, description="the daemon records (fluidsense run --no-record turns it off)")
     dir: str = Field("runs", min_length=1, description="directory of the recordings, relative to the "
                      "daemon's working directory; created if missing")
-    flush_s: float = Field(1.0, gt=0, le=10, description="sample time between flushes: a killed daemon "
+    flush_s: Real = Field(1.0, gt=0, le=10, description="sample time between flushes: a killed daemon "
                            "loses at most this much")
     fsync: bool = Field(True, description="also force each flush to storage (power loss), off the sample loop")
     compression: Literal["zstd", "lz4", "none"] = "zstd"
-    max_file_mb: float = Field(1024.0, gt=0, le=1_000_000, description="start a new file, between cycles, "
+    max_file_mb: Real = Field(1024.0, gt=0, le=1_000_000, description="start a new file, between cycles, "
                                "once a file is this large")
-    max_file_s: float = Field(3600.0, gt=0, le=7 * 86400, description="start a new file, between cycles, "
+    max_file_s: Real = Field(3600.0, gt=0, le=7 * 86400, description="start a new file, between cycles, "
                               "once a file covers this much sample time (the writer's index of a file stays "
                               "in memory until the file is closed: ~1 KB per flush)")
-    min_free_mb: float = Field(1024.0, ge=0, le=1_000_000, description="stop recording (and say so) when the "
+    min_free_mb: Real = Field(1024.0, ge=0, le=1_000_000, description="stop recording (and say so) when the "
                                "disk has less free space than this")
+
+
+# The sample loop's pacing (CellConfig._paced): a block at most every 5 ms (200 loop
+# iterations a second, each handling a block, feeding the sinks and publishing) leaves
+# the event loop time to serve commands and signals; at least NO_DATA_BLOCKS blocks per
+# no_data_s lets a block arrive a few periods late before the wait for it is a fault.
+MIN_BLOCK_PERIOD_S = 0.005
+NO_DATA_BLOCKS = 5
+MIN_WINDOW_SAMPLES = 5
 
 
 class CellConfig(StrictModel):
@@ -252,6 +314,38 @@ class CellConfig(StrictModel):
     supervision: Supervision = Supervision()
     recording: RecordingConfig = RecordingConfig()
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
+
+    @model_validator(mode="after")
+    def _paced(self) -> CellConfig:
+        """The sample loop handles one block per iteration and yields to the event loop
+        (commands, publisher, signals) only between blocks. A block every ``block_size /
+        rate_hz`` seconds must leave it time to do so: below MIN_BLOCK_PERIOD_S (20 kHz in
+        blocks of 1 was accepted once) the loop never catches up and starves everything
+        else. It must also come well inside ``supervision.no_data_s``, or every wait for a
+        block is a ``no_data`` fault (10000 samples at 1 kHz: a block every 10 s)."""
+        rate, block = getattr(self.driver, "rate_hz", None), getattr(self.driver, "block_size", None)
+        if rate is None or block is None:
+            return self
+        period = block / rate
+        longest = self.supervision.no_data_s / NO_DATA_BLOCKS
+        if period < MIN_BLOCK_PERIOD_S:
+            raise FieldError("driver.block_size", f"block_size {block} at {rate:g} Hz is a block every "
+                             f"{period * 1e3:.3g} ms: at least {MIN_BLOCK_PERIOD_S * 1e3:g} ms per block "
+                             f"(block_size >= {math.ceil(MIN_BLOCK_PERIOD_S * rate)}) leaves the loop time to yield")
+        if period > longest:
+            raise FieldError("driver.block_size", f"block_size {block} at {rate:g} Hz is a block every {period:.3g} s: "
+                             f"at most {longest:.3g} s (supervision.no_data_s / {NO_DATA_BLOCKS}), or waiting for "
+                             "a block is a no_data fault")
+        seq = self.profile.sequence
+        spans = [(f"profile.sequence.windows.{i}", w.end_s - w.start_s) for i, w in enumerate(seq.windows)]
+        spans += [("profile.sequence.flow_window", seq.flow_window.end_s - seq.flow_window.start_s)] \
+            if seq.flow_window is not None else []
+        spans.append(("profile.sequence.offset_s", seq.offset_s))
+        for field, span in spans:
+            if span * rate < MIN_WINDOW_SAMPLES:
+                raise FieldError(field, f"{span:g} s holds {span * rate:.3g} samples at {rate:g} Hz: a mean over "
+                                 f"fewer than {MIN_WINDOW_SAMPLES} samples is mostly sensor noise")
+        return self
 
     @model_validator(mode="after")
     def _wired_to_the_profile(self) -> CellConfig:
@@ -270,71 +364,25 @@ class CellConfig(StrictModel):
 
 
 # ---------------------------------------------------------------------- loading
-def _field_path(loc: tuple, data: Any) -> str:
-    """Dotted field path of an error location, without the union tags pydantic inserts
-    (``driver.sim.rate_hz`` -> ``driver.rate_hz``): the path the user wrote."""
-    parts, node = [], data
-    for item in loc:
-        if isinstance(node, dict) and item not in node and item in (node.get("kind"), node.get("task")):
-            continue  # the tag of a discriminated union, not a key in the file
-        if isinstance(item, str) and item.startswith("function-"):
-            continue
-        parts.append(str(item))
-        if isinstance(node, dict):
-            node = node.get(item)
-        elif isinstance(node, list) and isinstance(item, int) and 0 <= item < len(node):
-            node = node[item]
-        else:
-            node = None
-    return ".".join(parts)
-
-
-def _format_errors(path: Path, exc: ValidationError, data: Any, prefix: str = "") -> str:
-    lines = []
-    for err in exc.errors():
-        loc = _field_path(err["loc"], data)
-        loc = f"{prefix}{loc}" if loc else (prefix.rstrip(".") or "(top level)")
-        msg = err["msg"].removeprefix("Value error, ")
-        if err["type"] == "extra_forbidden":
-            msg = "unknown field (not allowed here)"
-        elif err["type"] == "missing":
-            msg = "required field is missing"
-        lines.append(f"{path}: {loc}: {msg}")
-    return "\n".join(lines)
-
-
-def read_yaml(path: str | Path) -> Any:
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from exc
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f":{mark.line + 1}:{mark.column + 1}" if mark else ""
-        reason = getattr(exc, "problem", None) or str(exc)
-        raise ConfigError(f"{path}{where}: YAML syntax: {reason}") from exc
-
-
-def validate(model: type[M], data: Any, path: str | Path, prefix: str = "") -> M:
-    """Validate ``data`` read from ``path``; errors become ConfigError naming file and field."""
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path}: {prefix.rstrip('.') or '(top level)'}: expected a mapping, "
-                          f"got {type(data).__name__}")
-    try:
-        return model.model_validate(data)
-    except ValidationError as exc:
-        raise ConfigError(_format_errors(Path(path), exc, data, prefix)) from exc
-
-
-def load_model(model: type[M], path: str | Path) -> M:
-    return validate(model, read_yaml(path), path)
-
-
 def load_profile(path: str | Path) -> Profile:
     return load_model(Profile, path)
+
+
+def _check_files(cfg: CellConfig, path: Path) -> None:
+    """What must exist on disk when a cell config is loaded from a file (a recorded config
+    is validated without these: its files belong to another machine and time)."""
+    if cfg.driver.kind == "replay":  # relative to the working directory (docs/recording.md)
+        referenced_file(cfg.driver.file, path, "driver.file")
+    if not cfg.recording.enabled:
+        return
+    try:
+        st = os.stat(cfg.recording.dir)
+    except FileNotFoundError:
+        return  # the recorder creates it
+    except OSError as exc:  # a name too long, a path through a file
+        raise ConfigError(f"{path}: recording.dir: {exc.strerror or exc}") from exc
+    if not stat.S_ISDIR(st.st_mode):
+        raise ConfigError(f"{path}: recording.dir: {one_line(cfg.recording.dir)} exists and is not a directory")
 
 
 def load_cell_config(path: str | Path, overrides: dict[str, Any] | None = None) -> CellConfig:
@@ -343,16 +391,18 @@ def load_cell_config(path: str | Path, overrides: dict[str, Any] | None = None) 
     path = Path(path)
     data = read_yaml(path)
     if not isinstance(data, dict):
-        raise ConfigError(f"{path}: (top level): expected a mapping, got {type(data).__name__}")
+        validate(CellConfig, data, path)  # says what the file holds instead of a mapping
     profile = data.get("profile")
     if isinstance(profile, str):
-        profile_path = (path.parent / profile).resolve()
-        data = {**data, "profile": load_profile(profile_path)}
+        data = {**data, "profile": load_profile(referenced_file(path.parent / profile, path, "profile").resolve())}
     elif isinstance(profile, dict):
         data = {**data, "profile": validate(Profile, profile, path, prefix="profile.")}
     for section, values in (overrides or {}).items():
         current = data.get(section, {})
         if isinstance(current, BaseModel):
             current = current.model_dump()
-        data = {**data, section: {**(current or {}), **values}}
-    return validate(CellConfig, data, path)
+        if current is None or isinstance(current, dict):  # else the validation says what is wrong with it
+            data = {**data, section: {**(current or {}), **values}}
+    cfg = validate(CellConfig, data, path)
+    _check_files(cfg, path)
+    return cfg

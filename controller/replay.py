@@ -17,13 +17,15 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from drivers.errors import EndOfRecording
+from drivers.errors import EndOfRecording, RecordingError
+from drivers.files import one_line
 from drivers.recording import REFERENCE, Record, to_json
 from drivers.replay import ReplaySource
 
@@ -97,6 +99,54 @@ class _Cycle:
     recorder: Recorder = field(default_factory=Recorder)
 
 
+class BadEvent(ValueError):
+    """A recorded event without what replay reads from it: ``topic.field: reason``."""
+
+
+def _number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _numbers(v: Any) -> bool:
+    return isinstance(v, list) and all(_number(x) for x in v)
+
+
+def _integer(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _text_or_none(v: Any) -> bool:
+    return v is None or isinstance(v, str)
+
+
+# What replay reads from each event topic, and what it must be: a recording is untrusted
+# input, and a null where a number belongs must be a clear error, not a TypeError deep
+# in the pipeline.
+_READS = {
+    REFERENCE: {"key_kpa": (_number, "a finite number"), "cycle_id": (_integer, "an integer"),
+                "t_rel_s": (_numbers, "a list of finite numbers"), "p_pa": (_numbers, "a list of finite numbers")},
+    "cycle_start": {"cycle_id": (_integer, "an integer"), "p0_pa": (_number, "a finite number"),
+                    "label": (_text_or_none, "a string or null"),
+                    "store_reference": (lambda v: isinstance(v, bool), "true or false")},
+    "state": {"to": (lambda v: isinstance(v, str), "a string"), "at_s": (_number, "a finite number"),
+              "reason": (lambda v: isinstance(v, str), "a string")},
+    "cycle": {"aborted": (_text_or_none, "a string or null")},
+}
+
+
+def check_event(rec: Record) -> None:
+    for key, (ok, what) in _READS.get(rec.topic, {}).items():
+        if rec.topic == "cycle" and key not in rec.data:
+            continue
+        if key not in rec.data:
+            raise BadEvent(f"{rec.topic}.{key}: missing (at t = {rec.t_s:g} s)")
+        if not ok(rec.data[key]):
+            raise BadEvent(f"{rec.topic}.{key}: expected {what}, got {one_line(str(rec.data[key])[:40])} "
+                           f"(at t = {rec.t_s:g} s)")
+    if rec.topic == REFERENCE and len(rec.data["t_rel_s"]) != len(rec.data["p_pa"]):
+        raise BadEvent(f"{rec.topic}.p_pa: {len(rec.data['p_pa'])} pressures for {len(rec.data['t_rel_s'])} times")
+
+
 class CycleReplay:
     """Rebuilds cycles from a recording's records in file order (no I/O)."""
 
@@ -108,6 +158,7 @@ class CycleReplay:
         self.t_last: float | None = None
 
     def on_event(self, rec: Record) -> None:
+        check_event(rec)
         data, cur = rec.data, self._open
         if rec.topic == REFERENCE:  # held by the controller when the file was opened
             self.references[data["key_kpa"]] = Reference(np.asarray(data["t_rel_s"], dtype=float),
@@ -188,24 +239,32 @@ async def replay_file(path: str | Path) -> ReplayReport:
     """Replay a recording (read up to its last complete record) and compare every cycle."""
     source = ReplaySource(path)
     async with source:
-        cfg = validate(CellConfig, source.config, path, prefix="(recorded config) ")
-        pipeline = CycleReplay(cfg.profile.sequence)
-        report = ReplayReport(str(path), closed=False, dropped_bytes=0)
-        while True:
-            try:
-                block = await source.read_block()
-            except EndOfRecording:
-                break
-            for rec in source.drain_events():
-                pipeline.on_event(rec)
-            pipeline.on_block(block)
-            report.blocks += 1
-            report.samples += len(block)
-            if report.t_first_s is None:
-                report.t_first_s = float(block.t[0])
+        try:
+            return await _replay(source, path)
+        except BadEvent as exc:
+            raise RecordingError(f"{path}: {exc}") from exc
+
+
+async def _replay(source: ReplaySource, path: str | Path) -> ReplayReport:
+    """The replay proper, on a set-up source."""
+    cfg = validate(CellConfig, source.config, path, prefix="(recorded config) ")
+    pipeline = CycleReplay(cfg.profile.sequence)
+    report = ReplayReport(str(path), closed=False, dropped_bytes=0)
+    while True:
+        try:
+            block = await source.read_block()
+        except EndOfRecording:
+            break
         for rec in source.drain_events():
             pipeline.on_event(rec)
-        report.t_last_s = pipeline.t_last
-        report.cycles = pipeline.finish()
-        report.closed, report.dropped_bytes = source.reader.complete, source.reader.dropped_bytes
+        pipeline.on_block(block)
+        report.blocks += 1
+        report.samples += len(block)
+        if report.t_first_s is None:
+            report.t_first_s = float(block.t[0])
+    for rec in source.drain_events():
+        pipeline.on_event(rec)
+    report.t_last_s = pipeline.t_last
+    report.cycles = pipeline.finish()
+    report.closed, report.dropped_bytes = source.reader.complete, source.reader.dropped_bytes
     return report

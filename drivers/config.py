@@ -11,7 +11,8 @@ from pydantic import Field
 
 from .base import Backend
 from .hardware import Hardware
-from .models import StrictModel
+from .io import BLOCK_SIZE
+from .models import Integer, Real, StrictModel
 from .modbus.config import ModbusDriverConfig
 from .ur.config import UrDriverConfig
 from .scenes import EmptyScene, Scene
@@ -20,10 +21,10 @@ from .scenes import EmptyScene, Scene
 class Perturbations(StrictModel):
     """Deviations of the simulated cell from its calibrated state (stability studies)."""
 
-    tank_warming_k: float = Field(
+    tank_warming_k: Real = Field(
         0.0, ge=-30, le=30, description="the isolated tank's gas warms by this much before the valve opens "
         "(supply air at another temperature than the room)")
-    regulator_bias_kpa: float = Field(0.0, ge=-50, le=50, description="the regulator lands this far off its setpoint")
+    regulator_bias_kpa: Real = Field(0.0, ge=-50, le=50, description="the regulator lands this far off its setpoint")
 
 
 class SimDriverConfig(StrictModel):
@@ -32,9 +33,9 @@ class SimDriverConfig(StrictModel):
     kind: Literal["sim"] = "sim"
     clock: Literal["virtual", "realtime"] = Field(
         "realtime", description="virtual: samples as fast as the CPU allows; realtime: at the wall-clock pace")
-    rate_hz: float = Field(1000.0, gt=0, le=20_000)
-    block_size: int = Field(10, ge=1, le=10_000, description="samples per delivered block")
-    seed: int = Field(0, ge=0, description="same seed, same samples")
+    rate_hz: Real = Field(1000.0, ge=1, le=20_000)
+    block_size: Integer = Field(10, ge=1, le=10_000, description=BLOCK_SIZE)
+    seed: Integer = Field(0, ge=0, description="same seed, same samples")
     scene: Scene = EmptyScene()
     perturb: Perturbations = Perturbations()
 

@@ -16,12 +16,12 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from .models import StrictModel
+from .models import Real, StrictModel
 from .units import KPA, LITRE, ML, MM, P_ATM, SLPM
 
-PositiveFloat = Annotated[float, Field(gt=0)]
-Resistance = Annotated[float, Field(gt=0, le=1e12)]
-Ratio = Annotated[float, Field(ge=0, le=1)]
+PositiveFloat = Annotated[Real, Field(gt=0)]
+Resistance = Annotated[Real, Field(gt=0, le=1e12)]
+Ratio = Annotated[Real, Field(ge=0, le=1)]
 
 # Valve names the sequencer knows. "Open" connects the source side towards the actuator;
 # every circuit declares where each of its valves is safe (actuator vented, tank isolated).
@@ -31,14 +31,14 @@ SUPPLY, ACTUATE, VENT = "supply", "actuate", "vent"
 class _CircuitBase(StrictModel):
     valve_resistance_pa_s_per_m3: Resistance = Field(
         3.0e7, description="open solenoid valve and fittings (datasheet-typical, assumed)")
-    valve_delay_s: float = Field(0.012, ge=0, le=1, description="solenoid switching delay (datasheet-typical)")
-    resistor_pa_s_per_m3: float = Field(1.0e8, ge=0, le=1e12, description="flow resistor before the actuator")
+    valve_delay_s: Real = Field(0.012, ge=0, le=1, description="solenoid switching delay (datasheet-typical)")
+    resistor_pa_s_per_m3: Real = Field(1.0e8, ge=0, le=1e12, description="flow resistor before the actuator")
     resistor_position: Literal["downstream", "upstream"] = Field(
         "downstream", description="downstream of the actuation valve the vent also passes the resistor")
     flow_sensor: bool = Field(False, description="bidirectional flow sensor between resistor and actuator")
-    leak_resistance_pa_s_per_m3: float | None = Field(
+    leak_resistance_pa_s_per_m3: Real | None = Field(
         None, gt=0, le=1e15, description="actuator leak to atmosphere; none by default")
-    p_atm_kpa: float = Field(P_ATM / KPA, gt=50, lt=120)
+    p_atm_kpa: Real = Field(P_ATM / KPA, gt=50, lt=120)
 
     @property
     def p_atm(self) -> float:
@@ -67,8 +67,8 @@ class TankCircuit(_CircuitBase):
     tank_l: PositiveFloat = Field(0.3, le=10, description="actuation tank volume")
     supply_resistance_pa_s_per_m3: Resistance = Field(
         5.0e7, description="regulator + supply valve path that charges the tank (assumed)")
-    regulator_tau_s: float = Field(0.05, gt=0, le=10, description="regulator first-order lag (assumed)")
-    regulator_repeatability_kpa: float = Field(
+    regulator_tau_s: Real = Field(0.05, gt=0, le=10, description="regulator first-order lag (assumed)")
+    regulator_repeatability_kpa: Real = Field(
         0.08, ge=0, le=10,
         description="sd of the regulator output from one charge to the next; 0.08 kPa gives the "
         "paper's cycle-to-cycle sd of P_eq (about 0.04 kPa, cycling test) through dP_eq/dP0 = 0.51")
@@ -94,9 +94,9 @@ class RegulatedCircuit(_CircuitBase):
     kind: Literal["regulated"] = "regulated"
     buffer_l: PositiveFloat = Field(0.75, le=100)
     supply_resistance_pa_s_per_m3: Resistance = 5.0e7
-    regulator_tau_s: float = Field(0.05, gt=0, le=10)
-    regulator_repeatability_kpa: float = Field(0.08, ge=0, le=10)
-    resistor_pa_s_per_m3: float = Field(1.8e9, ge=0, le=1e12)
+    regulator_tau_s: Real = Field(0.05, gt=0, le=10)
+    regulator_repeatability_kpa: Real = Field(0.08, ge=0, le=10)
+    resistor_pa_s_per_m3: Real = Field(1.8e9, ge=0, le=1e12)
     flow_sensor: bool = True
 
     @property
@@ -119,7 +119,7 @@ class FlowControlledCircuit(_CircuitBase):
     flow_repeatability: Ratio = Field(
         0.003, description="relative sd of the delivered flow from one cycle to the next (assumed; "
         "MFC repeatability is typically 0.2-0.5 % of the setpoint)")
-    resistor_pa_s_per_m3: float = Field(1.8e9, ge=0, le=1e12)
+    resistor_pa_s_per_m3: Real = Field(1.8e9, ge=0, le=1e12)
     flow_sensor: bool = True
 
     @property
@@ -277,11 +277,11 @@ class Sensor(StrictModel):
     span over 206.8 kPa (0.016 kPa); a fixed offset that the per-cycle offset removes.
     """
 
-    range_kpa: tuple[float, float] = (-103.4, 103.4)
-    noise_sd_kpa: float = Field(0.07, ge=0, le=100)
-    quantum_kpa: float = Field(0.016, ge=0, le=10)
-    offset_kpa: float = Field(0.3, ge=-100, le=100)
-    drift_kpa_per_h: float = Field(0.0, ge=-1000, le=1000)
+    range_kpa: tuple[Real, Real] = (-103.4, 103.4)
+    noise_sd_kpa: Real = Field(0.07, ge=0, le=100)
+    quantum_kpa: Real = Field(0.016, ge=0, le=10)
+    offset_kpa: Real = Field(0.3, ge=-100, le=100)
+    drift_kpa_per_h: Real = Field(0.0, ge=-1000, le=1000)
 
     @model_validator(mode="after")
     def _range_ordered(self) -> Sensor:
@@ -295,10 +295,10 @@ class FlowSensor(StrictModel):
     """Bidirectional flow sensor, standard litres per minute (Honeywell HAFBLF0750, +-750
     SCCM, as in the paper). Noise and offset are assumed (datasheet-typical)."""
 
-    range_slpm: tuple[float, float] = (-0.75, 0.75)
-    noise_sd_slpm: float = Field(0.004, ge=0, le=100)
-    quantum_slpm: float = Field(0.0005, ge=0, le=10)
-    offset_slpm: float = Field(0.002, ge=-100, le=100)
+    range_slpm: tuple[Real, Real] = (-0.75, 0.75)
+    noise_sd_slpm: Real = Field(0.004, ge=0, le=100)
+    quantum_slpm: Real = Field(0.0005, ge=0, le=10)
+    offset_slpm: Real = Field(0.002, ge=-100, le=100)
 
     @model_validator(mode="after")
     def _range_ordered(self) -> FlowSensor:

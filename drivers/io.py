@@ -17,7 +17,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from .models import StrictModel
+from .models import Integer, Real, StrictModel
 from .sampler.config import SamplerOptions  # noqa: F401 - drivers' configs take it from here
 from .units import KPA
 
@@ -37,8 +37,8 @@ class AnalogScale(StrictModel):
     count range onto 0-10 V and 4-20 mA (check one channel against a multimeter on a real
     box: docs/drivers.md)."""
 
-    voltage_v: tuple[float, float] = (0.0, 10.0)
-    current_ma: tuple[float, float] = (4.0, 20.0)
+    voltage_v: tuple[Real, Real] = (0.0, 10.0)
+    current_ma: tuple[Real, Real] = (4.0, 20.0)
 
     @model_validator(mode="after")
     def _check(self) -> AnalogScale:
@@ -89,9 +89,9 @@ class Ratiometric(_Transfer):
     ``range_kpa`` (Honeywell SSC/ABP: 10-90 % of 5 V)."""
 
     kind: Literal["ratiometric"] = "ratiometric"
-    supply_v: float = Field(5.0, gt=0, le=30)
-    output_fraction: tuple[float, float] = (0.1, 0.9)
-    range_kpa: tuple[float, float]
+    supply_v: Real = Field(5.0, gt=0, le=30)
+    output_fraction: tuple[Real, Real] = (0.1, 0.9)
+    range_kpa: tuple[Real, Real]
 
     @model_validator(mode="after")
     def _check(self) -> Ratiometric:
@@ -112,9 +112,9 @@ class Mpx(_Transfer):
     a = 0.004, b = 0.04 on absolute pressure; give b for gauge here)."""
 
     kind: Literal["mpx"] = "mpx"
-    supply_v: float = Field(5.0, gt=0, le=30)
-    a_per_kpa: float = Field(gt=0)
-    b: float
+    supply_v: Real = Field(5.0, gt=0, le=30)
+    a_per_kpa: Real = Field(gt=0)
+    b: Real
 
     def affine(self) -> tuple[float, float]:
         return self.supply_v * self.a_per_kpa / KPA, self.supply_v * self.b
@@ -126,8 +126,8 @@ class Linear(_Transfer):
 
     kind: Literal["linear"] = "linear"
     output: Domain = "current"
-    signal: tuple[float, float] = Field((4.0, 20.0), description="output at the range's ends (V or mA)")
-    range_kpa: tuple[float, float]
+    signal: tuple[Real, Real] = Field((4.0, 20.0), description="output at the range's ends (V or mA)")
+    range_kpa: tuple[Real, Real]
 
     @model_validator(mode="after")
     def _check(self) -> Linear:
@@ -151,7 +151,7 @@ Transfer = Annotated[Ratiometric | Mpx | Linear, Field(discriminator="kind")]
 
 
 # ------------------------------------------------------------------ wiring
-AnalogChannel = Annotated[int, Field(ge=0, le=1, description="standard analog I/O 0 or 1")]
+AnalogChannel = Annotated[Integer, Field(ge=0, le=1, description="standard analog I/O 0 or 1")]
 
 
 class SensorWiring(StrictModel):
@@ -162,7 +162,7 @@ class SensorWiring(StrictModel):
 class ValveWiring(StrictModel):
     """A solenoid valve on a digital output (0-7 standard, 8-15 configurable)."""
 
-    output: int = Field(ge=0, le=15)
+    output: Integer = Field(ge=0, le=15)
     open_when_energised: bool = Field(
         True, description="false for a normally-open valve: energising it closes it")
 
@@ -175,8 +175,8 @@ class RegulatorWiring(StrictModel):
 
     analog_output: AnalogChannel
     input: Domain = "voltage"
-    signal: tuple[float, float] = Field((0.0, 10.0), description="command at the range's ends (V or mA)")
-    range_kpa: tuple[float, float] = Field((0.0, 500.0), description="output pressure at those commands")
+    signal: tuple[Real, Real] = Field((0.0, 10.0), description="command at the range's ends (V or mA)")
+    range_kpa: tuple[Real, Real] = Field((0.0, 500.0), description="output pressure at those commands")
 
     @model_validator(mode="after")
     def _check(self) -> RegulatorWiring:
@@ -238,7 +238,10 @@ class Wiring(StrictModel):
 
 
 # ------------------------------------------------------------------ reaching the box
-Port = Annotated[int, Field(ge=1, le=65535)]
+BLOCK_SIZE = ("samples per delivered block. The block period block_size / rate_hz must be at least 5 ms (the sample "
+              "loop yields to commands and signals only between blocks) and at most supervision.no_data_s / 5 "
+              "(else waiting for a block is a no_data fault); the cell config checks both")
+Port = Annotated[Integer, Field(ge=1, le=65535)]
 Host = Annotated[str, Field(min_length=1, max_length=253, pattern=r"^[A-Za-z0-9.:_-]+$")]
 
 
@@ -246,18 +249,18 @@ class Reconnect(StrictModel):
     """After a lost link the source tries again, waiting ``first_s``, then twice as long
     each time up to ``max_s``. The cell stays in FAULT until an operator resets it."""
 
-    first_s: float = Field(0.5, gt=0, le=60)
-    max_s: float = Field(10.0, gt=0, le=600)
-    connect_timeout_s: float = Field(15.0, gt=0, le=120, description="time allowed to connect each time")
+    first_s: Real = Field(0.5, gt=0, le=60)
+    max_s: Real = Field(10.0, gt=0, le=600)
+    connect_timeout_s: Real = Field(15.0, gt=0, le=120, description="time allowed to connect each time")
 
 
 class UrArmConfig(StrictModel):
     """The arm, moved through ur_rtde's control interface (its script runs on the robot)."""
 
     host: Host | None = Field(None, description="the robot; default: the driver's host")
-    max_speed_m_s: float = Field(1.0, gt=0, le=3.0, description="moves faster than this are refused")
-    max_acc_m_s2: float = Field(3.0, gt=0, le=15.0)
-    status_hz: float = Field(50.0, ge=1, le=500, description="pose and safety state updates")
+    max_speed_m_s: Real = Field(1.0, gt=0, le=3.0, description="moves faster than this are refused")
+    max_acc_m_s2: Real = Field(3.0, gt=0, le=15.0)
+    status_hz: Real = Field(50.0, ge=1, le=500, description="pose and safety state updates")
     upper_range_registers: bool = Field(
         False, description="ur_rtde on RTDE registers 24-47 (when another program uses 0-23)")
 
@@ -268,7 +271,7 @@ class BoxWatchdogConfig(StrictModel):
     ur_rtde's RTDE watchdog on its control script, without one, fluidsense's watchdog
     program watching ``heartbeat_register``."""
 
-    timeout_s: float = Field(0.5, ge=0.05, le=10.0, description="no heartbeat for this long: the box vents")
-    heartbeat_register: int = Field(200, ge=128, le=255, description="cells without an arm: the Modbus general "
+    timeout_s: Real = Field(0.5, ge=0.05, le=10.0, description="no heartbeat for this long: the box vents")
+    heartbeat_register: Integer = Field(200, ge=128, le=255, description="cells without an arm: the Modbus general "
                                     "purpose register the daemon increments and the box's program watches")
     script_port: Port = Field(30003, description="the box's URScript port (the watchdog is sent there at set-up)")

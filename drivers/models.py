@@ -1,8 +1,28 @@
-"""Base class for every configuration model: unknown fields are errors, values frozen."""
+"""Base class for every configuration model: unknown fields are errors, values frozen.
+
+Numbers in files are strict: ``Real`` takes an int or a float and nothing else (a string
+such as ``"63"`` or a YAML boolean is refused, not coerced) and never NaN or infinity;
+``Integer`` takes an int only (not ``10.0``, not ``true``). Every numeric field of a model
+read from a file uses one of them (tests/test_hostile_files.py walks the models to check).
+"""
 
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict, ValidationError
+from typing import Annotated
+
+from pydantic import AllowInfNan, BaseModel, ConfigDict, Strict, ValidationError
+
+Real = Annotated[float, Strict(), AllowInfNan(False)]
+Integer = Annotated[int, Strict()]
+
+
+class FieldError(ValueError):
+    """A model validator's finding about one field (``field``: dotted, relative to the
+    model that raises it), reported at that field instead of at the model."""
+
+    def __init__(self, field: str, reason: str):
+        super().__init__(f"{field}: {reason}")
+        self.field, self.reason = field, reason
 
 
 class StrictModel(BaseModel):

@@ -27,12 +27,14 @@ from typing import Any
 
 import numpy as np
 from mcap.exceptions import EndOfFile, InvalidMagic
-from mcap.records import Channel, Footer, Message, Metadata
+from mcap.records import Channel, Chunk, Footer, Message, Metadata
 from mcap.stream_reader import StreamReader
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
 from .base import SampleBlock
+from .chunks import MAX_CHUNK_BYTES, ChunkError, chunk_records
 from .errors import RecordingError
+from .files import nested_within, one_line, open_regular
 
 log = logging.getLogger(__name__)
 
@@ -42,6 +44,8 @@ METADATA_NAME = "fluidsense"
 SAMPLES, CONFIG, REFERENCE = "samples", "config", "reference"
 # chunks close on flush(), not on size: this only bounds a chunk if flushes stop coming
 CHUNK_BYTES = 8 * 2**20
+# events and the config are a few levels deep (a cycle result, the wiring of a sensor)
+MAX_JSON_DEPTH = 32
 COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
 
 _NUMBERS = {"type": "array", "items": {"type": ["number", "null"]}}
@@ -123,11 +127,27 @@ def block_payload(block: SampleBlock) -> dict[str, Any]:
             "values": block.values.T.tolist(), "missed": block.missed, "late": block.late}
 
 
+def _count(data: dict[str, Any], key: str) -> int:
+    value = data[key]
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ValueError(f"{key}: expected a count, got {str(value)[:40]}")
+    return value
+
+
 def block_from_payload(data: dict[str, Any]) -> SampleBlock:
+    """A recorded block, checked: times finite and increasing, one row of values (null:
+    NaN) per channel; ValueError names the field otherwise."""
     t = np.asarray(data["times_s"], dtype=float)
-    values = np.asarray(data["values"], dtype=float).reshape(len(data["channels"]), len(t))
-    return SampleBlock(int(data["seq"]), t, np.ascontiguousarray(values.T), tuple(data["channels"]),
-                       missed=int(data["missed"]), late=int(data["late"]))
+    if t.ndim != 1 or len(t) == 0 or not np.isfinite(t).all() or (np.diff(t) <= 0).any():
+        raise ValueError("times_s: expected increasing finite sample times")
+    channels = data["channels"]
+    if not isinstance(channels, list) or not all(isinstance(c, str) for c in channels):
+        raise ValueError("channels: expected a list of names")
+    values = np.asarray(data["values"], dtype=float)
+    if values.shape != (len(channels), len(t)):
+        raise ValueError(f"values: expected {len(channels)} rows of {len(t)}, got shape {values.shape}")
+    return SampleBlock(_count(data, "seq"), t, np.ascontiguousarray(values.T), tuple(channels),
+                       missed=_count(data, "missed"), late=_count(data, "late"))
 
 
 def package_version() -> str:
@@ -219,7 +239,7 @@ class RecordingWriter:
 
 
 def _one_line(exc: Exception) -> str:
-    return " ".join(f"{type(exc).__name__}: {exc}".split())
+    return one_line(" ".join(f"{type(exc).__name__}: {exc}".split()))
 
 
 @dataclass(frozen=True)
@@ -237,11 +257,14 @@ class _Exact:
     stream reader then stops cleanly at a record cut off by a kill instead of parsing
     half a record."""
 
-    def __init__(self, f):
+    def __init__(self, f, size: int):
         self._f = f
+        self._size = size
         self.pos = 0
 
     def read(self, n: int = -1) -> bytes:
+        if n is not None and n > self._size - self.pos:  # a length field beyond the end: a cut-off record
+            raise EndOfFile()
         data = self._f.read(n)
         if n is not None and n > 0 and len(data) < n:
             raise EndOfFile()
@@ -256,12 +279,10 @@ class RecordingReader:
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
-        try:
-            self._file = open(self.path, "rb")  # noqa: SIM115 - closed by close()
-        except OSError as exc:
-            raise RecordingError(f"{self.path}: cannot read: {exc.strerror or exc}") from exc
+        # a FIFO, a device or a directory is refused before it is read (it would block or never end)
+        self._file = open_regular(self.path, RecordingError)
         self.size = os.fstat(self._file.fileno()).st_size
-        self._stream = _Exact(self._file)
+        self._stream = _Exact(self._file, self.size)
         self._good = 0
         self._topics: dict[int, str] = {}
         self.metadata: dict[str, str] = {}
@@ -305,7 +326,7 @@ class RecordingReader:
         yield from self._iter
 
     def _read(self) -> Iterator[Record]:
-        records = StreamReader(self._stream, validate_crcs=True, record_size_limit=256 * 2**20).records
+        records = self._records()
         while True:
             try:
                 item = next(records)
@@ -318,6 +339,8 @@ class RecordingReader:
                 return
             except InvalidMagic as exc:
                 raise RecordingError(f"{self.path}: not an MCAP file (bad magic bytes)") from exc
+            except ChunkError as exc:
+                raise RecordingError(f"{self.path}: garbled near byte {self._stream.pos}: {exc}") from exc
             except Exception as exc:  # noqa: BLE001 - anything the parser trips on is a garbled file
                 raise RecordingError(f"{self.path}: garbled near byte {self._stream.pos}: "
                                      f"{_one_line(exc)}") from exc
@@ -325,6 +348,16 @@ class RecordingReader:
             rec = self._dispatch(item)
             if rec is not None:
                 yield rec
+
+    def _records(self) -> Iterator[Any]:
+        """Every MCAP record in file order, chunks opened within bounds (drivers/chunks.py)."""
+        # no record may be larger than a chunk this reader would open
+        stream = StreamReader(self._stream, validate_crcs=True, emit_chunks=True, record_size_limit=MAX_CHUNK_BYTES)
+        for item in stream.records:
+            if isinstance(item, Chunk):
+                yield from chunk_records(item)
+            else:
+                yield item
 
     def _dispatch(self, item: Any) -> Record | None:
         if isinstance(item, Message):
@@ -352,10 +385,17 @@ class RecordingReader:
             if topic is None:
                 raise KeyError(f"message on unknown channel {msg.channel_id}")
             data = json.loads(msg.data)
+            if not isinstance(data, dict):
+                raise ValueError(f"expected a JSON object, got {type(data).__name__}")
             if topic == SAMPLES:
                 block = block_from_payload(data)
                 return Record(SAMPLES, block.t_end, block)
-            return Record(topic, float(data.get("t_s", 0.0)), data)
-        except (ValueError, KeyError, TypeError, AttributeError) as exc:
+            if not nested_within(data, MAX_JSON_DEPTH):
+                raise ValueError(f"nested more than {MAX_JSON_DEPTH} levels deep")
+            t_s = data.get("t_s", 0.0)
+            if isinstance(t_s, bool) or not isinstance(t_s, (int, float)) or not math.isfinite(t_s):
+                raise ValueError(f"t_s: expected a finite number, got {str(t_s)[:40]}")
+            return Record(topic, float(t_s), data)
+        except (ValueError, KeyError, TypeError, AttributeError, RecursionError) as exc:
             raise RecordingError(f"{self.path}: garbled message on {topic or '?'} near byte {self._stream.pos}: "
                                  f"{_one_line(exc)}") from exc

@@ -11,11 +11,12 @@ or flow controller, so a controller on this backend can watch samples but not ru
 from __future__ import annotations
 
 import logging
+import math
 from pathlib import Path
 from typing import Any
 
 from .base import Backend, SampleBlock, SampleSource, ValveBank
-from .errors import EndOfRecording
+from .errors import EndOfRecording, RecordingError
 from .hardware import Hardware
 from .recording import SAMPLES, Record, RecordingReader
 
@@ -45,7 +46,14 @@ class ReplaySource(SampleSource):
         self.reader = RecordingReader(self.path)
         self._records = self.reader.records()
         meta = self.reader.metadata
-        self.rate_hz = float(meta.get("rate_hz", 0.0))
+        try:
+            self.rate_hz = float(meta.get("rate_hz", 0.0))
+        except ValueError:
+            self.rate_hz = math.nan
+        if not (math.isfinite(self.rate_hz) and self.rate_hz >= 0):
+            self.reader.close()
+            raise RecordingError(f"{self.path}: rate_hz: the recording's metadata gives {meta.get('rate_hz')!r}, "
+                                 "not a sample rate")
         self.channels = tuple(c for c in meta.get("channels", "").split(",") if c)
         log.info("replaying %s", self.path)
 

@@ -11,7 +11,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from .models import StrictModel
+from .models import Real, StrictModel
 
 # Shore hardness -> modulus at 100 % strain (kPa): Smooth-On Ecoflex data sheets; OOO-34
 # estimated from OOO-35 (17 kPa) as in the paper's Table 1 caption.
@@ -32,11 +32,11 @@ class CylinderScene(StrictModel):
     constant ``creep_s`` from the moment the grip closes."""
 
     kind: Literal["cylinder"] = "cylinder"
-    diameter_mm: float = Field(gt=0, le=500)
-    offset_mm: float = Field(0.0, ge=0, le=100)
-    stiffness_n_per_mm: float | None = Field(None, gt=0, le=1e6)
-    relaxed_stiffness_n_per_mm: float | None = Field(None, gt=0, le=1e6)
-    creep_s: float = Field(0.0, ge=0, le=1e4)
+    diameter_mm: Real = Field(gt=0, le=500)
+    offset_mm: Real = Field(0.0, ge=0, le=100)
+    stiffness_n_per_mm: Real | None = Field(None, gt=0, le=1e6)
+    relaxed_stiffness_n_per_mm: Real | None = Field(None, gt=0, le=1e6)
+    creep_s: Real = Field(0.0, ge=0, le=1e4)
 
     @model_validator(mode="after")
     def _creep_needs_stiffness(self) -> CylinderScene:
@@ -63,8 +63,8 @@ class RectangleScene(StrictModel):
     width (paper, Fig. 2d-e: length 100 mm, widths 40-100 mm)."""
 
     kind: Literal["rectangle"] = "rectangle"
-    length_mm: float = Field(100.0, gt=0, le=500)
-    width_mm: float = Field(gt=0, le=500)
+    length_mm: Real = Field(100.0, gt=0, le=500)
+    width_mm: Real = Field(gt=0, le=500)
 
     @model_validator(mode="after")
     def _length_is_longer(self) -> RectangleScene:
@@ -78,8 +78,8 @@ class PlateScene(StrictModel):
     ``stiffness_n_per_mm`` is given (the soft plate of Fig. 2f-g)."""
 
     kind: Literal["plate"] = "plate"
-    height_mm: float = Field(ge=0, le=500)
-    stiffness_n_per_mm: float | None = Field(None, gt=0, le=1e6)
+    height_mm: Real = Field(ge=0, le=500)
+    stiffness_n_per_mm: Real | None = Field(None, gt=0, le=1e6)
 
 
 class ProfileScene(StrictModel):
@@ -90,12 +90,12 @@ class ProfileScene(StrictModel):
 
     kind: Literal["profile"] = "profile"
     shape: Literal["sine", "triangle", "flat"] = "sine"
-    base_mm: float = Field(10.0, ge=0, le=200)
-    amplitude_mm: float = Field(4.0, ge=0, le=100)
-    period_mm: float = Field(25.0, gt=0, le=1000)
-    length_mm: float = Field(100.0, gt=0, le=2000)
-    speed_mm_s: float = Field(2.0, gt=0, le=1000)
-    delay_s: float = Field(0.0, ge=0, le=10_000)
+    base_mm: Real = Field(10.0, ge=0, le=200)
+    amplitude_mm: Real = Field(4.0, ge=0, le=100)
+    period_mm: Real = Field(25.0, gt=0, le=1000)
+    length_mm: Real = Field(100.0, gt=0, le=2000)
+    speed_mm_s: Real = Field(2.0, gt=0, le=1000)
+    delay_s: Real = Field(0.0, ge=0, le=10_000)
 
     def surface_mm(self, x_mm):
         """Surface height (mm) at position x along the scan; 0 outside [0, length]."""
@@ -124,7 +124,7 @@ class SampleScene(StrictModel):
 
     kind: Literal["sample"] = "sample"
     material: Literal["OO-50", "OO-30", "OO-10", "OOO-34"] | None = "OO-30"
-    modulus_kpa: float | None = Field(None, gt=0, le=1e6, description="overrides material")
+    modulus_kpa: Real | None = Field(None, gt=0, le=1e6, description="overrides material")
 
     @property
     def modulus(self) -> float:
@@ -138,8 +138,8 @@ class PullScene(SampleScene):
     mean detachment force 4.53 N on OO-30)."""
 
     kind: Literal["pull"] = "pull"
-    rate_n_per_s: float = Field(0.2, gt=0, le=100)
-    delay_s: float = Field(0.0, ge=0, le=10_000)
+    rate_n_per_s: Real = Field(0.2, gt=0, le=100)
+    delay_s: Real = Field(0.0, ge=0, le=10_000)
 
     def force_n(self, t_since_set_s):
         import numpy as np
@@ -151,14 +151,14 @@ class StopperScene(StrictModel):
     """A stopper that blocks a muscle-driven joint at angle theta (paper, Fig. retrofit 1)."""
 
     kind: Literal["stopper"] = "stopper"
-    angle_deg: float = Field(ge=0, le=180)
+    angle_deg: Real = Field(ge=0, le=180)
 
 
 class WallScene(StrictModel):
     """A rigid wall at distance L from the tip of a linear extension actuator."""
 
     kind: Literal["wall"] = "wall"
-    distance_mm: float = Field(ge=0, le=10_000)
+    distance_mm: Real = Field(ge=0, le=10_000)
 
 
 Scene = Annotated[EmptyScene | CylinderScene | RectangleScene | PlateScene | ProfileScene | SampleScene

@@ -11,26 +11,26 @@ from typing import Annotated
 
 from pydantic import Field, model_validator
 
-from .models import StrictModel
+from .models import Real, StrictModel
 
-Pose = Annotated[tuple[float, float, float, float, float, float], Field(description="x, y, z (m), rx, ry, rz (rad)")]
+Pose = Annotated[tuple[Real, Real, Real, Real, Real, Real], Field(description="x, y, z (m), rx, ry, rz (rad)")]
 
 
 class WorldObject(StrictModel):
     """Something the gripper can take: a cylinder, a dummy, a tomato."""
 
     name: str = Field(min_length=1, max_length=40)
-    diameter_mm: float = Field(gt=0, le=500)
-    stiffness_n_per_mm: float | None = Field(None, gt=0, le=1e6, description="None: rigid")
-    relaxed_stiffness_n_per_mm: float | None = Field(None, gt=0, le=1e6, description="viscoelastic: after creep")
-    creep_s: float = Field(0.0, ge=0, le=1e4, description="creep time constant (0: purely elastic)")
-    offset_mm: float = Field(0.0, ge=0, le=100, description="off-centre in its slot; a grip centres it")
-    min_grip_kpa: float = Field(
+    diameter_mm: Real = Field(gt=0, le=500)
+    stiffness_n_per_mm: Real | None = Field(None, gt=0, le=1e6, description="None: rigid")
+    relaxed_stiffness_n_per_mm: Real | None = Field(None, gt=0, le=1e6, description="viscoelastic: after creep")
+    creep_s: Real = Field(0.0, ge=0, le=1e4, description="creep time constant (0: purely elastic)")
+    offset_mm: Real = Field(0.0, ge=0, le=100, description="off-centre in its slot; a grip centres it")
+    min_grip_kpa: Real = Field(
         0.0, ge=0, le=100, description="pressure above the contact pressure needed to hold it when the arm moves "
         "away (its weight and grip; 0: any contact holds it)")
-    slip_after_s: float | None = Field(
+    slip_after_s: Real | None = Field(
         None, gt=0, le=1e4, description="slips into the palm this long after the grip closes")
-    slip_diameter_mm: float = Field(
+    slip_diameter_mm: Real = Field(
         28.0, gt=0, le=500, description="after a slip it sits in the palm: the fingers close on it as on a "
         "cylinder this wide (28 mm gives the paper's dP of about 0.1 kPa with the sorting gripper at 62 kPa)")
     ripe: bool | None = Field(None, description="ground truth for ripeness tasks")
@@ -45,7 +45,7 @@ class WorldSlot(StrictModel):
 class WorldSpec(StrictModel):
     slots: list[WorldSlot] = Field(min_length=1, max_length=200)
     objects: list[WorldObject] = Field(default_factory=list, max_length=200)
-    reach_mm: float = Field(15.0, gt=0, le=500, description="the tool is at a slot when this close to its pose")
+    reach_mm: Real = Field(15.0, gt=0, le=500, description="the tool is at a slot when this close to its pose")
 
     @model_validator(mode="after")
     def _consistent(self) -> WorldSpec:

@@ -11,6 +11,7 @@ from pydantic import TypeAdapter, ValidationError
 from controller.config import CellConfig, Profile, load_cell_config, load_profile
 from drivers.config import SimDriverConfig
 from drivers.errors import ConfigError
+from drivers.files import one_line
 from drivers.models import first_error
 from drivers.scenes import Scene
 
@@ -34,15 +35,19 @@ def add_scene_options(p: argparse.ArgumentParser) -> None:
                    help="scene field, repeatable, e.g. --set height_mm=17.5")
 
 
+def _exists(path: Path) -> bool:
+    try:
+        return path.exists()
+    except (OSError, ValueError):  # a name too long; a NUL (the name may come from a calibration file)
+        return False
+
+
 def profile_path(name: str) -> Path:
-    path = Path(name)
-    if path.exists():
-        return path
-    for candidate in (PROFILES / name, PROFILES / f"{name}.yaml"):
-        if candidate.exists():
+    for candidate in (Path(name), PROFILES / name, PROFILES / f"{name}.yaml"):
+        if _exists(candidate):
             return candidate
     known = ", ".join(sorted(p.stem for p in PROFILES.glob("*.yaml")))
-    raise ConfigError(f"{name}: no such profile file or name (known: {known})")
+    raise ConfigError(f"{one_line(name)}: no such profile file or name (known: {known})")
 
 
 def cell_config(args: argparse.Namespace, default_profile: str | None = None) -> CellConfig:

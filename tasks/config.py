@@ -9,14 +9,15 @@ from typing import Annotated, Literal
 from pydantic import Field, RootModel, model_validator
 
 from controller.config import load_model
-from drivers.models import StrictModel
+from controller.loading import referenced_file
+from drivers.models import Integer, Real, StrictModel
 from drivers.world import Pose, WorldObject
 
 
 class Motion(StrictModel):
-    speed_m_s: float = Field(0.25, gt=0, le=1.0)
-    acc_m_s2: float = Field(1.2, gt=0, le=3.0)
-    approach_m: float = Field(0.08, ge=0, le=0.5, description="height above a slot for approach and retreat")
+    speed_m_s: Real = Field(0.25, gt=0, le=1.0)
+    acc_m_s2: Real = Field(1.2, gt=0, le=3.0)
+    approach_m: Real = Field(0.08, ge=0, le=0.5, description="height above a slot for approach and retreat")
 
 
 class _TaskBase(StrictModel):
@@ -37,9 +38,9 @@ class SortingTask(_TaskBase):
     task: Literal["sorting"]
     input_slots: list[str] = Field(min_length=1)
     sorted_slots: list[str] = Field(min_length=1)
-    order_mm: list[float] | None = Field(
+    order_mm: list[Real] | None = Field(
         None, description="simulation: diameters placed in the input slots, in order (--order overrides)")
-    object_offset_mm: float = Field(0.0, ge=0, le=50, description="simulation: objects lie this far off-centre")
+    object_offset_mm: Real = Field(0.0, ge=0, le=50, description="simulation: objects lie this far off-centre")
 
     @model_validator(mode="after")
     def _consistent(self) -> SortingTask:
@@ -54,10 +55,10 @@ class SortingTask(_TaskBase):
 class Tomato(StrictModel):
     """Simulation: a tomato on its stem."""
 
-    diameter_mm: float = Field(60.0, gt=0, le=200)
-    stiffness_n_per_mm: float | None = Field(6.0, gt=0, le=1e6)
-    min_grip_kpa: float = Field(0.0, ge=0, le=100, description="pressure above contact needed to pull it off")
-    slip_after_s: float | None = Field(None, gt=0, le=1e4, description="slips into the palm this long after the grip")
+    diameter_mm: Real = Field(60.0, gt=0, le=200)
+    stiffness_n_per_mm: Real | None = Field(6.0, gt=0, le=1e6)
+    min_grip_kpa: Real = Field(0.0, ge=0, le=100, description="pressure above contact needed to pull it off")
+    slip_after_s: Real | None = Field(None, gt=0, le=1e4, description="slips into the palm this long after the grip")
 
 
 class PickingTask(_TaskBase):
@@ -67,12 +68,12 @@ class PickingTask(_TaskBase):
     task: Literal["picking"]
     tomato_slots: list[str] = Field(min_length=1)
     place_slots: list[str] = Field(min_length=1)
-    p0_steps_kpa: list[float] = Field(default_factory=lambda: [62.0, 70.0, 78.0], min_length=1, max_length=10)
-    dp_threshold_kpa: float = Field(0.2, gt=0, le=10)
-    slip_drop_kpa: float = Field(0.15, gt=0, le=10, description="a drop this large between the carried and the "
+    p0_steps_kpa: list[Real] = Field(default_factory=lambda: [62.0, 70.0, 78.0], min_length=1, max_length=10)
+    dp_threshold_kpa: Real = Field(0.2, gt=0, le=10)
+    slip_drop_kpa: Real = Field(0.15, gt=0, le=10, description="a drop this large between the carried and the "
                                  "measurement window, while still touching, is a slip into the palm")
-    retract_after_s: float = Field(4.0, gt=0, le=60, description="turn and retract this long after opening")
-    retract_m: float = Field(0.09, ge=0, le=0.5)
+    retract_after_s: Real = Field(4.0, gt=0, le=60, description="turn and retract this long after opening")
+    retract_m: Real = Field(0.09, ge=0, le=0.5)
     tomatoes: list[Tomato] | None = Field(None, description="simulation: one per tomato slot")
 
     @model_validator(mode="after")
@@ -87,10 +88,10 @@ class PickingTask(_TaskBase):
 
 class RipenessObject(StrictModel):
     name: str = Field(min_length=1, max_length=40)
-    diameter_mm: float = Field(gt=0, le=200)
-    stiffness_n_per_mm: float | None = Field(None, gt=0, le=1e6, description="None: rigid dummy")
-    relaxed_stiffness_n_per_mm: float | None = Field(None, gt=0, le=1e6, description="after creep")
-    creep_s: float = Field(0.0, ge=0, le=1e4)
+    diameter_mm: Real = Field(gt=0, le=200)
+    stiffness_n_per_mm: Real | None = Field(None, gt=0, le=1e6, description="None: rigid dummy")
+    relaxed_stiffness_n_per_mm: Real | None = Field(None, gt=0, le=1e6, description="after creep")
+    creep_s: Real = Field(0.0, ge=0, le=1e4)
     ripe: bool | None = Field(None, description="truth (None for dummies)")
 
 
@@ -101,20 +102,20 @@ class RipenessTask(_TaskBase):
 
     task: Literal["ripeness"]
     dummy_slots: list[str] = Field(min_length=2)
-    dummy_diameters_mm: list[float] = Field(default_factory=lambda: [45.0, 50.0, 55.0, 60.0, 65.0])
+    dummy_diameters_mm: list[Real] = Field(default_factory=lambda: [45.0, 50.0, 55.0, 60.0, 65.0])
     object_slots: list[str] = Field(min_length=1)
     objects: list[RipenessObject] = Field(min_length=1)
-    rounds: int = Field(5, ge=1, le=100)
-    grips_per_object: int = Field(2, ge=1, le=10)
-    calibration_grips: int = Field(4, ge=2, le=20, description="per dummy; the first only aligns it")
+    rounds: Integer = Field(5, ge=1, le=100)
+    grips_per_object: Integer = Field(2, ge=1, le=10)
+    calibration_grips: Integer = Field(4, ge=2, le=20, description="per dummy; the first only aligns it")
     d0_from: Literal["t_c_threshold", "t_c_onset", "t_c_slope", "dp_max"] = Field(
         "t_c_threshold", description="t_c at a dP threshold (the paper's fix), t_c at the first rise of dP "
         "(the paper's first attempt), t_c by change of slope, or dP_max")
-    overripe_mm: float | None = Field(None, gt=0, description="D0 - D1 above this is overripe (default 3 mm, "
+    overripe_mm: Real | None = Field(None, gt=0, description="D0 - D1 above this is overripe (default 3 mm, "
                                       "0.5 mm with dp_max as in the paper)")
     centering_grip: bool = Field(False, description="grip once before measuring to centre the object")
-    misalignment_mm: float = Field(0.0, ge=0, le=20, description="simulation: objects lie up to this off-centre")
-    shuffle_seed: int = 0
+    misalignment_mm: Real = Field(0.0, ge=0, le=20, description="simulation: objects lie up to this off-centre")
+    shuffle_seed: Integer = 0
 
     @model_validator(mode="after")
     def _consistent(self) -> RipenessTask:
@@ -145,7 +146,8 @@ def load_task(path: str | Path) -> SortingTask | PickingTask | RipenessTask:
 
 
 def cell_path(task_path: str | Path, task) -> Path:
-    return (Path(task_path).parent / task.cell).resolve()
+    """The cell config the task file names (relative to it); it must exist."""
+    return referenced_file(Path(task_path).parent / task.cell, task_path, "cell").resolve()
 
 
 __all__ = ["Motion", "PickingTask", "RipenessTask", "SortingTask", "TaskFile", "Tomato", "WorldObject",

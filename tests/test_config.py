@@ -66,7 +66,7 @@ def test_missing_section(tmp_path):
 
 
 @pytest.mark.parametrize("section, change, field, reason", [
-    ("sequence", {"p0_kpa": 95.0}, "(top level)", "sequence.p0_kpa (95.0) is outside limits"),
+    ("sequence", {"p0_kpa": 95.0}, "sequence.p0_kpa", "95.0 is outside limits"),
     ("sequence", {"method": "flow_control"}, "sequence", "needs a flow_profile"),
     ("sequence", {"windows": [{"name": "eq", "start_s": 4, "end_s": 30}]}, "sequence", "after the valve closes"),
     ("actuator", {"kind": "gripper", "v0_ml": "lots"}, "actuator.v0_ml", "valid number"),
@@ -117,3 +117,131 @@ def test_run_with_a_bad_config_exits_before_binding_or_moving_anything(tmp_path)
     assert f"{path}: driver.block_size: " in out.stderr
     pub_path = data["publisher"]["pub"].removeprefix("ipc://")
     assert not Path(pub_path).exists()  # no socket was ever bound
+
+
+# ----------------------------------------------------------------- semantic checks at load (issue 14, item 6)
+def refused_at(tmp_path: Path, data: dict) -> str:
+    path = write(tmp_path, f"cell-{len(list(tmp_path.iterdir()))}.yaml", data)
+    with pytest.raises(ConfigError) as err:
+        load_cell_config(path)
+    msg = str(err.value)
+    assert msg.startswith(f"{path}: ") and "\n" not in msg, msg
+    return msg.removeprefix(f"{path}: ")
+
+
+@pytest.mark.parametrize("endpoint, shown", [
+    ("tcp://127.0.0.1:99999", "'99999'"), ("tcp://127.0.0.1:0", "'0'"), ("tcp://127.0.0.1:*", "'*'"),
+    ("tcp://127.0.0.1:55x", "'55x'"), ("tcp://127.0.0.1:", "''"),
+])
+def test_a_zeromq_port_outside_1_to_65535_is_refused(tmp_path, endpoint, shown):
+    """libzmq binds a wildcard or out-of-range port to a random one: no client would find it."""
+    for socket_name in ("pub", "cmd"):
+        data = cell(tmp_path, **{f"publisher.{socket_name}": endpoint})
+        assert refused_at(tmp_path, data) == \
+            f"publisher.{socket_name}: '{endpoint}': the port must be a number in 1..65535, got {shown}"
+    assert load_cell_config(write(tmp_path, "ok.yaml", cell(tmp_path, **{"publisher.pub": "tcp://127.0.0.1:65535"})))
+
+
+def test_other_ports_and_one_endpoint_for_both_sockets(tmp_path):
+    data = cell(tmp_path)
+    data["publisher"]["cmd"] = data["publisher"]["pub"]
+    assert refused_at(tmp_path, data) == f"publisher.cmd: '{data['publisher']['cmd']}' is also the pub endpoint: " \
+        "each socket needs its own"
+    modbus = yaml.safe_load((CONFIG / "cell-modbus-sim.yaml").read_text())
+    modbus["profile"] = str(CONFIG / "profiles" / "sorting-gripper.yaml")
+    for port in (0, 70000):
+        modbus["driver"]["port"] = port
+        assert refused_at(tmp_path, modbus).startswith("driver.port: Input should be ")
+
+
+def test_p0_must_stay_a_margin_inside_the_limits(tmp_path):
+    """P0 at the limit faulted every cycle (the tank sensor reads P0 plus noise). The
+    margin follows from the profile's sensors and regulator (Profile.p0_margin_kpa)."""
+    profile = yaml.safe_load(PROFILE.read_text())
+    margin = load_profile(PROFILE).p0_margin_kpa
+    sensor, tank = profile["sensor"], profile["tank_sensor"]
+    assert margin == pytest.approx(max(abs(sensor["offset_kpa"]), abs(tank.get("offset_kpa", 0)))
+                                   + max(sensor.get("quantum_kpa", 0.016), tank.get("quantum_kpa", 0.016))
+                                   + 4 * profile["circuit"]["regulator_repeatability_kpa"]
+                                   + 6 * max(sensor["noise_sd_kpa"], tank["noise_sd_kpa"]))
+    top = profile["limits"]["max_kpa"]
+    for p0, ok in ((top, False), (top - margin + 0.01, False), (top - margin - 0.01, True)):
+        profile["sequence"]["p0_kpa"] = p0
+        path = write(tmp_path, "p.yaml", profile)
+        if ok:
+            assert load_profile(path).sequence.p0_kpa == p0
+            continue
+        with pytest.raises(ConfigError) as err:
+            load_profile(path)
+        assert str(err.value).startswith(f"{path}: sequence.p0_kpa: {p0} is within {margin:.2f} kPa of limits "
+                                         f"[{profile['limits']['min_kpa']}, {top}] kPa: the readings around P0")
+    vacuum = yaml.safe_load((CONFIG / "profiles" / "suction-cup.yaml").read_text())
+    vacuum["sequence"]["p0_kpa"] = vacuum["limits"]["min_kpa"] + 0.5
+    with pytest.raises(ConfigError, match=r"sequence.p0_kpa: -79.5 is within 1.06 kPa of limits \[-80.0, 5.0\]"):
+        load_profile(write(tmp_path, "vacuum.yaml", vacuum))
+
+
+@pytest.mark.parametrize("rate, block, reason", [
+    (20000, 1, "block_size 1 at 20000 Hz is a block every 0.05 ms: at least 5 ms per block (block_size >= 100) "
+               "leaves the loop time to yield"),
+    (1000, 10000, "block_size 10000 at 1000 Hz is a block every 10 s: at most 0.1 s (supervision.no_data_s / 5), "
+                  "or waiting for a block is a no_data fault"),
+])
+def test_the_block_period_must_let_the_loop_yield_and_beat_no_data(tmp_path, rate, block, reason):
+    data = cell(tmp_path, **{"driver.rate_hz": rate, "driver.block_size": block})
+    assert refused_at(tmp_path, data) == f"driver.block_size: {reason}"
+
+
+def test_block_period_bounds_and_rate(tmp_path):
+    """5 ms and no_data_s / 5 are both allowed; a rate below 1 Hz is refused at the rate."""
+    for block, no_data in ((5, 0.5), (100, 0.5)):
+        data = cell(tmp_path, **{"driver.block_size": block})
+        data["supervision"] = {"no_data_s": no_data}
+        assert load_cell_config(write(tmp_path, "ok.yaml", data)).driver.block_size == block
+    data = cell(tmp_path, **{"driver.block_size": 10})
+    data["supervision"] = {"no_data_s": 0.04}
+    assert refused_at(tmp_path, data).startswith("driver.block_size: block_size 10 at 1000 Hz is a block every 0.01 s: "
+                                                 "at most 0.008 s")
+    assert refused_at(tmp_path, cell(tmp_path, **{"driver.rate_hz": 1e-300})) == \
+        "driver.rate_hz: Input should be greater than or equal to 1"
+
+
+@pytest.mark.parametrize("sequence, field", [
+    ({"windows": [{"name": "eq", "start_s": 4.0, "end_s": 4.002}]}, "profile.sequence.windows.0"),
+    ({"offset_s": 0.003}, "profile.sequence.offset_s"),
+])
+def test_windows_hold_a_few_samples(tmp_path, sequence, field):
+    profile = yaml.safe_load(PROFILE.read_text())
+    profile["sequence"].update(sequence)
+    msg = refused_at(tmp_path, cell(tmp_path, profile=profile))
+    assert msg.startswith(f"{field}: ") and msg.endswith("samples at 1000 Hz: a mean over fewer than 5 samples is "
+                                                         "mostly sensor noise")
+
+
+def test_files_a_config_names_must_exist(tmp_path):
+    missing = tmp_path / "gone.yaml"
+    assert refused_at(tmp_path, cell(tmp_path, profile=str(missing))) == \
+        f"profile: {missing}: No such file or directory"
+    replay = cell(tmp_path)
+    replay["driver"] = {"kind": "replay", "file": str(tmp_path / "run.mcap")}
+    assert refused_at(tmp_path, replay) == f"driver.file: {tmp_path}/run.mcap: No such file or directory"
+    replay["driver"]["file"] = str(tmp_path)
+    assert refused_at(tmp_path, replay) == f"driver.file: {tmp_path} is not a regular file (a directory)"
+    a_file = write(tmp_path, "a-file", "x")
+    rec = cell(tmp_path)
+    rec["recording"]["dir"] = str(a_file)
+    assert refused_at(tmp_path, rec) == f"recording.dir: {a_file} exists and is not a directory"
+    rec["recording"]["dir"] = str(tmp_path / ("x" * 300))
+    assert refused_at(tmp_path, rec) == "recording.dir: File name too long"
+
+
+def test_run_with_a_bad_port_binds_nothing_and_records_nothing(tmp_path):
+    data = cell(tmp_path, **{"publisher.cmd": "tcp://127.0.0.1:99999"})
+    path = write(tmp_path, "bad-port.yaml", data)
+    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "run", "--config", str(path)], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2
+    assert out.stderr.splitlines() == [f"fluidsense: error: {path}: publisher.cmd: 'tcp://127.0.0.1:99999': the port "
+                                       "must be a number in 1..65535, got '99999'"]
+    assert not Path(data["recording"]["dir"]).exists()
+    assert not Path(data["publisher"]["pub"].removeprefix("ipc://")).exists()

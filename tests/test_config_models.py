@@ -15,7 +15,7 @@ from drivers.models import StrictModel
 
 MODULES = ["drivers.hardware", "drivers.scenes", "drivers.world", "drivers.config", "drivers.sampler.config",
            "drivers.io", "drivers.ur.config", "drivers.modbus.config",
-           "controller.config", "controller.commands", "tasks.config"]
+           "controller.config", "controller.commands", "controller.calibration", "tasks.config"]
 for m in MODULES:
     importlib.import_module(m)
 
@@ -42,6 +42,9 @@ EXAMPLES = {
     "ResetCmd": {"cmd": "reset"}, "SceneCmd": {"cmd": "scene", "scene": {"kind": "none"}},
     "TaskCmd": {"cmd": "task", "file": "x.yaml"}, "ShutdownCmd": {"cmd": "shutdown"},
     "RipenessObject": {"name": "o", "diameter_mm": 55},
+    "CalibrationFile": {"format": "fluidsense-calibration/1", "profile": "p", "method": "tank", "feature": "p_eq",
+                        "feature_unit": "kPa", "scene": {"kind": "plate"}, "target": "height_mm", "target_unit": "mm",
+                        "fit": "linear", "coeffs": [-0.04, 22.6], "x": [0, 10, 20], "y": [22.6, 22.2, 21.8]},
     "Ratiometric": {"range_kpa": [-34.5, 34.5]}, "Mpx": {"a_per_kpa": 0.004, "b": 0.04},
     "Linear": {"range_kpa": [0, 600]}, "ValveWiring": {"output": 0}, "RegulatorWiring": {"analog_output": 0},
     "SensorWiring": {"analog_input": 0, "transfer": {"kind": "linear", "range_kpa": [0, 600]}},
@@ -126,6 +129,6 @@ def test_wrong_type_and_out_of_range(model):
         bound = _bound(field)
         if bound is not None:
             side, edge = bound
-            bad = edge - 1e6 if side == "low" else edge + 1e6
+            bad = edge - 10**6 if side == "low" else edge + 10**6  # an int for an int field (strict)
             with pytest.raises(ConfigError, match=rf"{PATH}: {name}: .*(greater|less) than"):
                 validate(model, {**example(model), name: bad}, PATH)

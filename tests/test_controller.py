@@ -74,15 +74,17 @@ def test_cycle_result_windows_and_offset(virtual_controller):
 
 
 def test_over_pressure_faults_vents_and_latches(tmp_path, virtual_controller):
-    """Limit set at P0: the tank reading (P0 + regulator error + 0.07 kPa noise) crosses it
-    while charging. The cycle must fault, vent, and refuse new cycles until reset."""
+    """A cycle at P0 = the limit: the tank reading (P0 + regulator error + 0.07 kPa noise)
+    crosses it while charging. A profile with P0 there is refused at load (the P0 margin,
+    tests/test_config.py); a cycle command may still ask for it. The cycle must fault,
+    vent, and refuse new cycles until reset."""
     profile = yaml.safe_load(PROFILE.read_text())
-    profile["limits"] = {"max_kpa": 63.0, "min_kpa": -5}
+    profile["limits"] = {"max_kpa": 64.5, "min_kpa": -5}
     path = tmp_path / "tight.yaml"
     path.write_text(yaml.safe_dump(profile))
 
     async def body(ctrl):
-        res = await ctrl.run_cycle()
+        res = await ctrl.run_cycle(p0_kpa=64.5)
         status = ctrl.status()
         with pytest.raises(FaultError):
             await ctrl.run_cycle()

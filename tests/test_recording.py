@@ -7,6 +7,7 @@ import asyncio
 import errno
 import json
 import logging
+import os
 import shutil
 import struct
 import subprocess
@@ -527,3 +528,181 @@ def test_replay_driver_feeds_the_recorded_blocks_to_a_controller(tmp_path, good_
 
     n, msg = asyncio.run(drain())
     assert n == len(recorded) and msg.startswith(f"{good_file}: end of the recording at t = ")
+
+
+# ----------------------------------------------------------------- hostile recordings (issue 14, item 5)
+def _with_chunk(path: Path, good: Path, chunk) -> None:
+    """A recording whose records after its config are one hand-made chunk."""
+    from mcap.data_stream import RecordBuilder
+    from mcap.writer import CompressionType, Writer
+
+    with RecordingReader(good) as reader:
+        meta, config = dict(reader.metadata), reader.config
+    with open(path, "wb") as f:
+        w = Writer(f, compression=CompressionType.NONE, use_chunking=False)
+        w.start()
+        w.add_metadata("fluidsense", meta)
+        cid = w.register_channel("/config", "json", w.register_schema("config", "jsonschema", b"{}"))
+        w.add_message(cid, log_time=0, data=json.dumps(config).encode(), publish_time=0)
+        builder = RecordBuilder()
+        chunk.write(builder)
+        f.write(builder.end())
+
+
+def _zeros_zstd(n: int) -> bytes:
+    """zstd of n zero bytes, compressed piece by piece (never n bytes in memory)."""
+    import zstandard
+
+    chunker = zstandard.ZstdCompressor(level=1).chunker(size=n, chunk_size=2**22)
+    zero, out = bytes(2**22), []
+    for _ in range(n // len(zero)):
+        out += chunker.compress(zero)
+    return b"".join(out + list(chunker.finish()))
+
+
+def _zeros_lz4(n: int) -> bytes:
+    import lz4.frame
+
+    c = lz4.frame.LZ4FrameCompressor()
+    zero = bytes(2**22)
+    return c.begin() + b"".join(c.compress(zero) for _ in range(n // len(zero))) + c.flush()
+
+
+def _chunk(compression: str, data: bytes, declared: int):
+    from mcap.records import Chunk
+
+    return Chunk(compression=compression, data=data, message_start_time=0, message_end_time=0, uncompressed_crc=0,
+                 uncompressed_size=declared)
+
+
+BOMBS = {
+    # a chunk that says it is huge: refused before any decompression
+    "declared 4 GB": (lambda: _chunk("zstd", _zeros_zstd(2**24), 2**32),
+                      "a chunk declares 4294967296 bytes uncompressed, more than the 67108864 this reader accepts"),
+    # within the size cap but 60 MB from a few KB: refused by its ratio, before decompression
+    "ratio": (lambda: _chunk("zstd", _zeros_zstd(60 * 2**20), 60 * 2**20),
+              "more than 200 times its size: refused as a decompression bomb"),
+    # a chunk that lies (says 1000 bytes, holds 256 MB): decompression stops at 1001
+    "zstd lie": (lambda: _chunk("zstd", _zeros_zstd(2**28), 1000),
+                 "a chunk decompresses to more than 1001 bytes, not the 1000 it declares"),
+    "lz4 lie": (lambda: _chunk("lz4", _zeros_lz4(2**26), 1000),
+                "a chunk decompresses to more than 1001 bytes, not the 1000 it declares"),
+}
+
+
+@pytest.mark.parametrize("kind", BOMBS)
+def test_a_decompression_bomb_is_refused_within_bounds(tmp_path, good_file, kind):
+    make, reason = BOMBS[kind]
+    path = tmp_path / "bomb.mcap"
+    _with_chunk(path, good_file, make())
+    with pytest.raises(RecordingError) as err:
+        asyncio.run(replay_file(path))
+    msg = str(err.value)
+    assert msg.startswith(f"{path}: garbled near byte ") and msg.endswith(reason) and "\n" not in msg, msg
+
+
+def _events(change):
+    """A `_copy_with` change that edits one topic's payloads."""
+    def edit(topic, payload):
+        return change(payload) if topic == edit.topic else payload
+    return edit
+
+
+NULLS = {
+    "cycle_start.p0_pa": ("cycle_start", lambda p: {**p, "p0_pa": None}, "cycle_start.p0_pa: expected a finite "
+                          "number, got None"),
+    "state.reason": ("state", lambda p: {**p, "reason": None}, "state.reason: expected a string, got None"),
+    "state.at_s": ("state", lambda p: {**p, "at_s": "soon"}, "state.at_s: expected a finite number, got soon"),
+    "cycle_start.store_reference": ("cycle_start", lambda p: {**p, "store_reference": 1},
+                                    "cycle_start.store_reference: expected true or false, got 1"),
+}
+
+
+@pytest.mark.parametrize("field", NULLS)
+def test_a_recorded_event_without_what_replay_reads_names_topic_and_field(tmp_path, good_file, field):
+    topic, change, reason = NULLS[field]
+    edit = _events(change)
+    edit.topic = topic
+    path = tmp_path / "null.mcap"
+    _copy_with(good_file, path, edit)
+    with pytest.raises(RecordingError) as err:
+        asyncio.run(replay_file(path))
+    assert str(err.value).startswith(f"{path}: {reason} (at t = "), str(err.value)
+
+
+def _rewrite_samples(src: Path, dst: Path, change) -> None:
+    with RecordingReader(src) as reader:
+        w = RecordingWriter(dst, 0, {k: v for k, v in reader.metadata.items() if k in ("rate_hz", "channels")})
+        w.write_config(reader.config, {})
+        for rec in reader.records():
+            if rec.topic == SAMPLES:
+                from drivers.recording import block_payload
+
+                w._add(SAMPLES, rec.t_s, json.dumps(change(block_payload(rec.data))).encode(), {})
+        w.close()
+
+
+@pytest.mark.parametrize("change, reason", [
+    (lambda p: {**p, "times_s": [None] * len(p["times_s"])}, "ValueError: times_s: expected increasing finite sample "
+                                                             "times"),
+    (lambda p: {**p, "values": p["values"][:1]}, "ValueError: values: expected 2 rows of 10, got shape (1, 10)"),
+    (lambda p: {**p, "seq": -1}, "ValueError: seq: expected a count, got -1"),
+    (lambda p: {**p, "channels": "p_act"}, "ValueError: channels: expected a list of names"),
+    (lambda p: {**p, "values": json.loads("[" * 40 + "]" * 40)}, "ValueError: values: expected 2 rows"),
+])
+def test_a_garbled_sample_block_names_its_field(tmp_path, good_file, change, reason):
+    path = tmp_path / "samples.mcap"
+    _rewrite_samples(good_file, path, change)
+    with pytest.raises(RecordingError) as err:
+        asyncio.run(replay_file(path))
+    msg = str(err.value)
+    assert msg.startswith(f"{path}: garbled message on samples near byte ") and reason in msg and "\n" not in msg
+
+
+@pytest.mark.parametrize("depth, reason", [(100, "nested more than 32 levels deep"),
+                                           (100_000, "RecursionError: maximum recursion depth exceeded")])
+def test_deeply_nested_json_in_an_event_is_refused(tmp_path, good_file, depth, reason):
+    path = tmp_path / "deep.mcap"
+    with RecordingReader(good_file) as reader:
+        w = RecordingWriter(path, 0, {k: v for k, v in reader.metadata.items() if k in ("rate_hz", "channels")})
+        w.write_config(reader.config, {})
+    w._add("state", 0.0, b'{"t_s": 0, "x": ' + b"[" * depth + b"]" * depth + b"}", {})
+    w.close()
+    with pytest.raises(RecordingError) as err:
+        asyncio.run(replay_file(path))
+    msg = str(err.value)
+    assert msg.startswith(f"{path}: garbled message on state near byte ") and reason in msg and "\n" not in msg
+
+
+@pytest.mark.parametrize("kind", ["fifo", "directory"])
+def test_replay_refuses_a_fifo_or_a_directory_without_blocking(tmp_path, kind):
+    path = tmp_path / "run.mcap"
+    os.mkfifo(path) if kind == "fifo" else path.mkdir()
+    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "replay", str(path)], cwd=REPO,
+                         capture_output=True, text=True, timeout=30)
+    assert out.returncode == 2 and out.stdout == ""
+    assert out.stderr.splitlines() == [f"fluidsense: error: {path}: cannot read: not a regular file "
+                                       f"(a {'FIFO' if kind == 'fifo' else 'directory'})"]
+
+
+PEAK_RSS = ("import resource, sys\nfrom fluidsense import cli\ncode = cli.main(['replay', sys.argv[1]])\n"
+            "print(code, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024)")
+
+
+def test_cli_replay_of_a_bomb_exits_2_with_one_line_and_little_memory(tmp_path, good_file):
+    """A chunk that says 1000 bytes and holds 256 MB of zeros (the mcap library
+    allocated what the zstd frame said). The replay's peak memory stays within 50 MB of
+    replaying the good file it was cut from."""
+    path = tmp_path / "bomb.mcap"
+    _with_chunk(path, good_file, BOMBS["zstd lie"][0]())
+    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "replay", str(path)], cwd=REPO,
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and out.stdout == ""
+    assert len(out.stderr.splitlines()) == 1 and out.stderr.startswith(f"fluidsense: error: {path}: garbled near byte")
+    peaks = {}
+    for name, file in (("good", good_file), ("bomb", path)):
+        run = subprocess.run([sys.executable, "-c", PEAK_RSS, str(file)], cwd=REPO, capture_output=True, text=True,
+                             timeout=120)
+        code, peaks[name] = map(int, run.stdout.split()[-2:])
+        assert code == (0 if name == "good" else 2), run.stderr
+    assert peaks["bomb"] < peaks["good"] + 50, peaks

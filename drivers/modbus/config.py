@@ -6,10 +6,10 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from ..io import AnalogScale, BoxWatchdogConfig, Host, Port, Reconnect, SamplerOptions, UrArmConfig, Wiring
-from ..models import StrictModel
+from ..io import BLOCK_SIZE, AnalogScale, BoxWatchdogConfig, Host, Port, Reconnect, SamplerOptions, UrArmConfig, Wiring
+from ..models import Integer, Real, StrictModel
 
-Register = Annotated[int, Field(ge=0, le=65535)]
+Register = Annotated[Integer, Field(ge=0, le=65535)]
 
 
 class RegisterMap(StrictModel):
@@ -46,10 +46,10 @@ class ModbusDriverConfig(StrictModel):
     kind: Literal["modbus"] = "modbus"
     host: Host
     port: Port = 502
-    device_id: int = Field(1, ge=0, le=255, description="Modbus unit / slave id")
-    timeout_s: float = Field(0.5, gt=0, le=10, description="one request's answer")
-    rate_hz: float = Field(1000.0, gt=0, le=5000)
-    block_size: int = Field(10, ge=1, le=10_000)
+    device_id: Integer = Field(1, ge=0, le=255, description="Modbus unit / slave id")
+    timeout_s: Real = Field(0.5, gt=0, le=10, description="one request's answer")
+    rate_hz: Real = Field(1000.0, ge=1, le=5000)
+    block_size: Integer = Field(10, ge=1, le=10_000, description=BLOCK_SIZE)
     registers: RegisterMap = RegisterMap()
     wiring: Wiring
     analog: AnalogScale = AnalogScale()

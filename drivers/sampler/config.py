@@ -6,7 +6,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, JsonValue, model_validator
 
-from ..models import StrictModel
+from ..models import Integer, Real, StrictModel
 from .poller import SPEC_PATTERN
 
 ChannelName = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$", max_length=64)]
@@ -25,19 +25,19 @@ class SamplerOptions(StrictModel):
     exposes as its ``sampler`` section (docs/sampler.md); the poller and the channels come
     from the driver."""
 
-    late_threshold_us: float = Field(
+    late_threshold_us: Real = Field(
         50.0, gt=0, description="a read that starts more than this after its slot's deadline counts as late")
-    spin_us: float = Field(75.0, ge=0, le=10_000,
+    spin_us: Real = Field(75.0, ge=0, le=10_000,
                            description="sleep until this long before a deadline, then spin to it (75 us: "
                            "docs/performance.md, spin against lateness and CPU)")
-    max_consecutive_failures: int = Field(10, ge=1, le=1_000_000,
+    max_consecutive_failures: Integer = Field(10, ge=1, le=1_000_000,
                                           description="failed reads in a row that mean the link is lost")
-    cpu: Literal["auto", "none"] | Annotated[int, Field(ge=0, le=4095)] = Field(
+    cpu: Literal["auto", "none"] | Annotated[Integer, Field(ge=0, le=4095)] = Field(
         "auto", description="CPU to pin the sampler thread to; auto: the last allowed CPU; none: do not pin")
-    rt_priority: Annotated[int, Field(ge=1, le=99)] | None = Field(
+    rt_priority: Annotated[Integer, Field(ge=1, le=99)] | None = Field(
         40, description="SCHED_FIFO priority when permitted (null: normal scheduling). 40 stays below "
         "the kernel's threaded interrupt handlers (50), which a network poller depends on")
-    silence_timeout_s: float = Field(1.0, gt=0, le=600,
+    silence_timeout_s: Real = Field(1.0, gt=0, le=600,
                                      description="no message from the sampler for this long means it is gone")
 
 
@@ -47,11 +47,11 @@ class SamplerConfig(SamplerOptions):
     poller: PollerSpec
     channels: tuple[ChannelName, ...] = Field(min_length=1, max_length=64,
                                               description="names of the values read() returns, in order")
-    rate_hz: float = Field(1000.0, gt=0, le=10_000, description="slots per second")
-    block_size: int = Field(10, ge=1, le=10_000, description="samples per block handed to the daemon")
-    start_timeout_s: float = Field(30.0, gt=0, le=600,
+    rate_hz: Real = Field(1000.0, gt=0, le=10_000, description="slots per second")
+    block_size: Integer = Field(10, ge=1, le=10_000, description="samples per block handed to the daemon")
+    start_timeout_s: Real = Field(30.0, gt=0, le=600,
                                    description="time allowed to spawn the process and open the poller")
-    stop_timeout_s: float = Field(2.0, gt=0, le=60, description="time allowed for a clean stop before SIGTERM")
+    stop_timeout_s: Real = Field(2.0, gt=0, le=60, description="time allowed for a clean stop before SIGTERM")
 
     @property
     def period_s(self) -> float:

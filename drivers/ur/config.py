@@ -7,8 +7,8 @@ from typing import Literal
 
 from pydantic import Field, ValidationInfo, field_validator
 
-from ..io import AnalogScale, BoxWatchdogConfig, Host, Port, Reconnect, SamplerOptions, UrArmConfig, Wiring
-from ..models import StrictModel
+from ..io import BLOCK_SIZE, AnalogScale, BoxWatchdogConfig, Host, Port, Reconnect, SamplerOptions, UrArmConfig, Wiring
+from ..models import Integer, Real, StrictModel
 
 #: highest RTDE output rate per controller generation (UR's RTDE guide)
 RTDE_MAX_HZ = {"e-series": 500.0, "cb3": 125.0}
@@ -23,8 +23,8 @@ class UrDriverConfig(StrictModel):
     kind: Literal["ur"] = "ur"
     host: Host
     controller: Literal["e-series", "cb3"] = "e-series"
-    rate_hz: float = Field(500.0, gt=0, description="analog input sample rate (RTDE: 500 Hz e-Series, 125 Hz CB3)")
-    block_size: int = Field(5, ge=1, le=10_000)
+    rate_hz: Real = Field(500.0, ge=1, description="analog input sample rate (RTDE: 500 Hz e-Series, 125 Hz CB3)")
+    block_size: Integer = Field(5, ge=1, le=10_000, description=BLOCK_SIZE)
     wiring: Wiring
     analog: AnalogScale = AnalogScale()
     arm: UrArmConfig = UrArmConfig()

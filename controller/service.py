@@ -239,9 +239,12 @@ class Controller:
         if self.sequencer.busy:
             raise SequenceError(f"busy: cycle {self.sequencer.cycle_id} is in {self.sequencer.state.value}")
         p0 = self.profile.sequence.p0_kpa if p0_kpa is None else p0_kpa
-        lim = self.profile.limits
+        lim, margin = self.profile.limits, self.profile.p0_margin_kpa
         if not lim.min_kpa <= p0 <= lim.max_kpa:
             raise SafetyError(f"p0 {p0} kPa outside the profile's limits [{lim.min_kpa}, {lim.max_kpa}] kPa")
+        if self.profile.sequence.method != "flow_control" and not lim.min_kpa + margin <= p0 <= lim.max_kpa - margin:
+            raise SafetyError(f"p0 {p0} kPa within {margin:.2f} kPa of the profile's limits [{lim.min_kpa}, "
+                              f"{lim.max_kpa}] kPa: its readings would cross the limit and fault the cycle")
         if self.backend.watchdog is not None:
             await self.backend.watchdog.ensure_running()
         cmds = self.sequencer.start(self.now, p0 * KPA, hold=hold)

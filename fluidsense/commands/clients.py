@@ -6,6 +6,7 @@ import argparse
 import json
 
 from .. import app
+from ..exitcodes import EXIT_BAD_INPUT, EXIT_OK
 from ..monitor import monitor, send_command
 
 
@@ -53,4 +54,4 @@ def cmd_cmd(args: argparse.Namespace) -> int:
     curve = (args.client_key, args.server_key) if args.client_key and args.server_key else None
     reply = send_command(endpoint, request, args.timeout, curve=curve)
     print(json.dumps(reply, indent=2))
-    return 0 if reply.get("ok") else 1
+    return EXIT_OK if reply.get("ok") else EXIT_BAD_INPUT

@@ -109,6 +109,9 @@ class Controller:
         self.references: dict[float, Reference] = {}
         self.results: deque[CycleResult] = deque(maxlen=100)
         self.latch = SafetyLatch(backend)
+        self._stopping = False
+        self.connected = False  # the devices are set up (start(), or the loop's first act)
+        self.connecting: dict[str, Any] | None = None  # while not connected: attempts, last error, next wait
         self._recorder: Recorder | None = None
         self._cycle_future: asyncio.Future[CycleResult] | None = None
         self._cycle_opts: dict[str, Any] = {}
@@ -159,17 +162,51 @@ class Controller:
     def virtual(self) -> bool:
         return self.backend.source.virtual
 
-    async def start(self) -> None:
+    async def start(self, connect_in_background: bool = False) -> None:
+        """Set up the devices, then run the sample loop. ``connect_in_background`` (the
+        daemon): devices that cannot be reached yet do not stop the start; the loop
+        retries with back-off, ``status`` says ``connecting`` meanwhile and commands that
+        need the cell are refused. Without it (jobs such as a task run) that fails here."""
+        if not connect_in_background:
+            await self._connect()
+        self._task = asyncio.create_task(self._loop(), name="fluidsense-sample-loop")
+
+    async def _connect(self) -> None:
         await self.backend.setup()
         if self.backend.arm is not None:
             self.backend.arm.use_clock(self.clock)
         if self.backend.regulator is not None:
             self.backend.regulator.set_limits(self.profile.limits.min_pa, self.profile.limits.max_pa)
         await self.latch.command_safe_state(self.now)
-        self._task = asyncio.create_task(self._loop(), name="fluidsense-sample-loop")
+        self.connected, self.connecting = True, None
+
+    async def _connect_until_up(self) -> None:
+        """Connect, retrying with back-off while the devices are not there (a robot still
+        booting, a cable not yet in). A bad setting (ConfigError) does not go away by
+        retrying: it ends the loop, and the daemon exits 2."""
+        reconnect = getattr(self.cfg.driver, "reconnect", None)
+        delay, longest = (reconnect.first_s, reconnect.max_s) if reconnect is not None else (0.5, 10.0)
+        attempts = 0
+        while not self._stopping:
+            attempts += 1
+            self.connecting = {"attempts": attempts, "error": (self.connecting or {}).get("error"),
+                               "retry_in_s": None}  # an attempt in progress
+            try:
+                await self._connect()
+            except (LinkLostError, DeviceTimeoutError, OSError) as exc:
+                if self.connecting is None or self.connecting["error"] != str(exc):
+                    log.warning("connecting to %s: %s; retrying", self.backend.name, exc)
+                self.connecting = {"attempts": attempts, "error": str(exc), "retry_in_s": delay}
+                await asyncio.sleep(delay)  # pacing the attempts (wall time), no control decision
+                delay = min(2 * delay, longest)
+                continue
+            log.info("connected to %s after %d attempt(s)", self.backend.name, attempts)
+            return
+        raise asyncio.CancelledError  # stopping while connecting (a cancel an attempt swallowed)
 
     async def stop(self) -> None:
         """Vent, stop the loop, close the devices. Safe to call twice."""
+        self._stopping = True
         if self._cancel_task():
             try:
                 await self._task_job
@@ -370,7 +407,8 @@ class Controller:
     def status(self) -> dict[str, Any]:
         last = self.results[-1].to_dict() if self.results else None
         return {
-            "state": self.sequencer.state.value, "cycle_id": self.sequencer.cycle_id,
+            "state": self.sequencer.state.value if self.connected else "connecting", "connecting": self.connecting,
+            "cycle_id": self.sequencer.cycle_id,
             "t_s": self.now, "virtual": self.virtual, "backend": self.backend.name,
             "profile": self.profile.name,
             "fault": None if self.fault is None else {"kind": self.fault.kind, "detail": self.fault.detail,
@@ -400,6 +438,11 @@ class Controller:
     async def _dispatch(self, cmd: Any) -> dict[str, Any]:
         if isinstance(cmd, StatusCmd):
             return self.status()
+        if not self.connected and not isinstance(cmd, (ShutdownCmd, AbortCmd)):
+            state = self.connecting or {}
+            raise CommandError(f"not connected to {self.backend.name} yet ({state.get('error', 'first attempt')}); "
+                               f"retrying every {state.get('retry_in_s', 0):g} s or so: wait for status to leave "
+                               "'connecting'")
         if isinstance(cmd, CycleCmd):
             fut = await self.start_cycle(p0_kpa=cmd.p0_kpa, label=cmd.label, store_reference=cmd.store_reference)
             fut.add_done_callback(lambda f: f.exception() if not f.cancelled() else None)
@@ -450,6 +493,8 @@ class Controller:
         and the loop keeps trying: the daemon outlives its devices. Anything else that
         raises while a block is handled (a bug, a sink, a device) trips the latch as an
         internal fault and the loop goes on with the next block, in the safe state."""
+        if not self.connected:
+            await self._connect_until_up()
         failures = 0
         while True:
             if self.virtual and not self._has_demand():

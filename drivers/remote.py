@@ -94,11 +94,15 @@ class PolledCellSource(SampleSource):
     async def _connect(self) -> None:
         opened: list[Link] = []
         try:
+            # asyncio.timeout, not wait_for: Python 3.11's wait_for can swallow the cancel of
+            # a daemon that stops while an attempt ends, and the attempts then go on for ever
             for link in self.links:
-                await asyncio.wait_for(link.open(), self.reconnect.connect_timeout_s)
+                async with asyncio.timeout(self.reconnect.connect_timeout_s):
+                    await link.open()
                 opened.append(link)
             for step in self.on_connect:
-                await asyncio.wait_for(step(), self.reconnect.connect_timeout_s)
+                async with asyncio.timeout(self.reconnect.connect_timeout_s):
+                    await step()
             sampler = SampledSource(self.cfg, name=f"{self.name}-sampler")
             await sampler.setup()
         except BaseException as exc:

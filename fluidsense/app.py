@@ -20,6 +20,7 @@ from controller.service import Controller
 from drivers.config import build_backend
 from drivers.errors import CommandError, ConfigError, FaultError, FluidsenseError
 
+from .exitcodes import EXIT_FAILURE, EXIT_OK
 from .notify import LoopWatchdog, Notifier, keep_alive
 
 log = logging.getLogger(__name__)
@@ -56,19 +57,22 @@ def bind_command_server(cfg: CellConfig) -> CommandServer:
 
 @contextlib.asynccontextmanager
 async def controller(cfg: CellConfig, publish: bool = False, record: bool = False,
-                     pub_hwm: int | None = None, publisher: Publisher | None = None) -> AsyncIterator[Controller]:
+                     pub_hwm: int | None = None, publisher: Publisher | None = None,
+                     connect_in_background: bool = False) -> AsyncIterator[Controller]:
     """A started controller on the configured backend; vents and closes on exit. With
     ``record`` (the daemon) it records as ``cfg.recording`` says, from sample time 0.
     ``publisher``: already bound (the daemon binds every socket before it touches a
     device); else ``publish`` binds one here, with ``pub_hwm`` as its high-water mark
     (the soak bench fills it fast). Whatever fails on the way in, what was started is
-    undone: the devices vented and closed, the sockets closed."""
+    undone: the devices vented and closed, the sockets closed. ``connect_in_background``
+    (the daemon): devices that are not there yet are retried by the loop (status
+    ``connecting``) instead of failing the start."""
     pub = publisher or (bind_publisher(cfg, pub_hwm) if publish else None)
     ctrl: Controller | None = None
     try:
         backend = build_backend(cfg.driver, cfg.profile.hardware)
         ctrl = Controller(cfg, backend, pub)
-        await ctrl.start()
+        await ctrl.start(connect_in_background)
         try:
             if record and cfg.recording.enabled:
                 from controller.recording import RecordingSink
@@ -110,10 +114,18 @@ def _task_runner(ctrl: Controller, tasks_dir: Path):
     return start
 
 
-async def _first_iteration(ctrl: Controller) -> None:
-    """Real time: return once the sample loop has handled a block, so READY means the
-    loop runs. A source that is down faults the cell instead; the daemon still serves
-    (status, reset), so that is ready too. Virtual time parks the loop until asked."""
+async def _first_iteration(ctrl: Controller, notifier: Notifier) -> None:
+    """Return once the devices are connected and (real time) the sample loop has handled
+    a block, so READY means the cell can act. Until then systemd's STATUS says what the
+    daemon is waiting for. Virtual time parks the loop until asked."""
+    said = None
+    while not ctrl.connected:
+        if ctrl.connecting is not None and ctrl.connecting["error"] != said:
+            said = ctrl.connecting["error"]
+            notifier.send(f"STATUS=connecting to {ctrl.backend.name}: {said}")
+        if ctrl.loop_task.done():
+            return  # the loop ended while connecting: the daemon stops, not ready
+        await asyncio.sleep(0.1)  # polling the connection state for systemd's STATUS line
     if ctrl.virtual:
         return
     try:
@@ -129,7 +141,7 @@ async def _until_stopped(ctrl: Controller, cfg: CellConfig, notifier: Notifier,
     """READY once the sample loop runs, watchdog pings while it makes progress, until one
     of ``ends`` finishes (a stop signal, a shutdown command, the command socket failing);
     returns the finished ones."""
-    first = asyncio.create_task(_first_iteration(ctrl))
+    first = asyncio.create_task(_first_iteration(ctrl, notifier))
     done, _ = await asyncio.wait({first, *ends}, return_when=asyncio.FIRST_COMPLETED)
     first.cancel()
     if first not in done:
@@ -171,8 +183,9 @@ async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: N
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, stop.set)
     failed: list[str] = []
+    bad_setting: ConfigError | None = None
     try:
-        async with controller(cfg, publisher=pub, record=True) as ctrl:
+        async with controller(cfg, publisher=pub, record=True, connect_in_background=True) as ctrl:
             ctrl.task_runner = _task_runner(ctrl, tasks_dir)
             server.handler = ctrl.handle_command
             serve = asyncio.create_task(server.serve(), name="command-socket")
@@ -184,6 +197,9 @@ async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: N
             for task, name in core.items():
                 if task in done:
                     cause = task.exception() if not task.cancelled() else None
+                    if isinstance(cause, ConfigError):  # found on connecting: retrying will not mend it
+                        bad_setting = cause
+                        continue
                     failed.append(f"{name} ended: {cause!r}" if cause is not None else f"{name} ended")
             for task in (stopper, shutdown, serve):
                 task.cancel()
@@ -196,7 +212,9 @@ async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: N
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.remove_signal_handler(sig)
         notifier.close()
-    return 1 if failed else 0
+    if bad_setting is not None:
+        raise bad_setting
+    return EXIT_FAILURE if failed else EXIT_OK
 
 
 __all__ = ["FluidsenseError", "controller", "load", "run_daemon", "default_config_path"]

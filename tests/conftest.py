@@ -68,6 +68,7 @@ def simcell_config(tmp_path: Path, kind: str, host: str, profile: str | None = N
     data["profile"] = str(CONFIG / "profiles" / (profile or data["profile"].rsplit("/", 1)[-1]))
     pub, cmd = ipc_endpoints(tmp_path)
     data["publisher"] = {"pub": pub, "cmd": cmd}
+    data["recording"] = {"dir": str(tmp_path / "runs"), "min_free_mb": 16}  # never into the repository
     return write_cell(tmp_path, data)
 
 

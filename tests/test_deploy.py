@@ -323,3 +323,50 @@ def test_the_dockerfile_installs_as_the_makefile_and_runs_the_sim_cell():
     exposed = " ".join(a for k, a in steps if k == "EXPOSE").split()
     assert exposed == [cfg.publisher.pub.rsplit(":", 1)[1]]
     assert dict(steps)["STOPSIGNAL"] == "SIGTERM"
+
+
+def test_a_daemon_started_before_the_robot_is_connecting_then_ready_when_it_comes(tmp_path):
+    """The robot PC boots before the robot (or the cable is out): the daemon binds its
+    sockets, answers status with 'connecting' and why, tells systemd what it waits for,
+    and reports READY only once the box is there and samples flow."""
+    from .conftest import Daemon, free_simcell
+
+    sock = notify_socket(tmp_path / "notify")
+    quick = {"arm": None, "reconnect": {"first_s": 0.2, "max_s": 0.5, "connect_timeout_s": 5.0}}
+    with free_simcell(tmp_path, "modbus", profile="sorting-gripper-quick.yaml", driver=quick) as (box, cell):
+        box.network(False)
+        d = Daemon(cell, env={"NOTIFY_SOCKET": str(tmp_path / "notify")})
+        try:
+            d.wait_welcome()
+            while not (status := d.request({"cmd": "status"}))["connecting"]["error"]:
+                assert status["state"] == "connecting"  # the first attempt may still be under way
+            assert status["ok"] and status["state"] == "connecting" and "cannot connect" in status["connecting"]["error"]
+            refused = d.request({"cmd": "cycle"})
+            assert not refused["ok"] and "not connected" in refused["error"]
+            waiting = receive(sock, 30)
+            assert waiting.startswith("STATUS=connecting to modbus: ")
+            box.network(True)
+            while (note := receive(sock, 60)).startswith("STATUS=connecting"):
+                pass
+            assert note.splitlines()[0] == "READY=1"
+            assert d.request({"cmd": "status"})["state"] == "idle"
+            result = d.request({"cmd": "cycle"})
+            assert result["ok"], result
+        finally:
+            assert d.close() == 0
+
+
+def test_sigterm_while_connecting_exits_0(tmp_path):
+    """Stopping a daemon that is still waiting for its robot: the attempt in progress is
+    abandoned (Python 3.11's wait_for could swallow that cancel and retry for ever)."""
+    from .conftest import Daemon, free_simcell
+
+    quick = {"arm": None, "reconnect": {"first_s": 0.05, "max_s": 0.1, "connect_timeout_s": 5.0}}
+    with free_simcell(tmp_path, "modbus", profile="sorting-gripper-quick.yaml", driver=quick) as (box, cell):
+        box.network(False)
+        for _ in range(3):  # at different moments of the attempts
+            d = Daemon(cell)
+            d.wait_welcome()
+            while d.request({"cmd": "status"})["connecting"]["attempts"] < 3:
+                pass
+            assert d.close() == 0, d.stderr_now()

@@ -77,8 +77,9 @@ class WorkerLink(Link):
         if proc.returncode is None:
             proc.stdin.close()  # the worker disconnects and exits at end of input
             try:
-                await asyncio.wait_for(proc.wait(), 3.0)
-            except asyncio.TimeoutError:  # stuck in a ur_rtde call
+                async with asyncio.timeout(3.0):
+                    await proc.wait()
+            except TimeoutError:  # stuck in a ur_rtde call
                 proc.kill()
                 await proc.wait()
         if reader is not None:
@@ -133,8 +134,9 @@ class WorkerLink(Link):
         self._pending[ident] = fut
         self._proc.stdin.write((json.dumps({"id": ident, "op": op, **fields}) + "\n").encode())
         try:
-            reply = await asyncio.wait_for(fut, timeout_s or self.call_timeout_s)
-        except asyncio.TimeoutError:
+            async with asyncio.timeout(timeout_s or self.call_timeout_s):
+                reply = await fut
+        except TimeoutError:
             self._pending.pop(ident, None)
             raise DeviceTimeoutError(f"{self.name}: no answer to {op} within {timeout_s or self.call_timeout_s:g} s") \
                 from None
@@ -167,6 +169,7 @@ class WorkerLink(Link):
             if remaining <= 0:
                 raise DeviceTimeoutError(f"{self.name}: condition not reached within {timeout_s:g} s")
             try:
-                await asyncio.wait_for(self._status_changed.wait(), min(remaining, self.stale_s))
-            except asyncio.TimeoutError:
+                async with asyncio.timeout(min(remaining, self.stale_s)):
+                    await self._status_changed.wait()
+            except TimeoutError:
                 pass

@@ -55,3 +55,14 @@ class RecordingError(FluidsenseError, ValueError):
 
 class EndOfRecording(LinkLostError):
     """A replayed recording has no more samples: the replay driver's source is gone."""
+
+
+class JobStopped(FluidsenseError, RuntimeError):
+    """A job (a task, a calibration, a sensing run) ended before it finished: a fault, a
+    device that failed, an operator. ``partial`` is what it had done (JSON-ready), for the
+    caller to print and keep; ``fault`` the latched fault, if one stopped it."""
+
+    def __init__(self, message: str, partial: dict, fault: dict | None = None):
+        super().__init__(message)
+        self.partial = partial
+        self.fault = fault

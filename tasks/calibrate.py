@@ -6,6 +6,7 @@ caller (an operator prompt in the CLI) to place it.
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -15,8 +16,11 @@ from pydantic import TypeAdapter
 from controller.calibration import (FEATURES, NEEDS_REFERENCE, Calibration, CalibrationError, Estimate,
                                     feature_value)
 from controller.service import Controller
-from drivers.errors import FluidsenseError
+from drivers.errors import FluidsenseError, JobStopped
 from drivers.scenes import TARGETS, EmptyScene, Scene
+
+from .journal import CycleJournal
+from .stopping import fault_dict, stopped_message
 
 Place = Callable[[Any], Awaitable[None]]
 _SCENE = TypeAdapter(Scene)
@@ -46,38 +50,56 @@ class CalibrationRun:
 
 async def calibrate(ctrl: Controller, scene: Any, target: str, values: Sequence[float], *, feature: str = "p_eq",
                     fit: str = "linear", cycles: int = 8, drop_first: int = 1, place: Place | None = None,
-                    progress: Callable[[int], None] | None = None, seed: int | None = None) -> CalibrationRun:
+                    progress: Callable[[int], None] | None = None, seed: int | None = None,
+                    journal: CycleJournal | None = None) -> CalibrationRun:
     """Run ``cycles`` cycles per target value (dropping the first ``drop_first``, as the
-    paper does) and fit ``feature`` against the target."""
+    paper does) and fit ``feature`` against the target. Each finished cycle goes into
+    ``journal`` as it completes; cycles already in it (``--resume``) are not run again. A
+    run that cannot finish raises JobStopped with what it had done."""
     if feature not in FEATURES:
         raise CalibrationError(f"unknown feature {feature!r}; known: {', '.join(FEATURES)}")
     place = place or ctrl.set_scene
     unit = TARGETS.get(scene.kind, (target, ""))[1]
-    if feature in NEEDS_REFERENCE:
-        await ensure_reference(ctrl, place)
-    xs, ys, skipped = [], [], []
-    for value in values:
-        await place(scene_with(scene, target, value))
-        for k in range(cycles):
-            res = await ctrl.run_cycle(label=f"{target}={value:g}")
-            if progress is not None:
-                progress(1)
-            if not res.ok:
-                raise FluidsenseError(f"calibration cycle {res.cycle_id} at {target}={value} failed: {res.aborted}")
-            if k < drop_first:
+    entries: list[dict[str, Any]] = list(journal.entries) if journal is not None else []
+    total = len(values) * cycles
+    try:
+        if feature in NEEDS_REFERENCE:
+            await ensure_reference(ctrl, place)
+        for value in values:
+            done = sum(1 for e in entries if e["value"] == value)
+            if done >= cycles:
                 continue
-            y = feature_value(res, feature)
-            if y is None:
-                skipped.append({"cycle_id": res.cycle_id, target: value})
-                continue
-            xs.append(float(value))
-            ys.append(y)
+            await place(scene_with(scene, target, value))
+            for k in range(done, cycles):
+                res = await ctrl.run_cycle(label=f"{target}={value:g}")
+                if not res.ok:
+                    raise FluidsenseError(f"calibration cycle {res.cycle_id} at {target}={value:g} ended: "
+                                          f"{res.aborted}")
+                entry = {"value": float(value), "k": k, "cycle_id": res.cycle_id,
+                         "y": feature_value(res, feature)}
+                entries.append(entry)
+                if journal is not None:
+                    journal.add(entry)
+                if progress is not None:
+                    progress(1)
+    except (CalibrationError, asyncio.CancelledError, KeyboardInterrupt):
+        raise
+    except FluidsenseError as exc:
+        kept = f"; finished cycles are kept in {journal.path}: run again with --resume" if journal else ""
+        partial = {"completed": False, "cycles_done": len(entries), "cycles_total": total,
+                   "journal": None if journal is None else str(journal.path), "fault": fault_dict(ctrl),
+                   "error": f"{type(exc).__name__}: {exc}"}
+        raise JobStopped(stopped_message("calibration", ctrl, exc, f"{len(entries)} of {total} cycles") + kept,
+                         partial, partial["fault"]) from exc
+    used = [e for e in entries if e["k"] >= drop_first]
+    skipped = [{"cycle_id": e["cycle_id"], target: e["value"]} for e in used if e["y"] is None]
+    points = [(e["value"], e["y"]) for e in used if e["y"] is not None]
     seq = ctrl.profile.sequence
     window = (seq.flow_window if feature == "v_eq" else seq.windows[0]).model_dump()
     cal = Calibration.fit_points(
-        xs, ys, fit, profile=ctrl.profile.name, method=seq.method, feature=feature,
-        feature_unit=FEATURES[feature][1], scene=scene.model_dump(), target=target, target_unit=unit,
-        window=window, seed=seed, cycles=cycles, drop_first=drop_first)
+        [x for x, _ in points], [y for _, y in points], fit, profile=ctrl.profile.name, method=seq.method,
+        feature=feature, feature_unit=FEATURES[feature][1], scene=scene.model_dump(), target=target,
+        target_unit=unit, window=window, seed=seed, cycles=cycles, drop_first=drop_first)
     return CalibrationRun(cal, skipped)
 
 
@@ -108,9 +130,15 @@ async def sense(ctrl: Controller, cal: Calibration, scene: Any | None = None, cy
         await place(scene)
     values = []
     for _ in range(cycles):
-        res = await ctrl.run_cycle(label="sense")
-        if not res.ok:
-            raise FluidsenseError(f"sensing cycle {res.cycle_id} failed: {res.aborted}")
+        try:
+            res = await ctrl.run_cycle(label="sense")
+            if not res.ok:
+                raise FluidsenseError(f"sensing cycle {res.cycle_id} ended: {res.aborted}")
+        except FluidsenseError as exc:
+            partial = {"completed": False, "cycles_done": len(values), "cycles_total": cycles,
+                       "measurements": values, "fault": fault_dict(ctrl), "error": f"{type(exc).__name__}: {exc}"}
+            raise JobStopped(stopped_message("sensing", ctrl, exc, f"{len(values)} of {cycles} cycles"), partial,
+                             partial["fault"]) from exc
         y = feature_value(res, cal.feature)
         if y is None:
             raise CalibrationError(f"cycle {res.cycle_id} gave no {cal.feature} (no contact detected?)")

@@ -6,33 +6,38 @@ import logging
 from typing import Any
 
 from controller.service import Controller
-from drivers.errors import CommandError
+from drivers.errors import CommandError, JobStopped
 
 from .closed_loop import TASKS
+from .stopping import fault_dict, stopped_message
 
 log = logging.getLogger(__name__)
 
 
 async def run_task(ctrl: Controller, task, order_mm: list[float] | None = None) -> dict[str, Any]:
-    """Run ``task`` (a loaded task file); returns its JSON-ready summary."""
+    """Run ``task`` (a loaded task file); returns its JSON-ready summary. A task that cannot
+    finish raises JobStopped with the steps it completed and the fault that stopped it."""
     fn = TASKS[task.task]
-    seq = {"n": 0}
+    if order_mm is not None and task.task != "sorting":
+        raise CommandError("--order applies to sorting tasks only")
+    steps: list[dict[str, Any]] = []
 
     def report(event: dict[str, Any]) -> None:
-        seq["n"] += 1
-        ctrl.emit("task", {"task": task.task, "step": seq["n"], **event})
+        steps.append(event)
+        ctrl.emit("task", {"task": task.task, "step": len(steps), **event})
 
     report({"event": "started"})
     try:
-        if task.task == "sorting":
-            summary = await fn(ctrl, task, report, order_mm=order_mm)
-        else:
-            if order_mm is not None:
-                raise CommandError("--order applies to sorting tasks only")
-            summary = await fn(ctrl, task, report)
+        kwargs = {"order_mm": order_mm} if task.task == "sorting" else {}
+        summary = await fn(ctrl, task, report, **kwargs)
     except Exception as exc:
-        report({"event": "failed", "error": f"{type(exc).__name__}: {exc}"})
-        raise
+        fault = fault_dict(ctrl)
+        error = f"{type(exc).__name__}: {exc}"
+        message = stopped_message(f"task {task.task}", ctrl, exc, f"{len(steps) - 1} step(s)")
+        partial = {"task": task.task, "completed": False, "error": error, "fault": fault, "t_s": ctrl.now,
+                   "steps": steps[1:]}
+        report({"event": "failed", "error": error, "fault": fault})
+        raise JobStopped(message, partial, fault) from exc
     report({"event": "finished", "summary": summary})
     log.info("task %s finished in %.1f s of sample time", task.task, summary.get("duration_s", 0.0))
     return summary

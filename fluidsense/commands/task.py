@@ -5,12 +5,12 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import sys
 
-from drivers.errors import ConfigError
+from drivers.errors import ConfigError, JobStopped
 
 from .. import app
-from ._common import setup_logging
+from ..exitcodes import EXIT_FAULT, EXIT_OK
+from ._common import print_stopped, setup_logging
 
 
 def register(sub) -> None:
@@ -47,9 +47,10 @@ def main(args: argparse.Namespace) -> int:
         async with app.controller(cfg, publish=args.publish) as ctrl:
             return await run_task(ctrl, task, order_mm=order)
 
-    summary = asyncio.run(job())
-    if args.json:
-        print(json.dumps(summary, indent=2, default=float))
-    else:
-        print(json.dumps(summary, indent=2, default=float), file=sys.stdout)
-    return 0 if summary.get("success", True) is not False else 1
+    try:
+        summary = asyncio.run(job())
+    except JobStopped as exc:
+        print_stopped(exc, args.json)
+        return EXIT_FAULT
+    print(json.dumps(summary, indent=2, default=float))
+    return EXIT_OK if summary.get("success", True) is not False else EXIT_FAULT

@@ -1,0 +1,183 @@
+"""Jobs that a fault stops say so and keep what they did: tasks, calibration (with its
+journal and --resume), sensing; and a real-cell calibration never reads a prompt that
+nobody can answer."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import subprocess
+import sys
+
+import pytest
+import yaml
+
+from controller.config import CellConfig, load_profile
+from drivers.config import SimDriverConfig
+from drivers.errors import CommandError, ConfigError, JobStopped
+from drivers.scenes import CylinderScene
+from fluidsense import app
+from tasks.calibrate import calibrate
+from tasks.journal import CycleJournal, journal_path
+
+from .conftest import CONFIG, REPO, free_simcell, write_cell
+
+
+def _cell(seed: int = 2) -> CellConfig:
+    prof = load_profile(CONFIG / "profiles" / "sorting-gripper-quick.yaml")
+    return CellConfig(driver=SimDriverConfig(clock="virtual", seed=seed), profile=prof)
+
+
+PLAN = dict(target="diameter_mm", values=[40.0, 60.0, 80.0], cycles=3, drop_first=1)
+
+
+def _plan(cfg) -> dict:
+    return {"profile": cfg.profile.name, "scene": CylinderScene(diameter_mm=40).model_dump(), "target": PLAN["target"],
+            "values": PLAN["values"], "feature": "p_eq", "fit": "linear", "cycles": PLAN["cycles"],
+            "drop_first": PLAN["drop_first"]}
+
+
+async def _calibrate(cfg, journal, fault_after: int | None = None):
+    async with app.controller(cfg) as ctrl:
+        done = {"n": 0}
+
+        def progress(n: int) -> None:
+            done["n"] += n
+            if done["n"] == fault_after:  # the cell fails during the next cycle
+                ctrl.backend.extras["cell"].inject("sensor_nan", ctrl.now + 1.0)
+
+        return await calibrate(ctrl, CylinderScene(diameter_mm=40), feature="p_eq", fit="linear",
+                               progress=progress, journal=journal, **PLAN)
+
+
+def test_a_calibration_stopped_by_a_fault_keeps_its_cycles_and_resumes(tmp_path):
+    cfg = _cell()
+    path = journal_path(tmp_path / "cal.json")
+    with pytest.raises(JobStopped) as stopped:
+        asyncio.run(_calibrate(cfg, CycleJournal.open(path, _plan(cfg), resume=False), fault_after=3))
+    exc = stopped.value
+    assert exc.fault["kind"] == "sensor_nan" and "fault sensor_nan" in str(exc) and "--resume" in str(exc)
+    assert exc.partial["cycles_done"] == 3 and exc.partial["cycles_total"] == 9
+    kept = CycleJournal.open(path, _plan(cfg), resume=True)
+    assert [(e["value"], e["k"]) for e in kept.entries] == [(40.0, 0), (40.0, 1), (40.0, 2)]
+    with pytest.raises(ConfigError, match="--resume"):  # never overwritten by a new run
+        CycleJournal.open(path, _plan(cfg), resume=False)
+    with pytest.raises(ConfigError, match="differs in values"):  # nor mixed with another plan
+        CycleJournal.open(path, {**_plan(cfg), "values": [40.0, 60.0]}, resume=True)
+
+    resumed = asyncio.run(_calibrate(_cell(seed=3), kept)).calibration
+    entries = CycleJournal.open(path, _plan(cfg), resume=True).entries
+    assert len(entries) == 9 and entries[:3] == kept.entries[:3]
+    used = [e for e in entries if e["k"] >= PLAN["drop_first"]]
+    assert sorted(resumed.x) == sorted(e["value"] for e in used)  # the fit used the kept cycles too
+    assert sorted(resumed.y) == sorted(e["y"] for e in used)
+    assert resumed.slope > 0
+
+
+def test_a_journal_cut_off_mid_line_resumes_from_the_last_whole_cycle(tmp_path):
+    cfg = _cell()
+    path = journal_path(tmp_path / "cal.json")
+    journal = CycleJournal.open(path, _plan(cfg), resume=False)
+    journal.add({"value": 40.0, "k": 0, "cycle_id": 1, "y": 30000.0})
+    with open(path, "a") as f:
+        f.write('{"value": 40.0, "k": 1, "cyc')  # the power went while a cycle was written
+    again = CycleJournal.open(path, _plan(cfg), resume=True)
+    assert [e["k"] for e in again.entries] == [0]
+    again.add({"value": 40.0, "k": 1, "cycle_id": 2, "y": 30001.0})
+    assert [e["k"] for e in CycleJournal.open(path, _plan(cfg), resume=True).entries] == [0, 1]
+
+
+def test_a_task_stopped_by_a_fault_reports_it_with_what_it_did():
+    from tasks.config import load_task
+    from tasks.runner import run_task
+
+    task = load_task(CONFIG / "tasks" / "sorting.yaml")
+    cfg = _cell()
+    seen = []
+
+    async def main():
+        async with app.controller(cfg) as ctrl:
+            original = ctrl.emit
+
+            def emit(topic, payload):
+                seen.append((topic, payload))
+                if topic == "task" and payload.get("event") == "measured" and payload["position"] == 0:
+                    ctrl.backend.extras["cell"].inject("sensor_stuck", ctrl.now + 0.2)
+                original(topic, payload)
+
+            ctrl.emit = emit
+            await run_task(ctrl, task, order_mm=[60, 100, 80, 40])
+
+    with pytest.raises(JobStopped) as stopped:
+        asyncio.run(main())
+    exc = stopped.value
+    assert exc.fault["kind"] == "sensor_stuck" and str(exc).startswith("task sorting stopped by fault sensor_stuck")
+    assert exc.partial["completed"] is False and exc.partial["steps"][0]["event"] == "measured"
+    failed = [p for t, p in seen if t == "task" and p["event"] == "failed"]
+    assert len(failed) == 1 and failed[0]["fault"]["kind"] == "sensor_stuck"
+
+
+def test_a_task_run_stopped_by_a_fault_exits_4_with_the_partial_summary(tmp_path):
+    """Through a production driver, as a user runs it: the box's sensor freezes mid-task."""
+    with free_simcell(tmp_path, "modbus", profile="sorting-gripper-quick.yaml", driver={"watchdog": None}) as (box, cell):
+        task = yaml.safe_load((CONFIG / "tasks" / "sorting.yaml").read_text())
+        task.update(cell=str(cell), motion={"speed_m_s": 1.0, "acc_m_s2": 3.0, "approach_m": 0.05})
+        task_file = tmp_path / "sorting.yaml"
+        task_file.write_text(yaml.safe_dump(task))
+        run = subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "task", "run", str(task_file),
+                                "--order", "60,100,80,40", "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True, cwd=REPO)
+        box.wait_for(lambda s: s["digital_outputs"] & 0b10, 120, "the first grip")
+        box.command({"cmd": "inject", "fault": "sensor_stuck", "after_s": 0.0})
+        out, err = run.communicate(timeout=600)
+    assert run.returncode == 4, err[-3000:]
+    partial = json.loads(out)
+    assert partial["completed"] is False and partial["fault"]["kind"] == "sensor_stuck"
+    assert "task sorting stopped by fault sensor_stuck" in err and "Traceback" not in err
+
+
+def test_calibrating_a_real_cell_without_a_terminal_is_refused_before_anything_starts(tmp_path):
+    data = yaml.safe_load((CONFIG / "cell-modbus-sim.yaml").read_text())
+    del data["driver"]["sim_control_port"]  # a real cell: nobody but the operator places targets
+    data["driver"]["host"] = "127.0.0.254"  # nothing there: the refusal must come first
+    data["profile"] = str(CONFIG / "profiles" / "sorting-gripper.yaml")
+    cell = write_cell(tmp_path, data)
+    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "calibrate", "--config", str(cell),
+                          "--out", str(tmp_path / "cal.json")], stdin=subprocess.DEVNULL, capture_output=True,
+                         text=True, timeout=60, cwd=REPO)
+    assert out.returncode == 2
+    assert "stdin is not a terminal" in out.stderr and "--targets-from" in out.stderr and "--yes" in out.stderr
+    assert not journal_path(tmp_path / "cal.json").exists()
+
+
+def test_the_operator_is_asked_in_words_and_a_scripted_run_must_name_each_target(tmp_path):
+    from fluidsense.commands.calibrate import Operator, place_text
+
+    assert place_text(CylinderScene(diameter_mm=40)) == "place the 40 mm cylinder between the fingers"
+    lines = tmp_path / "placed.txt"
+    lines.write_text("40\n55\n")
+    op = Operator("diameter_mm", str(lines), yes=False)
+
+    async def main():
+        await op.place(CylinderScene(diameter_mm=40))
+        await op.place(CylinderScene(diameter_mm=60))
+
+    with pytest.raises(CommandError, match="expected a line with 60.0"):
+        asyncio.run(main())
+    op.close()
+
+
+def test_calibrate_cli_keeps_its_journal_and_resumes(tmp_path):
+    """The CLI end to end on the simulated cell: a finished run leaves its journal; a
+    second run refuses to overwrite it; --resume with nothing left to run fits at once."""
+    out = tmp_path / "cal.json"
+    base = [sys.executable, "-m", "fluidsense.cli", "calibrate", "--profile", "sorting-gripper-quick",
+            "--scene", "cylinder", "--set", "diameter_mm=40", "--target", "diameter_mm", "--values", "40,60,80", "--cycles", "2",
+            "--drop-first", "1", "--out", str(out), "--json"]
+    first = subprocess.run(base, capture_output=True, text=True, timeout=300, cwd=REPO)
+    assert first.returncode == 0, first.stderr
+    again = subprocess.run(base, capture_output=True, text=True, timeout=300, cwd=REPO)
+    assert again.returncode == 2 and "--resume" in again.stderr
+    resumed = subprocess.run([*base, "--resume"], capture_output=True, text=True, timeout=300, cwd=REPO)
+    assert resumed.returncode == 0, resumed.stderr
+    assert json.loads(resumed.stdout)["coeffs"] == pytest.approx(json.loads(first.stdout)["coeffs"])

@@ -25,23 +25,11 @@ from drivers.errors import ConfigError, FluidsenseError
 from drivers.files import MB, check_name, decode_utf8, nested_within, read_bounded
 from drivers.models import FieldError, Integer, Real, StrictModel
 
+from .feature_names import FEATURES, FIT_DEGREE, NEEDS_REFERENCE  # noqa: F401 - their home is light
 from .loading import validate
 
-FIT_DEGREE = {"linear": 1, "poly2": 2, "poly3": 3}
 FORMAT = "fluidsense-calibration/1"
 
-# feature name -> (CycleResult attribute, unit at the edge, scale from SI to that unit)
-FEATURES: dict[str, tuple[str, str, float]] = {
-    "p_eq": ("p_eq", "kPa", 1e-3),
-    "v_eq": ("v_eq", "ml", 1e6),
-    "dp_eq": ("dp_eq", "kPa", 1e-3),
-    "dp_max": ("dp_max", "kPa", 1e-3),
-    "t_c_slope": ("t_c_slope", "s", 1.0),
-    "t_c_threshold": ("t_c_threshold", "s", 1.0),
-    "t_c2": ("t_c2", "s", 1.0),
-    "t_c_onset": ("t_c_onset", "s", 1.0),
-}
-NEEDS_REFERENCE = {"dp_eq", "dp_max", "t_c_slope", "t_c_threshold", "t_c2", "t_c_onset"}
 
 
 class CalibrationError(FluidsenseError, ValueError):

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from drivers.errors import CommandError, ConfigError, FluidsenseError, RecordingError, SafetyError
 
-from .commands import MODULES
+from .commands import MODULES, bench
 from .exitcodes import (EXIT_BAD_INPUT, EXIT_CODES, EXIT_FAILURE, EXIT_FAULT, EXIT_INTERRUPTED,  # noqa: F401
                         EXIT_OK, EXIT_TIMEOUT)
 
@@ -18,14 +19,20 @@ def exit_codes_text() -> str:
     return "exit codes:\n" + "\n".join(f"  {code:>3}  {meaning}" for code, meaning in EXIT_CODES.items())
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """``argv``: the command line to be parsed; the benches are only looked up when it asks
+    for one (loading them all costs most of a second)."""
+    argv = sys.argv[1:] if argv is None else argv
     parser = argparse.ArgumentParser(
         prog="fluidsense",
         description="Closed-loop controller for soft pneumatic grippers with retrofit fluidic sensing.",
         epilog=exit_codes_text(), formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for module in MODULES:
-        module.register(sub)
+        if module is bench:
+            module.register(sub, full=argv[:1] == ["bench"])
+        else:
+            module.register(sub)
     return parser
 
 
@@ -36,7 +43,7 @@ def report(exc: BaseException) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)  # a bad argument: argparse exits with 2
+    args = build_parser(argv).parse_args(argv)  # a bad argument: argparse exits with 2
     try:
         return args.func(args)
     except BAD_INPUT as exc:
@@ -50,6 +57,10 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         return EXIT_INTERRUPTED
+    except BrokenPipeError:  # the reader went away (`fluidsense cmd status | head`): stop quietly
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # the interpreter's own flush at exit must not fail again
+        return EXIT_OK
 
 
 if __name__ == "__main__":  # pragma: no cover

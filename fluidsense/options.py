@@ -6,19 +6,9 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from pydantic import TypeAdapter, ValidationError
-
-from controller.config import CellConfig, Profile, load_cell_config, load_profile
-from drivers.config import SimDriverConfig
-from drivers.errors import ConfigError
-from drivers.files import one_line
-from drivers.models import first_error
-from drivers.scenes import Scene
-
-from . import app
-
-PROFILES = app.REPO_ROOT / "config" / "profiles"
-_SCENE = TypeAdapter(Scene)
+# kept light: the parsers of every command are built from these, and `fluidsense --help`
+# must not wait for pydantic, numpy or the configs (imported where they are used)
+PROFILES = Path(__file__).resolve().parent.parent / "config" / "profiles"
 
 
 def add_cell_options(p: argparse.ArgumentParser) -> None:
@@ -43,6 +33,9 @@ def _exists(path: Path) -> bool:
 
 
 def profile_path(name: str) -> Path:
+    from drivers.errors import ConfigError
+    from drivers.files import one_line
+
     for candidate in (Path(name), PROFILES / name, PROFILES / f"{name}.yaml"):
         if _exists(candidate):
             return candidate
@@ -50,8 +43,12 @@ def profile_path(name: str) -> Path:
     raise ConfigError(f"{one_line(name)}: no such profile file or name (known: {known})")
 
 
-def cell_config(args: argparse.Namespace, default_profile: str | None = None) -> CellConfig:
+def cell_config(args: argparse.Namespace, default_profile: str | None = None):
     """The cell for a job. Simulated cells run in virtual time with ``--seed``."""
+    from controller.config import CellConfig, load_cell_config, load_profile
+    from drivers.config import SimDriverConfig
+    from drivers.errors import ConfigError
+
     if args.config:
         cfg = load_cell_config(args.config)
         if cfg.driver.kind == "sim":
@@ -61,7 +58,7 @@ def cell_config(args: argparse.Namespace, default_profile: str | None = None) ->
     name = args.profile or default_profile
     if name is None:
         raise ConfigError("give --profile NAME (a file in config/profiles/) or --config CELL.yaml")
-    profile: Profile = load_profile(profile_path(name))
+    profile = load_profile(profile_path(name))
     return CellConfig(driver=SimDriverConfig(clock="virtual", seed=args.seed), profile=profile)
 
 
@@ -78,6 +75,12 @@ def _value(text: str) -> Any:
 
 def scene_from_args(args: argparse.Namespace, base: Any | None = None) -> Any | None:
     """``--scene NAME --set k=v ...`` on top of ``base`` (a scene or None)."""
+    from pydantic import TypeAdapter, ValidationError
+
+    from drivers.errors import ConfigError
+    from drivers.models import first_error
+    from drivers.scenes import Scene
+
     if args.scene is None and not args.set:
         return base
     data: dict[str, Any] = base.model_dump() if base is not None else {}
@@ -91,6 +94,6 @@ def scene_from_args(args: argparse.Namespace, base: Any | None = None) -> Any | 
             raise ConfigError(f"--set {item!r}: expected KEY=VALUE")
         data[key.strip()] = _value(value.strip())
     try:
-        return _SCENE.validate_python(data)
+        return TypeAdapter(Scene).validate_python(data)
     except ValidationError as exc:
         raise ConfigError(f"--scene/--set: {first_error(exc, 'scene', skip=1)}") from None

@@ -8,12 +8,9 @@ import json
 import sys
 from pathlib import Path
 
-from tqdm import tqdm
-
-from controller.calibration import FEATURES, FIT_DEGREE, Calibration
+from controller.feature_names import FEATURES, FIT_DEGREE
 from drivers.errors import CommandError, ConfigError, JobStopped
 
-from .. import app
 from ..exitcodes import EXIT_FAULT, EXIT_INTERRUPTED, EXIT_OK
 from ..options import add_cell_options, add_scene_options, cell_config, scene_from_args
 from ._common import print_stopped, setup_logging
@@ -138,8 +135,12 @@ def _needs_operator(cfg) -> bool:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
     from tasks.calibrate import calibrate
     from tasks.journal import CycleJournal, journal_path
+
+    from .. import app
 
     cfg = cell_config(args)
     setup_logging(cfg.log_level, quiet=True)
@@ -206,7 +207,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def cmd_sense(args: argparse.Namespace) -> int:
+    from controller.calibration import Calibration
     from tasks.calibrate import sense
+
+    from .. import app
 
     cal = Calibration.load(args.calibration)
     cfg = cell_config(args, default_profile=cal.profile)

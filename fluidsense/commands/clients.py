@@ -5,9 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from .. import app
 from ..exitcodes import EXIT_BAD_INPUT, EXIT_OK
-from ..monitor import monitor, send_command
 
 
 def register(sub) -> None:
@@ -36,6 +34,9 @@ def register(sub) -> None:
 
 
 def cmd_monitor(args: argparse.Namespace) -> int:
+    from .. import app
+    from ..monitor import monitor
+
     endpoint = args.endpoint
     if endpoint is None:
         endpoint = app.load(args.config).publisher.pub
@@ -46,6 +47,9 @@ def cmd_monitor(args: argparse.Namespace) -> int:
 
 
 def cmd_cmd(args: argparse.Namespace) -> int:
+    from .. import app
+    from ..monitor import send_command
+
     endpoint = args.endpoint or app.load(args.config).publisher.cmd
     try:
         request = json.loads(args.request)

@@ -10,7 +10,6 @@ from typing import Any
 
 from drivers.errors import FluidsenseError
 
-from .. import app
 from ._common import setup_logging
 
 DEMO_DIAMETERS: list[float | None] = [None, 20, 40, 60, 80, 100]
@@ -30,6 +29,8 @@ def register(sub) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from tasks.size_survey import size_survey
+
+    from .. import app
 
     overrides: dict[str, Any] = {"driver": {"clock": "virtual", "seed": args.seed}}
     cfg = app.load(args.config, overrides)

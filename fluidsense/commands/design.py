@@ -5,9 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 
-import numpy as np
-
-from controller.config import load_profile
 from drivers.errors import ConfigError
 
 from ..options import profile_path
@@ -36,6 +33,9 @@ def _floats(text: str, name: str) -> list[float]:
 
 
 def main(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from controller.config import load_profile
     from drivers.scenes import TARGETS
     from drivers.sim.resolution import evaluate, search
     from tasks.calibrate import scene_with

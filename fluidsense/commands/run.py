@@ -6,7 +6,6 @@ import argparse
 import asyncio
 from pathlib import Path
 
-from .. import app
 from ._common import setup_logging
 
 
@@ -28,6 +27,8 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from .. import app
+
     overrides = {"driver": {"clock": "virtual"}} if args.virtual else {}
     if args.record or args.no_record:
         overrides["recording"] = {"enabled": False} if args.no_record else {"enabled": True, "dir": args.record}

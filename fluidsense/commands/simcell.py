@@ -7,8 +7,6 @@ import asyncio
 import logging
 import sys
 
-from controller.config import load_cell_config
-from drivers.config import SimDriverConfig
 from drivers.errors import ConfigError
 
 from ..options import add_scene_options, scene_from_args
@@ -36,6 +34,8 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from controller.config import load_cell_config
+    from drivers.config import SimDriverConfig
     from drivers.sim.controlbox.__main__ import main_async
     from drivers.sim.controlbox.config import ControlBoxConfig
     from drivers.sim.controlbox.plant import PlantModel

@@ -8,7 +8,6 @@ import json
 
 from drivers.errors import ConfigError, JobStopped
 
-from .. import app
 from ..exitcodes import EXIT_FAULT, EXIT_OK
 from ._common import print_stopped, setup_logging
 
@@ -31,6 +30,8 @@ def register(sub) -> None:
 def main(args: argparse.Namespace) -> int:
     from tasks.config import cell_path, load_task
     from tasks.runner import run_task
+
+    from .. import app
 
     task = load_task(args.file)
     overrides = {"driver": {"seed": args.seed}} if args.seed is not None else None

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from drivers.errors import ConfigError
 from drivers.sampler import realtime
 from drivers.sampler.loop import Block, SlotLoop, SpinClock
+from drivers.sampler.poller import NoNewSample
 from drivers.sampler.synthetic import SyntheticPoller
 
 P = 1_000_000  # ns: 1 kHz
@@ -44,10 +45,12 @@ class FakeClock:
 class FakePoller:
     """Read n returns (n,), takes ``durations[n]`` of virtual time, raises if n in ``fail``."""
 
-    def __init__(self, clock: FakeClock, durations: dict[int, int] | None = None, fail=(), channels: int = 1):
+    def __init__(self, clock: FakeClock, durations: dict[int, int] | None = None, fail=(), channels: int = 1,
+                 stale=()):
         self.clock = clock
         self.durations = durations or {}
         self.fail = set(fail)
+        self.stale = set(stale)  # reads that find nothing new at the source
         self.channels = channels
         self.read_times: list[int] = []
 
@@ -61,16 +64,19 @@ class FakePoller:
         self.clock.t += self.durations.get(n, 0)
         if n in self.fail:
             raise ConnectionError(f"read {n} failed")
+        if n in self.stale:
+            raise NoNewSample
         return tuple(float(n) for _ in range(self.channels))
 
 
 def run_loop(slots: int, *, delays=None, durations=None, fail=(), block_size=10, threshold_ns=50_000,
-             max_failures=10, rate_hz=1000.0, channels=1):
+             max_failures=10, rate_hz=1000.0, channels=1, stale=(), link_timeout_ns=0):
     clock = FakeClock(delays)
-    poller = FakePoller(clock, durations, fail, channels)
+    poller = FakePoller(clock, durations, fail, channels, stale)
     blocks: list[Block] = []
     loop = SlotLoop(poller, clock, blocks.append, rate_hz=rate_hz, block_size=block_size, n_channels=channels,
-                    late_threshold_ns=threshold_ns, max_consecutive_failures=max_failures)
+                    late_threshold_ns=threshold_ns, max_consecutive_failures=max_failures,
+                    link_timeout_ns=link_timeout_ns)
     result = loop.run(lambda: loop.next_slot >= slots, T0)
     return result, blocks, poller, clock
 
@@ -181,11 +187,31 @@ def test_link_loss_after_n_consecutive_failures_flushes_the_partial_block():
     # reads 3 and 4 fail (2 in a row, below N=3), then reads 10.. fail: lost at read 12
     result, blocks, poller, _ = run_loop(100, fail={3, 4, *range(10, 100)}, max_failures=3, block_size=4)
     assert result.reason == "link_lost" and result.slots == 13
-    assert result.detail == "3 consecutive failed reads, last: ConnectionError: read 12 failed"
+    assert result.detail == "3 consecutive failed reads over 0.002 s, last: ConnectionError: read 12 failed"
     assert result.totals.as_dict() == {"on_time": 8, "late": 0, "missed": 0, "failed": 5, "slots": 13}
     assert len(poller.read_times) == 13
     assert_blocks_account_for_every_slot(blocks, 13)
     assert len(blocks[-1]) == 0 and blocks[-1].counts.failed == 3  # the accounting-only tail
+
+
+def test_link_loss_takes_failures_lasting_the_link_timeout_not_a_count():
+    """At 1 kHz ten failed slots are 10 ms: a busy box. The link is lost only once reads
+    have failed in a row for link_timeout_ns (here 50 ms): a 30 ms burst of failures
+    costs its slots and nothing more."""
+    burst, lasting = set(range(10, 40)), set(range(60, 200))
+    result, blocks, _, _ = run_loop(200, fail=burst | lasting, max_failures=2, link_timeout_ns=50 * P)
+    assert result.reason == "link_lost" and result.slots == 111  # slots 60..110: 50 ms of failures
+    assert result.detail.startswith("51 consecutive failed reads over 0.050 s")
+    assert result.totals.failed == 30 + 51 and result.totals.on_time == 111 - 81
+
+
+def test_a_read_with_nothing_new_is_a_missed_slot_never_a_repeated_value():
+    result, blocks, _, _ = run_loop(50, stale={5, 6, 7, 20}, link_timeout_ns=3 * P, max_failures=2)
+    assert result.reason == "stopped"  # however long it lasts, nothing new is not a failure
+    _, _, values = samples(blocks)  # one channel: one value per sample
+    assert result.totals.as_dict() == {"on_time": 46, "late": 0, "missed": 4, "failed": 0, "slots": 50}
+    assert values == [float(n) for n in range(50) if n not in {5, 6, 7, 20}]
+    assert_blocks_account_for_every_slot(blocks, 50)
 
 
 def test_a_poller_returning_the_wrong_number_of_values_is_a_config_error():

@@ -30,8 +30,10 @@ class SamplerOptions(StrictModel):
     spin_us: Real = Field(75.0, ge=0, le=10_000,
                            description="sleep until this long before a deadline, then spin to it (75 us: "
                            "docs/performance.md, spin against lateness and CPU)")
-    max_consecutive_failures: Integer = Field(10, ge=1, le=1_000_000,
-                                          description="failed reads in a row that mean the link is lost")
+    link_timeout_s: Real = Field(
+        0.25, gt=0, le=60, description="reads failing in a row for this long (at least twice) mean the link is "
+        "lost and the driver reconnects; shorter trouble (a busy box, a late reply) costs missed slots only. "
+        "Below supervision.no_data_s (0.5 s), so the reconnection starts by the time the cell faults")
     cpu: Literal["auto", "none"] | Annotated[Integer, Field(ge=0, le=4095)] = Field(
         "auto", description="CPU to pin the sampler thread to; auto: the last allowed CPU; none: do not pin")
     rt_priority: Annotated[Integer, Field(ge=1, le=99)] | None = Field(

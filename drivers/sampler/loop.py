@@ -10,8 +10,11 @@ stamps the time, reads the poller and files the slot in exactly one of four bins
 - missed: the loop only got to it after the *next* slot's deadline had passed. A
   missed slot produces no sample. The loop re-aligns to the grid (it serves the
   newest slot whose deadline has passed) and never reads twice in a row to catch up;
-- failed: the read raised. After ``max_consecutive_failures`` failed slots in a row
-  the loop reports link loss and ends.
+- failed: the read raised. When reads have failed in a row for ``link_timeout_ns``
+  (and at least ``max_consecutive_failures`` times) the loop reports link loss and ends.
+
+A read that raises ``NoNewSample`` (nothing new at the source since the last read) is
+a missed slot: no sample, and no step towards link loss.
 
 Each sample carries the time its read started (never its deadline, never an
 interpolation), so ``t - deadline == lateness`` exactly and a consumer can always
@@ -34,7 +37,7 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 from ..errors import ConfigError
-from .poller import Poller
+from .poller import NoNewSample, Poller
 
 log = logging.getLogger(__name__)
 
@@ -152,7 +155,7 @@ class SlotLoop:
 
     def __init__(self, poller: Poller, clock: Clock, emit: Callable[[Block], None], *,
                  rate_hz: float, block_size: int, n_channels: int, late_threshold_ns: int,
-                 max_consecutive_failures: int) -> None:
+                 max_consecutive_failures: int, link_timeout_ns: int = 0) -> None:
         if rate_hz <= 0 or block_size < 1 or n_channels < 1 or max_consecutive_failures < 1:
             raise ConfigError("slot loop: rate_hz > 0, block_size >= 1, n_channels >= 1 and "
                               "max_consecutive_failures >= 1 are required")
@@ -164,6 +167,8 @@ class SlotLoop:
         self.n_channels = n_channels
         self.late_threshold_ns = late_threshold_ns
         self.max_failures = max_consecutive_failures
+        self.link_timeout_ns = link_timeout_ns
+        self._failing_since_ns = 0
         self.t0_ns = 0
         self.next_slot = 0
         self.totals = Counts()
@@ -196,8 +201,10 @@ class SlotLoop:
             try:
                 raw = read()
                 row = [float(x) for x in raw]
+            except NoNewSample:
+                self._acc.counts.missed += 1
             except Exception as exc:  # noqa: BLE001 - any read failure is a failed slot
-                self._failed(k, exc)
+                self._failed(k, t, exc)
             else:
                 self._sample(k, t, t - deadline, row, now() - t)
             k += 1
@@ -243,7 +250,7 @@ class SlotLoop:
         if read_ns > acc.read_max_ns:
             acc.read_max_ns = read_ns
 
-    def _failed(self, k: int, exc: Exception) -> None:
+    def _failed(self, k: int, t: int, exc: Exception) -> None:
         # Keep only text: an exception object holds its traceback, whose frames hold
         # the loop, a reference cycle that nothing collects while gc is disabled.
         error = f"{type(exc).__name__}: {exc}"
@@ -251,9 +258,12 @@ class SlotLoop:
         self._acc.last_error = error
         self._consecutive_failures += 1
         if self._consecutive_failures == 1:
+            self._failing_since_ns = t
             log.warning("read failed at slot %d: %s", k, error)
-        if self._consecutive_failures >= self.max_failures:
-            self._lost = f"{self._consecutive_failures} consecutive failed reads, last: {error}"
+        failing_ns = t - self._failing_since_ns
+        if self._consecutive_failures >= self.max_failures and failing_ns >= self.link_timeout_ns:
+            self._lost = (f"{self._consecutive_failures} consecutive failed reads over {failing_ns / 1e9:.3f} s, "
+                          f"last: {error}")
             log.error("link lost at slot %d: %s", k, self._lost)
 
     def _flush(self) -> None:

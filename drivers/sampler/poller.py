@@ -14,9 +14,11 @@ Contract (see docs/sampler.md, "Writing a poller"):
 - ``read()`` returns one float per configured channel, in SI units (Pa gauge, m^3/s),
   in the configured channel order. It must return or raise within a bounded time, well
   under one period: slots that pass while it blocks are counted as missed. Raising any
-  ``Exception`` marks the slot as failed; the loop counts consecutive failures and
-  reports link loss after ``max_consecutive_failures`` of them, so ``read()`` should
-  not retry internally.
+  ``Exception`` marks the slot as failed; reads that keep failing for the sampler's
+  ``link_timeout_s`` mean link loss, so ``read()`` should not retry internally.
+  Raising :class:`NoNewSample` says the source has nothing new since the last read (a
+  box that refreshes slower than the slots come, a late packet): the slot is missed,
+  never filled with the old value, and it does not count towards link loss.
 - ``read()`` runs with the garbage collector disabled: avoid creating reference cycles
   in it (plain numbers, tuples and lists are fine).
 - ``close()`` releases everything; it is called once, also after a failed run.
@@ -30,6 +32,10 @@ import re
 from typing import Any
 
 from ..errors import ConfigError
+
+class NoNewSample(Exception):  # noqa: N818 - a slot's outcome, not an error
+    """``read()`` found nothing new since the last read: the slot is missed."""
+
 
 SPEC_PATTERN = r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*:[A-Za-z_][A-Za-z0-9_]*$"
 

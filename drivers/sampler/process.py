@@ -155,7 +155,7 @@ def run(args: dict[str, Any], poller: Any, sender: Sender, ctl: zmq.Socket) -> i
     clock = SpinClock(spin_ns=int(args["spin_us"] * 1000))
     loop = SlotLoop(poller, clock, sender.block, rate_hz=rate_hz, block_size=int(args["block_size"]),
                     n_channels=len(args["channels"]), late_threshold_ns=int(args["late_threshold_us"] * 1000),
-                    max_consecutive_failures=int(args["max_consecutive_failures"]))
+                    max_consecutive_failures=2, link_timeout_ns=int(args["link_timeout_s"] * 1e9))
     keeper = Housekeeper(ctl, sender, int(args["parent_pid"]), max(1, round(rate_hz * HOUSEKEEPING_S)), loop)
     report = realtime.apply(args["rt_priority"], args["cpu"])
     t0 = clock.now_ns() + START_LEAD_NS

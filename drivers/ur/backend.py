@@ -43,7 +43,7 @@ def scene_link(host: str, port: int | None):
 def build(cfg: UrDriverConfig, hw: Hardware) -> Backend:
     link = worker_link(cfg.host, cfg.arm, io=True, watchdog=cfg.watchdog)
     poller = {"host": cfg.host, "frequency": cfg.rate_hz, "inputs": rtde_inputs(cfg.wiring, hw.channels),
-              "upper_range_registers": cfg.arm.upper_range_registers}
+              "upper_range_registers": cfg.arm.upper_range_registers, "stale_s": cfg.rtde_timeout_s}
     sampler = sampler_config("drivers.ur.poller:RtdeAnalogPoller", poller, hw.channels, cfg.rate_hz,
                              cfg.block_size, cfg.sampler, cfg.reconnect.connect_timeout_s)
     source = PolledCellSource("ur", sampler, [link], cfg.reconnect)

@@ -26,6 +26,10 @@ class UrDriverConfig(StrictModel):
     rate_hz: Real = Field(500.0, ge=1, description="analog input sample rate (RTDE: 500 Hz e-Series, 125 Hz CB3)")
     block_size: Integer = Field(5, ge=1, le=10_000, description=BLOCK_SIZE)
     wiring: Wiring
+    rtde_timeout_s: Real = Field(
+        0.5, gt=0, le=10, description="RTDE data that stays the same for this long means the robot stopped "
+        "sending (a lost link); a shorter pause is late packets, their slots missed. On a busy PC (or a busy "
+        "emulated box) packets come tens of ms late; the sampler's link_timeout_s then ends the link")
     analog: AnalogScale = AnalogScale()
     arm: UrArmConfig = UrArmConfig()
     sampler: SamplerOptions = SamplerOptions()

@@ -2,21 +2,24 @@
 
 RTDE sends the box's state at a fixed rate (500 Hz e-Series); ur_rtde keeps the newest
 packet and each read takes that. The sampler polls at the same rate on its own clock,
-so a reading is the value of the newest packet, up to one RTDE period old.
+so a reading is the value of the newest packet, up to one RTDE period old. A slot that
+finds no newer packet than the last one (the box's packet was late, or the two clocks
+drifted) is a missed slot, never the old value stamped again; a stream that stays still
+for ``stale_s`` means the robot stopped sending: a failed read, then a lost link.
 """
 
 from __future__ import annotations
 
 import time
 
-from ..sampler.poller import Poller
+from ..sampler.poller import NoNewSample, Poller
 
 _INPUTS = ("getStandardAnalogInput0", "getStandardAnalogInput1")
 
 
 class RtdeAnalogPoller(Poller):
     def __init__(self, host: str, frequency: float, inputs: list[list[float]], upper_range_registers: bool = False,
-                 stale_s: float = 0.1) -> None:
+                 stale_s: float = 0.5) -> None:
         """``inputs``: per channel ``[analog input, k, c]``: Pa = k * reading + c, the
         reading in V or mA as RTDE reports it. A timestamp that has not moved for
         ``stale_s`` means the robot stopped sending: reads fail."""
@@ -41,10 +44,11 @@ class RtdeAnalogPoller(Poller):
         r = self.receive
         stamp = r.getTimestamp()
         now = time.monotonic_ns()
-        if stamp != self._stamp:
-            self._stamp, self._stamp_at = stamp, now
-        elif now - self._stamp_at > self.stale_ns:
-            raise ConnectionError(f"RTDE data from {self.host} stale for {(now - self._stamp_at) / 1e9:.3f} s")
+        if stamp == self._stamp:
+            if now - self._stamp_at > self.stale_ns:
+                raise ConnectionError(f"RTDE data from {self.host} stale for {(now - self._stamp_at) / 1e9:.3f} s")
+            raise NoNewSample
+        self._stamp, self._stamp_at = stamp, now
         return tuple(k * get() + c for get, (_, k, c) in zip(self._getters, self.inputs))
 
     def close(self) -> None:

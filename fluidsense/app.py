@@ -134,9 +134,7 @@ async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: N
     async with controller(cfg, publish=True, record=True) as ctrl:
         ctrl.task_runner = _task_runner(ctrl, tasks_dir)
         try:
-            curve = cfg.publisher.cmd_curve
-            server = CommandServer(cfg.publisher.cmd, ctrl.handle_command,
-                                   curve=None if curve is None else (curve.server_secret_file, curve.clients_dir))
+            server = CommandServer(cfg.publisher.cmd, ctrl.handle_command, curve=cfg.publisher.cmd_curve)
         except (zmq.ZMQError, OSError, ValueError) as exc:
             raise ConfigError(f"publisher.cmd: cannot bind {cfg.publisher.cmd}: {exc}") from exc
         serve = asyncio.create_task(server.serve(), name="command-socket")

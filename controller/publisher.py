@@ -3,24 +3,17 @@
 Every message is two frames: the topic (ASCII) and a JSON object that always carries
 ``schema`` (the schema version), ``topic``, ``seq`` (one counter over all topics, so a
 subscriber sees gaps) and ``t_s`` (sample time of the newest sample when it was sent).
-A slow subscriber never blocks the controller: PUB drops at its high-water mark and the
-drop is counted.
+A slow subscriber never blocks the controller: PUB drops at its high-water mark.
 
-The socket is an XPUB with a welcome message: a subscriber that subscribes to ``hello``
-receives the single frame ``hello`` as soon as it is connected, so it knows that nothing
-published after that is lost to the usual ZeroMQ slow-joiner gap.
+The public XPUB socket lives in an outlet process (controller/outlet.py): subscriptions
+are untrusted input that libzmq can spend unbounded time and memory on, and there they
+cost the daemon nothing. The daemon PUSHes each encoded message to the outlet over ipc
+in a directory only its user can enter, never blocking: when the outlet falls behind by
+``hwm`` messages, messages are dropped and counted. An outlet that dies is started again.
 
-Subscriptions are untrusted input. libzmq keeps each subscription prefix in a trie of
-about 50 bytes per byte of prefix, for as long as its subscriber stays connected: one
-8 MB subscription cost 880 MB. So a subscription frame is limited to
-MAX_SUBSCRIPTION_BYTES (a larger frame drops that connection), and the trie is bounded by
-counting what does not belong in it: subscriptions that match none of our topics (no
-topic starts with them) and frames that are not subscriptions at all. Once there were
-SUBSCRIPTION_BUDGET of them, every subscriber connection is dropped (the socket unbinds
-and binds again), which frees the trie; well-behaved subscribers reconnect by themselves
-and get the welcome again. XPUB_MANUAL does not bound it: libzmq 4.3 still keeps every
-subscription a peer sends, in a second trie, to unsubscribe it when the peer leaves.
-Matching stays ZeroMQ's own: a prefix gets every topic that starts with it.
+The socket has a welcome message: a subscriber that subscribes to ``hello`` receives the
+single frame ``hello`` as soon as it is connected, so it knows that nothing published
+after that is lost to the usual ZeroMQ slow-joiner gap.
 """
 
 from __future__ import annotations
@@ -29,29 +22,33 @@ import asyncio
 import json
 import logging
 import math
+import os
+import select
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
 from typing import Any
 
 import numpy as np
 import zmq
 
+from .outlet import STOP, TOPICS, WELCOME
+
 log = logging.getLogger(__name__)
 
 SCHEMA_VERSION = 1
-TOPICS = ("pressure", "state", "cycle", "heartbeat", "fault", "task", "log")
-WELCOME = b"hello"
-KNOWN = tuple(t.encode() for t in TOPICS) + (WELCOME,)
-# a frame's size limit also applies to the ZMTP handshake (a subscriber's READY command is
-# about 30 bytes; other ZeroMQ libraries may add properties)
-MAX_SUBSCRIPTION_BYTES = 256
-SUBSCRIPTION_BUDGET = 500  # foreign frames between connection resets: a few MB of trie at most
-RCVHWM = 64  # subscription frames queued per subscriber before libzmq stops reading it
-SERVICE_BATCH = 256  # frames read per turn of the event loop
-REBIND_RETRY_S = 0.02
+START_TIMEOUT_S = 30.0
+STOP_TIMEOUT_S = 3.0  # the outlet lingers up to a second for the last messages
+CHECK_PERIOD_S = 0.2  # how often send() looks whether the outlet is still there
+RESTART_BACKOFF_S = (0.0, 0.5, 2.0, 5.0)
+STABLE_S = 10.0  # an outlet up this long has its restart back-off forgotten
+# data the outlet may hold beyond its start: a few slow subscribers' queues (10,000
+# messages of about 2.5 kB each) fit; a flood of subscriptions ends it
+OUTLET_MEMORY_CAP_MB = 256.0
 
-
-def is_known_prefix(prefix: bytes) -> bool:
-    """Whether a subscription to ``prefix`` receives any of our messages."""
-    return any(name.startswith(prefix) for name in KNOWN)
+__all__ = ["SCHEMA_VERSION", "TOPICS", "WELCOME", "Publisher", "NullPublisher", "encode"]
 
 
 def _default(obj: Any) -> Any:
@@ -80,116 +77,116 @@ def encode(topic: str, seq: int, t_s: float, payload: dict[str, Any]) -> list[by
 
 class Publisher:
     def __init__(self, endpoint: str, context: zmq.Context | None = None, hwm: int = 10_000):
+        """Starts the outlet and returns once ``endpoint`` is bound; raises zmq.ZMQError
+        when it cannot be."""
         self.endpoint = endpoint
-        self._ctx = context or zmq.Context.instance()
-        self._sock = self._ctx.socket(zmq.XPUB)
-        self._sock.setsockopt(zmq.SNDHWM, hwm)
-        self._sock.setsockopt(zmq.RCVHWM, RCVHWM)
-        self._sock.setsockopt(zmq.MAXMSGSIZE, MAX_SUBSCRIPTION_BYTES)
-        self._sock.setsockopt(zmq.LINGER, 1000)
-        self._sock.setsockopt(zmq.XPUB_WELCOME_MSG, WELCOME)
-        try:
-            self._sock.bind(endpoint)
-        except zmq.ZMQError:
-            self._sock.close(linger=0)
-            raise
-        self._bound = self._sock.getsockopt_string(zmq.LAST_ENDPOINT)  # tcp://localhost:N -> 127.0.0.1
         self.seq = 0
-        self.dropped = 0
-        self.subscriptions = 0  # distinct prefixes of our topics subscribed to
-        self.foreign = 0  # foreign frames since the last reset
-        self.resets = 0
-        self._rebinding = False
-        self._more_scheduled = False
-        self._closed = False
-        self._loop: asyncio.AbstractEventLoop | None = None
+        self.dropped = 0  # messages that never reached the outlet
+        self.restarts = 0
+        self._hwm = hwm
+        self._dir = tempfile.mkdtemp(prefix="fluidsense-pub-")  # 0700: only our user reaches the inlet
+        self._inlet = f"ipc://{self._dir}/inlet"
+        self._proc: subprocess.Popen | None = None
+        self._next_check = 0.0
+        self._failures = 0
+        self._restart_at: float | None = None
+        self._started_at = 0.0
         try:
-            self._loop = asyncio.get_running_loop()
-            self._loop.add_reader(self._sock.getsockopt(zmq.FD), self._service)
-        except RuntimeError:  # no event loop: serviced on every send only
+            self._start(wait=True)
+        except BaseException:
+            shutil.rmtree(self._dir, ignore_errors=True)
+            raise
+        ctx = context or zmq.Context.instance()
+        self._push = ctx.socket(zmq.PUSH)
+        self._push.setsockopt(zmq.SNDHWM, max(hwm, 10_000))
+        self._push.setsockopt(zmq.LINGER, int(STOP_TIMEOUT_S * 1000))
+        self._push.connect(self._inlet)
+        self._timer: asyncio.TimerHandle | None = None
+        try:  # an idle daemon sends nothing: look after the outlet on a timer too
+            self._loop: asyncio.AbstractEventLoop | None = asyncio.get_running_loop()
+        except RuntimeError:
             self._loop = None
-        log.info("publishing on %s", endpoint)
+        self._tick()
+        log.info("publishing on %s (outlet process %d)", endpoint, self._proc.pid)
+
+    def _tick(self) -> None:
+        self._check_outlet()
+        if self._loop is not None:
+            self._timer = self._loop.call_later(CHECK_PERIOD_S, self._tick)
 
     @property
     def stats(self) -> dict[str, int]:
-        return {"dropped": self.dropped, "subscriptions": self.subscriptions,
-                "foreign_subscriptions": self.foreign, "subscriber_resets": self.resets}
+        return {"dropped": self.dropped, "outlet_restarts": self.restarts}
 
-    def _service(self) -> None:
-        """Read subscription frames. libzmq attaches new subscribers (and sends them the
-        welcome) only while the application services the socket, so this runs whenever
-        its file descriptor is readable (edge-triggered: drain until empty). A flood is
-        read a batch per turn of the event loop, so that the sample loop keeps its turns."""
-        if self._closed:
+    def _start(self, wait: bool) -> None:
+        args = {"endpoint": self.endpoint, "inlet": self._inlet, "hwm": self._hwm, "parent_pid": os.getpid(),
+                "memory_cap_mb": OUTLET_MEMORY_CAP_MB, "log_level": logging.getLevelName(log.getEffectiveLevel())}
+        self._proc = subprocess.Popen([sys.executable, "-m", "controller.outlet", json.dumps(args)],
+                                      stdin=subprocess.DEVNULL, stdout=subprocess.PIPE if wait else subprocess.DEVNULL)
+        self._started_at = time.monotonic()
+        if not wait:
             return
-        for _ in range(SERVICE_BATCH):
-            try:
-                frame = self._sock.recv(zmq.NOBLOCK)
-            except zmq.Again:
-                return
-            self._account(frame)
-        if self._loop is not None and not self._more_scheduled:
-            self._more_scheduled = True
-            self._loop.call_soon(self._service_more)
-
-    def _service_more(self) -> None:
-        self._more_scheduled = False
-        self._service()
-
-    def _account(self, frame: bytes) -> None:
-        """libzmq passes up a prefix when it enters the trie (first subscriber) and when it
-        leaves it (last subscriber gone), plus any frame that is not a subscription."""
-        if frame[:1] in (b"\x00", b"\x01") and is_known_prefix(frame[1:]):
-            self.subscriptions = max(0, self.subscriptions + (1 if frame[:1] == b"\x01" else -1))
+        ready = select.select([self._proc.stdout], [], [], START_TIMEOUT_S)[0]
+        said = self._proc.stdout.readline().decode().strip() if ready else ""
+        self._proc.stdout.close()
+        if said == "ok":
             return
-        if frame[:1] == b"\x00" or self._rebinding:
-            return  # a foreign prefix left the trie, or a reset is already under way
-        self.foreign += 1
-        if self.foreign > SUBSCRIPTION_BUDGET:
-            self._drop_subscribers()
+        self._kill()
+        if said.startswith("error "):
+            _, errno, message = said.split(" ", 2)
+            raise zmq.ZMQError(int(errno), message)
+        raise zmq.ZMQError(msg=f"the publisher's outlet process did not start (said {said!r})")
 
-    def _drop_subscribers(self) -> None:
-        """Unbinding closes every connection accepted on the endpoint, and with them their
-        subscriptions; bind again once the listener has let go of the address."""
-        self.resets += 1
-        log.warning("publisher: %d subscriptions to no topic or non-subscription frames: dropping every "
-                    "subscriber connection (reset %d); they reconnect", self.foreign, self.resets)
-        self._rebinding = True
-        try:
-            self._sock.unbind(self._bound)
-        except zmq.ZMQError as exc:
-            log.error("publisher: unbind %s failed: %s", self._bound, exc)
-        self._rebind()
+    def _kill(self) -> None:
+        if self._proc is not None and self._proc.poll() is None:
+            self._proc.kill()
+            self._proc.wait()
 
-    def _rebind(self) -> None:
-        if self._closed or not self._rebinding:
+    def _check_outlet(self) -> None:
+        """An outlet that ended (a flood of subscriptions hit its memory cap) is started
+        again, at once the first time, then backing off; the queue to it keeps what it had
+        not taken."""
+        now = time.monotonic()
+        if now < self._next_check:
             return
-        try:
-            self._sock.bind(self._bound)
-        except zmq.ZMQError as exc:  # the old listener closes in libzmq's I/O thread: soon
-            log.debug("publisher: rebind %s: %s", self._bound, exc)
-            if self._loop is not None:
-                self._loop.call_later(REBIND_RETRY_S, self._rebind)
+        self._next_check = now + CHECK_PERIOD_S
+        if self._proc.poll() is None:
+            if now - self._started_at > STABLE_S:
+                self._failures = 0
             return
-        self._rebinding = False
-        self.foreign = 0
-        log.info("publisher: listening again on %s", self._bound)
+        if self._restart_at is None:
+            delay = RESTART_BACKOFF_S[min(self._failures, len(RESTART_BACKOFF_S) - 1)]
+            self._failures += 1
+            self.restarts += 1
+            self._restart_at = now + delay
+            log.warning("publisher outlet ended (exit code %s): starting another in %.1f s",
+                        self._proc.returncode, delay)
+        if now >= self._restart_at:
+            self._restart_at = None
+            self._start(wait=False)
 
     def send(self, topic: str, t_s: float, payload: dict[str, Any]) -> None:
         self.seq += 1
         try:
-            self._sock.send_multipart(encode(topic, self.seq, t_s, payload), flags=zmq.NOBLOCK)
+            self._push.send_multipart(encode(topic, self.seq, t_s, payload), flags=zmq.NOBLOCK)
         except zmq.Again:
             self.dropped += 1
-        if self._rebinding and self._loop is None:
-            self._rebind()
-        self._service()
+        self._check_outlet()
 
     def close(self) -> None:
-        self._closed = True
-        if self._loop is not None and not self._loop.is_closed():
-            self._loop.remove_reader(self._sock.getsockopt(zmq.FD))
-        self._sock.close()
+        """The messages sent so far go out (the outlet lingers a second for slow
+        subscribers), then the outlet ends."""
+        if self._timer is not None:
+            self._timer.cancel()
+        try:
+            self._push.send_multipart(STOP, flags=zmq.NOBLOCK)
+            self._proc.wait(STOP_TIMEOUT_S)
+        except (zmq.Again, subprocess.TimeoutExpired):
+            log.warning("publisher outlet did not stop in %.0f s: killed", STOP_TIMEOUT_S)
+        finally:
+            self._kill()
+            self._push.close(linger=0)
+            shutil.rmtree(self._dir, ignore_errors=True)
 
 
 class NullPublisher:

@@ -54,5 +54,19 @@ class RawPeer:
         """One message frame; raises OSError once the other side has dropped us."""
         self._write(0x01 if more else 0x00, body)
 
+    def send_oversized(self, size: int, chunk: int = 1 << 16) -> int:
+        """Announce a frame of ``size`` bytes and stream its body until the other side
+        hangs up; returns how many body bytes got written (kernel buffers included)."""
+        written = 0
+        try:
+            self.sock.sendall(bytes([0x02]) + struct.pack(">Q", size))
+            while written < size:
+                n = min(chunk, size - written)
+                self.sock.sendall(b"x" * n)
+                written += n
+        except OSError:
+            pass
+        return written
+
     def close(self) -> None:
         self.sock.close()

@@ -3,7 +3,7 @@
 Property-based (hypothesis): REQ requests and DEALER messages with and without the empty
 delimiter, extra routing frames, empty frames, frames up to the size limit, deep JSON,
 binary, and commands with random fields. Every message the command socket can answer
-(docs/zmq-schema.md, "Malformed traffic") must get exactly one well-formed reply, the
+(docs/zmq-schema.md, "Framing") must get exactly one well-formed reply, the
 others none; the daemon must keep running, never latch an overrun or no_data fault, and
 never miss a sample. tests/test_security.py runs the same at a small budget. Needs
 hypothesis (the test extras).

@@ -51,6 +51,9 @@ STOP = [b"stop"]  # never a published message: those are two frames
 # a frame's size limit also applies to the ZMTP handshake (a subscriber's READY command is
 # about 30 bytes; other ZeroMQ libraries may add properties)
 MAX_FRAME_BYTES = 256
+# the daemon's own messages, through a socket only its user can reach: a pressure batch is
+# about 2.5 kB, a task summary a few
+MAX_MESSAGE_BYTES = 16 * 2**20
 SUBSCRIPTION_BUDGET = 500  # foreign frames between connection resets: a few MB of trie
 RCVHWM = 64  # subscription frames queued per subscriber
 BATCH = 1000  # frames moved per turn, each way, so that neither direction starves the other
@@ -74,6 +77,7 @@ class Outlet:
         self.xpub.setsockopt(zmq.XPUB_WELCOME_MSG, WELCOME)
         self.inlet = ctx.socket(zmq.PULL)
         self.inlet.setsockopt(zmq.RCVHWM, max(hwm, 10_000))
+        self.inlet.setsockopt(zmq.MAXMSGSIZE, MAX_MESSAGE_BYTES)
         self.inlet.setsockopt(zmq.LINGER, 0)
         self.xpub.bind(endpoint)
         self.inlet.bind(inlet)
@@ -114,7 +118,11 @@ class Outlet:
         self.resets += 1
         log.warning("%d subscriptions to no topic or non-subscription frames: dropping every subscriber "
                     "connection (reset %d); they reconnect", self.foreign, self.resets)
-        self.xpub.unbind(self.bound)
+        try:
+            self.xpub.unbind(self.bound)
+        except zmq.ZMQError as exc:  # ending the process drops them too: the daemon starts another
+            log.error("cannot unbind %s (%s): ending the outlet instead", self.bound, exc)
+            raise SystemExit(3) from exc
         self.rebind_at = time.monotonic()
 
     def rebind(self) -> None:

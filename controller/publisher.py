@@ -198,6 +198,10 @@ class NullPublisher:
         self.seq = 0
         self.dropped = 0
 
+    @property
+    def stats(self) -> dict[str, int]:
+        return {"dropped": 0, "outlet_restarts": 0}
+
     def send(self, topic: str, t_s: float, payload: dict[str, Any]) -> None:
         self.seq += 1
 

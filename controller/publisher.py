@@ -25,10 +25,12 @@ import math
 import os
 import select
 import shutil
+import stat
 import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -47,6 +49,7 @@ STABLE_S = 10.0  # an outlet up this long has its restart back-off forgotten
 # data the outlet may hold beyond its start: a few slow subscribers' queues (10,000
 # messages of about 2.5 kB each) fit; a flood of subscriptions ends it
 OUTLET_MEMORY_CAP_MB = 256.0
+DIR_PREFIX = "fluidsense-pub-"
 
 __all__ = ["SCHEMA_VERSION", "TOPICS", "WELCOME", "Publisher", "NullPublisher", "encode"]
 
@@ -75,6 +78,19 @@ def encode(topic: str, seq: int, t_s: float, payload: dict[str, Any]) -> list[by
     return [topic.encode("ascii"), json.dumps(_clean(msg), default=_default, allow_nan=False).encode()]
 
 
+def _sweep_stale_dirs() -> None:
+    """Remove the inlet directories of our user's daemons that are gone (killed)."""
+    for path in Path(tempfile.gettempdir()).glob(f"{DIR_PREFIX}*-*"):
+        try:
+            pid = int(path.name.removeprefix(DIR_PREFIX).split("-", 1)[0])
+            st = path.lstat()
+        except (ValueError, OSError):
+            continue
+        if st.st_uid != os.getuid() or not stat.S_ISDIR(st.st_mode) or Path(f"/proc/{pid}").exists():
+            continue
+        shutil.rmtree(path, ignore_errors=True)
+
+
 class Publisher:
     def __init__(self, endpoint: str, context: zmq.Context | None = None, hwm: int = 10_000):
         """Starts the outlet and returns once ``endpoint`` is bound; raises zmq.ZMQError
@@ -84,7 +100,10 @@ class Publisher:
         self.dropped = 0  # messages that never reached the outlet
         self.restarts = 0
         self._hwm = hwm
-        self._dir = tempfile.mkdtemp(prefix="fluidsense-pub-")  # 0700: only our user reaches the inlet
+        _sweep_stale_dirs()
+        # 0700: only our user reaches the inlet; the pid in the name lets a later daemon
+        # remove it if this one is killed before it can
+        self._dir = tempfile.mkdtemp(prefix=f"{DIR_PREFIX}{os.getpid()}-")
         self._inlet = f"ipc://{self._dir}/inlet"
         self._proc: subprocess.Popen | None = None
         self._next_check = 0.0

@@ -59,6 +59,7 @@ RCVHWM = 64  # subscription frames queued per subscriber
 BATCH = 1000  # frames moved per turn, each way, so that neither direction starves the other
 LINGER_MS = 1000  # the last messages (the daemon's "controller stopped") still go out
 REBIND_RETRY_S = 0.02
+REBIND_GIVE_UP_S = 5.0
 PR_SET_PDEATHSIG = 1
 
 
@@ -85,6 +86,7 @@ class Outlet:
         self.foreign = 0  # foreign frames since the last reset
         self.resets = 0
         self.rebind_at: float | None = None
+        self.unbound_at = 0.0
 
     def forward(self) -> bool:
         """Move queued messages to the subscribers; False once told to stop."""
@@ -116,20 +118,23 @@ class Outlet:
         """Unbinding closes every connection accepted on the endpoint, and with them their
         subscriptions; bind again once the listener has let go of the address."""
         self.resets += 1
-        log.warning("%d subscriptions to no topic or non-subscription frames: dropping every subscriber "
-                    "connection (reset %d); they reconnect", self.foreign, self.resets)
+        if self.resets & (self.resets - 1) == 0:  # 1, 2, 4, ...: a flood does not flood the log
+            log.warning("%d subscriptions to no topic or non-subscription frames: dropping every subscriber "
+                        "connection (%d times so far); they reconnect", self.foreign, self.resets)
         try:
             self.xpub.unbind(self.bound)
         except zmq.ZMQError as exc:  # ending the process drops them too: the daemon starts another
             log.error("cannot unbind %s (%s): ending the outlet instead", self.bound, exc)
             raise SystemExit(3) from exc
-        self.rebind_at = time.monotonic()
+        self.rebind_at = self.unbound_at = time.monotonic()
 
     def rebind(self) -> None:
         try:
             self.xpub.bind(self.bound)
         except zmq.ZMQError as exc:  # the old listener closes in libzmq's I/O thread: soon
-            log.debug("rebind %s: %s", self.bound, exc)
+            if time.monotonic() - self.unbound_at > REBIND_GIVE_UP_S:  # someone else took the address
+                log.error("cannot bind %s again: %s", self.bound, exc)
+                raise SystemExit(3) from exc
             self.rebind_at = time.monotonic() + REBIND_RETRY_S
             return
         self.rebind_at = None

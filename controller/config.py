@@ -13,7 +13,7 @@ import stat
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, Field, field_validator, model_validator
+from pydantic import BaseModel, Field, ValidationInfo, field_validator, model_validator
 
 from drivers.config import DriverConfig
 from drivers.errors import ConfigError
@@ -23,6 +23,7 @@ from drivers.models import FieldError, Integer, Real, StrictModel
 from drivers.scenes import Scene
 from drivers.units import KPA
 
+from .curve import ALLOW_ANY, count_public_keys, read_secret_key
 from .loading import load_model, read_yaml, referenced_file, validate
 
 __all__ = ["CellConfig", "Profile", "SequenceConfig", "load_cell_config", "load_model", "load_profile", "read_yaml",
@@ -223,10 +224,34 @@ class Supervision(StrictModel):
 
 class CurveKeys(StrictModel):
     """ZeroMQ CURVE for the command socket: the server's secret key file and a directory
-    of the public keys of the clients allowed in (``fluidsense keys`` makes both)."""
+    of the public keys of the clients allowed in (``fluidsense keys`` makes both). Both are
+    checked at load: a key file others can read, or no client key to let in, would give a
+    daemon anyone or no one can command. Paths are relative to the working directory."""
 
-    server_secret_file: str = Field(min_length=1)
-    clients_dir: str = Field(min_length=1)
+    server_secret_file: str = Field(min_length=1, max_length=4096)
+    allow_any_client: bool = Field(False, description="let any client key in (clients_dir must then be '*'): "
+                                   "traffic is encrypted but not authenticated")
+    clients_dir: str = Field(min_length=1, max_length=4096,
+                             description="directory of the allowed clients' public keys (*.key)")
+
+    @field_validator("server_secret_file")
+    @classmethod
+    def _private_key(cls, value: str) -> str:
+        read_secret_key(value)
+        return value
+
+    @field_validator("clients_dir")
+    @classmethod
+    def _known_clients(cls, value: str, info: ValidationInfo) -> str:
+        any_client = info.data.get("allow_any_client", False)
+        if value == ALLOW_ANY or any_client:
+            if not (value == ALLOW_ANY and any_client):
+                raise ValueError("'*' (any client key) and allow_any_client: true go together; "
+                                 "without them, name the directory of the allowed clients' public keys")
+            return value
+        if count_public_keys(value) == 0:
+            raise ValueError(f"{value}: holds no client public key (*.key): nobody could send a command")
+        return value
 
 
 def _is_local(endpoint: str) -> bool:

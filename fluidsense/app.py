@@ -47,10 +47,8 @@ def bind_publisher(cfg: CellConfig, hwm: int | None = None) -> Publisher:
 
 def bind_command_server(cfg: CellConfig) -> CommandServer:
     """The command socket, bound; its handler is installed once the controller runs."""
-    curve = cfg.publisher.cmd_curve
     try:
-        return CommandServer(cfg.publisher.cmd, None,
-                             curve=None if curve is None else (curve.server_secret_file, curve.clients_dir))
+        return CommandServer(cfg.publisher.cmd, None, curve=cfg.publisher.cmd_curve)
     except (zmq.ZMQError, OSError, ValueError) as exc:
         raise ConfigError(f"publisher.cmd: cannot bind {cfg.publisher.cmd}: {exc}") from exc
 

@@ -32,7 +32,7 @@ EXAMPLES = {
     "StopperScene": {"angle_deg": 10},
     "WallScene": {"distance_mm": 10},
     "CalibrationPlan": {"scene": {"kind": "plate", "height_mm": 0}, "target": "height_mm", "values": [0, 10]},
-    "CurveKeys": {"server_secret_file": "s", "clients_dir": "c"},
+    "CurveKeys": None,  # files that must exist, made by the curve_keys fixture
     "WorldObject": {"name": "o", "diameter_mm": 60},
     "WorldSlot": {"name": "s", "pose": [0, 0, 0, 0, 0, 0]},
     "WorldSpec": {"slots": [{"name": "s", "pose": [0, 0, 0, 0, 0, 0]}]},
@@ -65,6 +65,22 @@ EXAMPLES = {
                      "dummy_slots": ["a", "b"], "dummy_diameters_mm": [45, 65], "object_slots": ["c"],
                      "objects": [{"name": "o", "diameter_mm": 55}]},
 }
+
+
+@pytest.fixture(autouse=True, scope="module")
+def curve_keys(tmp_path_factory):
+    """CurveKeys checks its files at load: a private server key and a client key to let in."""
+    import zmq
+
+    from controller.curve import write_key_file
+
+    keys = tmp_path_factory.mktemp("curve")
+    (keys / "clients").mkdir()
+    server, client = zmq.curve_keypair(), zmq.curve_keypair()
+    write_key_file(keys / "server.key_secret", *server)
+    write_key_file(keys / "clients" / "client.key", client[0])
+    EXAMPLES["CurveKeys"] = {"server_secret_file": str(keys / "server.key_secret"),
+                             "clients_dir": str(keys / "clients")}
 
 
 def all_models():

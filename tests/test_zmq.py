@@ -7,12 +7,14 @@ docs/zmq-schema.md, not from the code.
 from __future__ import annotations
 
 import json
+import os
 import re
 import signal
 
 import jsonschema
 import pytest
 import yaml
+import zmq
 
 from .conftest import PROFILE, REPO, sim_config
 
@@ -165,3 +167,140 @@ def test_monitor_shows_transitions_and_the_result(tmp_path, daemon_factory):
     assert mon.returncode == 0 and len(lines) == 7
     assert "idle -> charge" in lines[0] and "vent -> idle" in lines[5]
     assert lines[6].startswith("[") and "cycle 1: P_eq 34." in lines[6]
+
+
+# ---------------------------------------------------------------- hostile subscribers
+def _status_kb(pid: int, field: str) -> int:
+    with open(f"/proc/{pid}/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith(f"{field}:"))
+
+
+def _outlets(d) -> list[int]:
+    """The daemon's child processes: its publisher outlet (the simulated cell has no sampler)."""
+    with open(f"/proc/{d.proc.pid}/task/{d.proc.pid}/children") as f:
+        return [int(pid) for pid in f.read().split()]
+
+
+def _topics_until_heartbeats(sock, n: int = 2) -> set[str]:
+    seen, beats = set(), 0
+    while beats < n:
+        assert sock.poll(30_000), f"no heartbeat; saw {seen}"
+        frames = sock.recv_multipart()
+        if len(frames) == 2:
+            seen.add(frames[0].decode())
+            beats += frames[0] == b"heartbeat"
+    return seen
+
+
+def _subscriber(d, *prefixes: bytes):
+    sock = d.ctx.socket(zmq.SUB)
+    sock.setsockopt(zmq.LINGER, 0)
+    for prefix in (*prefixes, b"hello"):
+        sock.setsockopt(zmq.SUBSCRIBE, prefix)
+    sock.connect(d.pub)
+    assert sock.poll(30_000) and sock.recv_multipart() == [b"hello"]
+    return sock
+
+
+def test_a_subscription_gets_the_topics_that_start_with_it(tmp_path, daemon_factory):
+    """The documented rule: ZeroMQ's prefix match on the topic frame."""
+    d = daemon_factory(sim_config(tmp_path, clock="realtime"))
+    d.wait_welcome()
+    prefixed = _subscriber(d, b"pre", b"heart")
+    longer = _subscriber(d, b"pressure.v2", b"heartbeat")  # longer than any topic: matches none
+    assert _topics_until_heartbeats(prefixed) == {"pressure", "heartbeat"}
+    assert _topics_until_heartbeats(longer) == {"heartbeat"}  # ten pressure batches a second went elsewhere
+    prefixed.close()
+    longer.close()
+
+
+def test_oversized_subscription_frames_cost_nothing(tmp_path, daemon_factory):
+    """One 8 MB subscription cost ~880 MB and tripped an overrun; 200 MB ones drove RSS to
+    14 GB and SIGTERM was ignored. Now the connection is dropped at the frame's header."""
+    from .zmtp import RawPeer
+
+    d = daemon_factory(sim_config(tmp_path, clock="realtime"))
+    d.wait_welcome()
+    [outlet] = _outlets(d)
+    before = {pid: _status_kb(pid, "VmRSS") for pid in (d.proc.pid, outlet)}
+    for size in (8_000_000, 200_000_000, 8_000_000):
+        peer = RawPeer(d.pub)
+        written = peer.send_oversized(size)
+        peer.close()
+        assert written < 8_000_000, written  # what the kernel buffered before the hang-up
+    _, beat = d.next_message("heartbeat", timeout_s=10)  # still publishing to the others
+    assert _outlets(d) == [outlet]  # and the same outlet: nothing came near its memory cap
+    for pid, rss_kb in before.items():
+        assert _status_kb(pid, "VmHWM") - rss_kb < 50 * 1024
+    status = d.request({"cmd": "status"})
+    assert status["fault"] is None and status["missed"] == 0
+    d.proc.send_signal(signal.SIGTERM)
+    assert d.proc.wait(30) == 0
+
+
+def test_a_flood_of_subscriptions_costs_the_daemon_nothing_and_subscribers_come_back(tmp_path, daemon_factory):
+    """Distinct subscription prefixes cost libzmq ~50 bytes per byte and keep the call
+    that reads them busy for as long as they stream: inside the daemon that froze the
+    sample loop (this test hung). The outlet process takes them: it drops every subscriber
+    connection past its budget and ends at its memory cap; the daemon restarts it."""
+    from .zmtp import RawPeer
+
+    d = daemon_factory(sim_config(tmp_path, clock="realtime"))
+    d.wait_welcome()
+    watcher = _subscriber(d, b"heartbeat")
+    rss_before = _status_kb(d.proc.pid, "VmRSS")
+    sent = 0
+    while sent < 30_000:  # about 7 MB of subscriptions; the flooder reconnects whenever it is dropped
+        try:
+            peer = RawPeer(d.pub)
+            while sent < 30_000:
+                peer.send(b"\x01" + os.urandom(250))
+                sent += 1
+        except OSError:
+            continue
+        peer.close()
+    status = d.request({"cmd": "status"})
+    assert status["fault"] is None and status["missed"] == 0  # the sample loop never stalled
+    assert _status_kb(d.proc.pid, "VmHWM") - rss_before < 50 * 1024
+    # the watcher was dropped with everyone and came back by itself, welcome included
+    while True:
+        assert watcher.poll(30_000), "the watcher was never welcomed again"
+        if watcher.recv_multipart() == [b"hello"]:
+            break
+    assert _topics_until_heartbeats(watcher) == {"heartbeat"}
+    watcher.close()
+    d.proc.send_signal(signal.SIGTERM)
+    assert d.proc.wait(30) == 0
+    log = d.proc.stderr.read().decode()
+    assert "dropping every subscriber connection" in log and "Traceback" not in log
+
+
+def test_an_outlet_that_dies_is_replaced_and_the_daemon_does_not_notice(tmp_path, daemon_factory):
+    d = daemon_factory(sim_config(tmp_path, clock="realtime"))
+    d.wait_welcome()
+    [outlet] = _outlets(d)
+    os.kill(outlet, signal.SIGKILL)
+    d.wait_welcome()  # our subscription is attached to the new outlet
+    [new] = _outlets(d)
+    assert new != outlet
+    _, beat = d.next_message("heartbeat", timeout_s=10)
+    status = d.request({"cmd": "status"})
+    assert status["fault"] is None and status["missed"] == 0
+    d.proc.send_signal(signal.SIGTERM)
+    assert d.proc.wait(30) == 0
+    assert b"publisher outlet ended (exit code -9)" in d.proc.stderr.read()
+    assert not os.path.exists(f"/proc/{new}")  # stopped with the daemon
+
+
+def test_a_killed_daemon_leaves_no_outlet_behind(tmp_path, daemon_factory):
+    import select
+
+    d = daemon_factory(sim_config(tmp_path, clock="realtime"))
+    d.wait_welcome()
+    [outlet] = _outlets(d)
+    exited = os.pidfd_open(outlet)  # readable once the outlet has exited
+    try:
+        d.proc.kill()
+        assert select.select([exited], [], [], 30)[0], "the outlet outlived its daemon"
+    finally:
+        os.close(exited)

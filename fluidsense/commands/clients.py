@@ -56,6 +56,10 @@ def cmd_cmd(args: argparse.Namespace) -> int:
     except json.JSONDecodeError:
         request = {"cmd": args.request}
     curve = (args.client_key, args.server_key) if args.client_key and args.server_key else None
+    if curve is not None:
+        from controller.curve import read_secret_key
+
+        read_secret_key(args.client_key)  # refused when others can read it, like the daemon's own key
     reply = send_command(endpoint, request, args.timeout, curve=curve)
     print(json.dumps(reply, indent=2))
     return EXIT_OK if reply.get("ok") else EXIT_BAD_INPUT

@@ -147,6 +147,8 @@ class Controller:
         self._vented_seen: bool | None = None  # the last ``vented`` published, to log changes
         self._deferred: Fault | None = None  # a fault found outside the loop, latched after its next block
         self._disagreed = False  # the last read-back disagreed with what was commanded
+        #: the daemon installs this: the command socket's counts (handled, rejected, malformed_dropped)
+        self.command_stats: Callable[[], dict[str, int]] | None = None
 
     # ------------------------------------------------------------- lifecycle
     @property
@@ -418,6 +420,8 @@ class Controller:
             "references_kpa": sorted(self.references),
             "samples": self.samples, "missed": self.missed, "last_cycle": last,
             "task": None if self._task_job is None else {"file": self._task_name, "running": not self._task_job.done()},
+            "commands": None if self.command_stats is None else self.command_stats(),
+            "publisher": self.pub.stats,
         }
 
     async def handle_command(self, cmd: Any) -> dict[str, Any]:

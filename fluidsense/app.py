@@ -186,6 +186,7 @@ async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: N
         async with controller(cfg, publisher=pub, record=True, connect_in_background=True) as ctrl:
             ctrl.task_runner = _task_runner(ctrl, tasks_dir)
             server.handler = ctrl.handle_command
+            ctrl.command_stats = lambda: server.stats
             serve = asyncio.create_task(server.serve(), name="command-socket")
             stopper = asyncio.create_task(stop.wait(), name="stop-signal")
             shutdown = asyncio.create_task(ctrl.wait_shutdown_command(), name="shutdown-command")

@@ -11,7 +11,7 @@ import math
 import os
 import stat
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, Field, ValidationInfo, field_validator, model_validator
 
@@ -222,6 +222,16 @@ class Supervision(StrictModel):
     overrun_s: Real = Field(0.25, gt=0, le=60, description="real time: the loop this far behind the samples is a fault")
 
 
+class LoopConfig(StrictModel):
+    """Scheduling of the daemon's event loop (real time only)."""
+
+    rt_priority: Annotated[Integer, Field(ge=1, le=99)] | None = Field(
+        20, description="SCHED_FIFO priority of the sample loop's thread when permitted (null: normal "
+        "scheduling). Below the sampler process (40) and fluidsense simcell (30), above every normal process: "
+        "beside two busy processes at normal priority, a daemon at normal priority fell 0.25 s behind its "
+        "samples and faulted mid-task (docs/performance.md)")
+
+
 class CurveKeys(StrictModel):
     """ZeroMQ CURVE for the command socket: the server's secret key file and a directory
     of the public keys of the clients allowed in (``fluidsense keys`` makes both). Both are
@@ -338,6 +348,7 @@ class CellConfig(StrictModel):
     publisher: PublisherConfig = PublisherConfig()
     supervision: Supervision = Supervision()
     recording: RecordingConfig = RecordingConfig()
+    loop: LoopConfig = LoopConfig()
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
 
     @model_validator(mode="after")

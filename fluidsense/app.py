@@ -38,6 +38,20 @@ def load(path: str | Path | None, overrides: dict[str, Any] | None = None) -> Ce
     return load_cell_config(path or default_config_path(), overrides)
 
 
+def _loop_priority(cfg: CellConfig) -> None:
+    """The sample loop's thread at real-time priority when permitted (``loop.rt_priority``):
+    on a busy robot PC a loop at normal priority falls behind its samples. Processes
+    started from here (sampler, ur_rtde worker, publisher outlet) get the normal policy
+    back and set their own."""
+    from drivers.sampler.realtime import set_fifo
+
+    result = set_fifo(cfg.loop.rt_priority, reset_on_fork=True)
+    if result["applied"]:
+        log.info("sample loop: %s", result["detail"])
+    elif result["requested"]:
+        log.warning("sample loop at normal priority: %s", result["detail"])
+
+
 def bind_publisher(cfg: CellConfig, hwm: int | None = None) -> Publisher:
     try:
         return Publisher(cfg.publisher.pub, **({} if hwm is None else {"hwm": hwm}))
@@ -56,7 +70,7 @@ def bind_command_server(cfg: CellConfig) -> CommandServer:
 @contextlib.asynccontextmanager
 async def controller(cfg: CellConfig, publish: bool = False, record: bool = False,
                      pub_hwm: int | None = None, publisher: Publisher | None = None,
-                     connect_in_background: bool = False) -> AsyncIterator[Controller]:
+                     connect_in_background: bool = False, own_process: bool = False) -> AsyncIterator[Controller]:
     """A started controller on the configured backend; vents and closes on exit. With
     ``record`` (the daemon) it records as ``cfg.recording`` says, from sample time 0.
     ``publisher``: already bound (the daemon binds every socket before it touches a
@@ -64,11 +78,15 @@ async def controller(cfg: CellConfig, publish: bool = False, record: bool = Fals
     (the soak bench fills it fast). Whatever fails on the way in, what was started is
     undone: the devices vented and closed, the sockets closed. ``connect_in_background``
     (the daemon): devices that are not there yet are retried by the loop (status
-    ``connecting``) instead of failing the start."""
+    ``connecting``) instead of failing the start. ``own_process`` (the daemon, a CLI job):
+    this process exists for the controller, whose loop then asks for real-time priority
+    (``loop.rt_priority``); a library caller (a test, a bench) keeps its own scheduling."""
     pub = publisher or (bind_publisher(cfg, pub_hwm) if publish else None)
     ctrl: Controller | None = None
     try:
         backend = build_backend(cfg.driver, cfg.profile.hardware)
+        if own_process and not backend.source.virtual:
+            _loop_priority(cfg)
         ctrl = Controller(cfg, backend, pub)
         await ctrl.start(connect_in_background)
         try:
@@ -159,7 +177,8 @@ async def _until_stopped(ctrl: Controller, cfg: CellConfig, notifier: Notifier,
     return done
 
 
-async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: Notifier | None = None) -> int:
+async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: Notifier | None = None,
+                     own_process: bool = False) -> int:
     """The service: publish, accept commands, until SIGTERM/SIGINT or a shutdown command.
     Both sockets are bound before any device is touched; a failure on the way in undoes
     what was started. Under systemd (``Type=notify``) it reports READY once the sample
@@ -183,7 +202,8 @@ async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: N
     failed: list[str] = []
     bad_setting: ConfigError | None = None
     try:
-        async with controller(cfg, publisher=pub, record=True, connect_in_background=True) as ctrl:
+        async with controller(cfg, publisher=pub, record=True, connect_in_background=True,
+                              own_process=own_process) as ctrl:
             ctrl.task_runner = _task_runner(ctrl, tasks_dir)
             server.handler = ctrl.handle_command
             ctrl.command_stats = lambda: server.stats

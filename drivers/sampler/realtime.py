@@ -44,13 +44,16 @@ def _rt_runtime() -> str:
         return "unknown"
 
 
-def set_fifo(priority: int | None) -> dict[str, Any]:
+def set_fifo(priority: int | None, reset_on_fork: bool = False) -> dict[str, Any]:
+    """``reset_on_fork``: processes this thread starts get the normal policy back (the
+    daemon starts helpers that set their own, or none)."""
     if priority is None:
         return _result(False, "not requested (rt_priority: null)", requested=False)
     if not hasattr(os, "sched_setscheduler"):
         return _result(False, f"SCHED_FIFO is not available on {sys.platform}")
+    policy = os.SCHED_FIFO | (os.SCHED_RESET_ON_FORK if reset_on_fork else 0)
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        os.sched_setscheduler(0, policy, os.sched_param(priority))
     except OSError as exc:
         hint = ""
         if exc.errno == errno.EPERM:

@@ -168,7 +168,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
               file=sys.stderr)
 
     async def job():
-        async with app.controller(cfg) as ctrl:
+        async with app.controller(cfg, own_process=True) as ctrl:
             total = len(values) * cycles
             with tqdm(total=total, initial=len(journal.entries), desc=f"calibrating {cfg.profile.name}",
                       unit="cycle", file=sys.stderr, disable=args.json) as bar:
@@ -220,7 +220,7 @@ def cmd_sense(args: argparse.Namespace) -> int:
     operator = Operator(cal.target, args.targets_from, args.yes) if _needs_operator(cfg) else None
 
     async def job():
-        async with app.controller(cfg) as ctrl:
+        async with app.controller(cfg, own_process=True) as ctrl:
             return await sense(ctrl, cal, scene, cycles=args.cycles, place=operator.place if operator else None)
 
     try:

@@ -34,4 +34,4 @@ def main(args: argparse.Namespace) -> int:
         overrides["recording"] = {"enabled": False} if args.no_record else {"enabled": True, "dir": args.record}
     cfg = app.load(args.config, overrides)
     setup_logging(args.log_level or cfg.log_level)
-    return asyncio.run(app.run_daemon(cfg, Path(args.tasks_dir) if args.tasks_dir else None))
+    return asyncio.run(app.run_daemon(cfg, Path(args.tasks_dir) if args.tasks_dir else None, own_process=True))

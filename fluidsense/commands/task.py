@@ -45,7 +45,7 @@ def main(args: argparse.Namespace) -> int:
             raise ConfigError(f"--order: expected comma-separated diameters, got {args.order!r}") from None
 
     async def job():
-        async with app.controller(cfg, publish=args.publish) as ctrl:
+        async with app.controller(cfg, publish=args.publish, own_process=True) as ctrl:
             return await run_task(ctrl, task, order_mm=order)
 
     try:

@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test install clean lint-imports report speed-accuracy stability timing faults soak
+.PHONY: demo test install clean lint-imports report speed-accuracy stability timing faults fuzz busy soak
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -42,10 +42,22 @@ timing: $(STAMP)
 	$(BIN)/fluidsense bench timing --source modbus --seconds $(TIMING_S) --json > docs/performance/timing-modbus.json
 	$(BIN)/fluidsense bench sampler --seconds 60 --json > docs/performance/sampler.json
 
-# Fault-injection figures of docs/safety.md (~2 minutes).
+# Fault-injection figures of docs/safety.md: in-process faults, then what only the box can
+# vent (killed daemon, pulled cable, SIGTERM) against fluidsense simcell (~10 minutes).
 faults: $(STAMP)
 	mkdir -p docs/safety
-	$(BIN)/fluidsense bench faults --json > docs/safety/faults.json
+	$(BIN)/fluidsense bench faults --box-runs 5 --json > docs/safety/faults.json
+
+# Hostile input figures of docs/safety.md: command messages and config files (~5 minutes).
+fuzz: $(STAMP)
+	mkdir -p docs/safety
+	$(BIN)/fluidsense bench fuzz --messages 10000 --files 20000 --json > docs/safety/fuzz.json
+
+# The busy robot PC of docs/performance.md: the README's sorting task through ur and modbus
+# beside two busy processes, 10 runs each, then an idle daemon for 10 minutes (~1 hour).
+busy: $(STAMP)
+	mkdir -p docs/performance
+	$(BIN)/fluidsense bench tasks --runs 10 --load 2 --idle-s 600 --json > docs/performance/busy.json
 
 # Soak figures of docs/soak.md: 8 hours of sample time in virtual time (~10 minutes).
 soak: $(STAMP)

@@ -443,10 +443,9 @@ class Controller:
         if isinstance(cmd, StatusCmd):
             return self.status()
         if not self.connected and not isinstance(cmd, (ShutdownCmd, AbortCmd)):
-            state = self.connecting or {}
-            raise CommandError(f"not connected to {self.backend.name} yet ({state.get('error', 'first attempt')}); "
-                               f"retrying every {state.get('retry_in_s', 0):g} s or so: wait for status to leave "
-                               "'connecting'")
+            error = (self.connecting or {}).get("error") or "first attempt under way"
+            raise CommandError(f"not connected to {self.backend.name} yet ({error}); the daemon keeps trying: "
+                               "wait for status to leave 'connecting'")
         if isinstance(cmd, CycleCmd):
             fut = await self.start_cycle(p0_kpa=cmd.p0_kpa, label=cmd.label, store_reference=cmd.store_reference)
             fut.add_done_callback(lambda f: f.exception() if not f.cancelled() else None)

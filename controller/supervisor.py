@@ -1,4 +1,4 @@
-"""Safety supervisor: checks every block before the sequencer sees it (design.md section 7).
+"""Safety supervisor: checks every block before the sequencer sees it (docs/safety.md).
 
 A finding is a ``Fault``; the controller answers any fault with the safe state (actuator
 vented, tank isolated, arm stopped), publishes it and latches it until ``reset``.

@@ -129,13 +129,17 @@ class Daemon:
         self.sub.setsockopt(zmq.SUBSCRIBE, b"")
         self.sub.connect(self.pub)
 
-    def wait_welcome(self, timeout_s: float = 30.0) -> None:
-        """Block until the daemon has attached our subscription (its welcome frame)."""
+    def wait_welcome(self, timeout_s: float = 30.0, ready: bool = True) -> None:
+        """Block until the daemon has attached our subscription (its welcome frame) and,
+        with ``ready``, has connected to its devices (status leaves ``connecting``: the
+        daemon binds its sockets before it connects, and refuses cycles until then)."""
         while True:
             if not self.sub.poll(int(timeout_s * 1000)):
                 raise AssertionError(f"no welcome from the daemon; stderr:\n{self.stderr_now()}")
             if self.sub.recv_multipart() == [b"hello"]:
-                return
+                break
+        while ready and self.request({"cmd": "status"}, timeout_s)["state"] == "connecting":
+            pass  # each request waits for the daemon's answer: bounded by the daemon, not a sleep
 
     def request(self, payload, timeout_s: float = 30.0, raw: list[bytes] | None = None) -> dict:
         sock = self.ctx.socket(zmq.REQ)

@@ -337,7 +337,7 @@ def test_a_daemon_started_before_the_robot_is_connecting_then_ready_when_it_come
         box.network(False)
         d = Daemon(cell, env={"NOTIFY_SOCKET": str(tmp_path / "notify")})
         try:
-            d.wait_welcome()
+            d.wait_welcome(ready=False)
             while not (status := d.request({"cmd": "status"}))["connecting"]["error"]:
                 assert status["state"] == "connecting"  # the first attempt may still be under way
             assert status["ok"] and status["state"] == "connecting" and "cannot connect" in status["connecting"]["error"]
@@ -366,7 +366,7 @@ def test_sigterm_while_connecting_exits_0(tmp_path):
         box.network(False)
         for _ in range(3):  # at different moments of the attempts
             d = Daemon(cell)
-            d.wait_welcome()
+            d.wait_welcome(ready=False)
             while d.request({"cmd": "status"})["connecting"]["attempts"] < 3:
                 pass
             assert d.close() == 0, d.stderr_now()

@@ -1,5 +1,5 @@
 """Layering: fluidsense -> tasks -> controller -> drivers, and the simulated plant only
-when a config selects it (design.md section 1)."""
+when a config selects it (docs/architecture.md, decision 1)."""
 
 from __future__ import annotations
 

@@ -463,16 +463,17 @@ def test_a_nearly_full_disk_stops_the_recording_and_says_so(tmp_path, monkeypatc
 
 
 def test_run_record_and_no_record_flags(tmp_path, monkeypatch):
+    from fluidsense import app
     from fluidsense.cli import build_parser
     from fluidsense.commands import run as run_cmd
 
     seen = []
 
-    async def fake_daemon(cfg, tasks_dir):
+    async def fake_daemon(cfg, tasks_dir, own_process):
         seen.append(cfg.recording)
         return 0
 
-    monkeypatch.setattr(run_cmd.app, "run_daemon", fake_daemon)
+    monkeypatch.setattr(app, "run_daemon", fake_daemon)
     path = str(sim_config(tmp_path))
     for extra in ([], ["--no-record"], ["--record", str(tmp_path / "elsewhere")]):
         assert run_cmd.main(build_parser().parse_args(["run", "--config", path, *extra])) == 0

@@ -135,7 +135,8 @@ def test_a_late_wake_past_the_next_deadline_misses_slots_and_realigns_without_bu
     # one read per served slot, and the loop then waits for slot 8's deadline: no catch-up burst
     assert poller.read_times == [d(k) + (300_000 if k == 7 else 0) for k in slots_served]
     assert clock.waits == [d(k) for k in range(6)] + [d(k) for k in range(8, 12)]
-    assert len(blocks) == 1 and (blocks[0].slot_begin, blocks[0].slot_end) == (0, 12)  # 10 samples
+    # blocks of 10 slots: the first holds the 8 samples of its slots, the rest at the end
+    assert [(b.slot_begin, b.slot_end, len(b)) for b in blocks] == [(0, 10, 8), (10, 12, 2)]
     assert blocks[0].stalls == [(7, 2_300_000)]  # woke 2.3 ms after the deadline it waited for
 
 
@@ -161,13 +162,16 @@ def test_block_boundaries_carry_the_counts_of_their_own_slots():
     # block_size 4; slot 3 late, slots 6-8 missed (woke 3.2 ms after slot 6's deadline), read 11 fails
     delays = {d(3): 70_000, d(6): 3_200_000}
     result, blocks, _, _ = run_loop(20, delays=delays, fail={8}, block_size=4)
-    # reads: slots 0-5 -> reads 0-5, slot 9 -> read 6, slot 10 -> read 7, slot 11 -> read 8 (fails)
-    assert [(b.slot_begin, b.slot_end) for b in blocks] == [(0, 4), (4, 11), (11, 16), (16, 20)]
+    # reads: slots 0-5 -> reads 0-5, slot 9 -> read 6, slot 10 -> read 7, slot 11 -> read 8 (fails).
+    # A block ends once it spans 4 slots (more when a stall jumps over its end), whatever
+    # they held: samples never wait for slots that have none
+    assert [(b.slot_begin, b.slot_end) for b in blocks] == [(0, 4), (4, 10), (10, 14), (14, 18), (18, 20)]
     assert [b.counts.as_dict() for b in blocks] == [
         {"on_time": 3, "late": 1, "missed": 0, "failed": 0, "slots": 4},
-        {"on_time": 3, "late": 1, "missed": 3, "failed": 0, "slots": 7},  # slot 9 is 200 us late
-        {"on_time": 4, "late": 0, "missed": 0, "failed": 1, "slots": 5},
+        {"on_time": 2, "late": 1, "missed": 3, "failed": 0, "slots": 6},  # slot 9 is 200 us late
+        {"on_time": 3, "late": 0, "missed": 0, "failed": 1, "slots": 4},
         {"on_time": 4, "late": 0, "missed": 0, "failed": 0, "slots": 4},
+        {"on_time": 2, "late": 0, "missed": 0, "failed": 0, "slots": 2},
     ]
     assert blocks[2].last_error == "ConnectionError: read 8 failed"
     assert_blocks_account_for_every_slot(blocks, 20)
@@ -191,7 +195,8 @@ def test_link_loss_after_n_consecutive_failures_flushes_the_partial_block():
     assert result.totals.as_dict() == {"on_time": 8, "late": 0, "missed": 0, "failed": 5, "slots": 13}
     assert len(poller.read_times) == 13
     assert_blocks_account_for_every_slot(blocks, 13)
-    assert len(blocks[-1]) == 0 and blocks[-1].counts.failed == 3  # the accounting-only tail
+    assert len(blocks[-1]) == 0 and blocks[-1].counts.failed == 1  # the accounting-only tail: slot 12
+    assert [len(b) for b in blocks] == [3, 3, 2, 0]  # the samples before the failures came out at once
 
 
 def test_link_loss_takes_failures_lasting_the_link_timeout_not_a_count():

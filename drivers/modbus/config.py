@@ -14,7 +14,7 @@ Register = Annotated[Integer, Field(ge=0, le=65535)]
 
 class RegisterMap(StrictModel):
     """Where things are, as holding registers. The defaults are the UR control box's
-    Modbus server (design.md section 5); a generic Modbus I/O module sets its own and
+    Modbus server (docs/architecture.md, decision 5); a generic Modbus I/O module sets its own and
     leaves out what it lacks (null)."""
 
     digital_outputs: Register = Field(1, description="read back: bit n is output n")

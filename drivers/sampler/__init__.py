@@ -1,4 +1,4 @@
-"""Polled sources sampled in a dedicated process (design.md section 3).
+"""Polled sources sampled in a dedicated process (docs/architecture.md, decision 3).
 
 - :mod:`.poller`: the interface a device reader implements (built inside the process);
 - :mod:`.synthetic`: a synthetic poller for tests and benchmarks;

@@ -1,4 +1,4 @@
-"""Configuration of a polled source sampled in its own process (design.md section 3)."""
+"""Configuration of a polled source sampled in its own process (docs/architecture.md, decision 3)."""
 
 from __future__ import annotations
 

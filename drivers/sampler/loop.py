@@ -19,8 +19,9 @@ a missed slot: no sample, and no step towards link loss.
 Each sample carries the time its read started (never its deadline, never an
 interpolation), so ``t - deadline == lateness`` exactly and a consumer can always
 tell which slot a sample belongs to. Samples are handed over in blocks of
-``block_size``; a block also carries the counts of every slot since the previous
-block, so ``on_time + late + missed + failed == slot_end - slot_begin`` per block.
+``block_size`` slots (fewer samples when some slots had none); a block also carries the
+counts of every slot since the previous block, so ``on_time + late + missed + failed ==
+slot_end - slot_begin`` per block.
 
 Nothing here knows about processes or sockets: the clock and the sink are injected,
 which is how the tests drive the loop in virtual time.
@@ -209,7 +210,10 @@ class SlotLoop:
                 self._sample(k, t, t - deadline, row, now() - t)
             k += 1
             self.next_slot = k
-            if len(self._acc.t_s) >= self.block_size:
+            # a block is block_size slots, not block_size samples: slots without a sample
+            # (failed, missed) must not hold the samples before them back (a failing link
+            # once delivered 0.25 s old samples at its end, which read as an overrun)
+            if k - self._acc.slot_begin >= self.block_size:
                 self._emit(k)
         self._flush()
         if self._lost:

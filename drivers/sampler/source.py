@@ -50,7 +50,7 @@ def _exit_text(code: int) -> str:
 
 
 class SampledSource(SampleSource):
-    """A polled source sampled in its own process (design.md section 3)."""
+    """A polled source sampled in its own process (docs/architecture.md, decision 3)."""
 
     def __init__(self, cfg: SamplerConfig, name: str = "sampler") -> None:
         super().__init__(name)

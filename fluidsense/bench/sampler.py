@@ -1,4 +1,4 @@
-"""``fluidsense bench sampler``: timing of the sampler process (design.md section 3).
+"""``fluidsense bench sampler``: timing of the sampler process (docs/architecture.md, decision 3).
 
 Runs the real sampler process with the synthetic poller, reads its blocks like the
 daemon does and prints the slot counts, the lateness distribution, the CPU the

@@ -25,7 +25,7 @@ from drivers.errors import ConfigError, FluidsenseError
 from drivers.files import MB, check_name, decode_utf8, nested_within, read_bounded
 from drivers.models import FieldError, Integer, Real, StrictModel
 
-from .feature_names import FEATURES, FIT_DEGREE, NEEDS_REFERENCE  # noqa: F401 - their home is light
+from .names import FEATURES, FIT_DEGREE, NEEDS_REFERENCE  # noqa: F401 - their home is light
 from .loading import validate
 
 FORMAT = "fluidsense-calibration/1"

@@ -27,6 +27,7 @@ from drivers.scenes import Scene
 
 from .config import CurveKeys
 from .curve import read_secret_key
+from .names import COMMANDS
 
 log = logging.getLogger(__name__)
 
@@ -78,7 +79,6 @@ class ShutdownCmd(StrictModel):
 Command = Annotated[StatusCmd | CycleCmd | AbortCmd | ResetCmd | SceneCmd | TaskCmd | ShutdownCmd,
                     Field(discriminator="cmd")]
 _ADAPTER = TypeAdapter(Command)
-COMMANDS = ("status", "cycle", "abort", "reset", "scene", "task", "shutdown")
 
 
 def too_deep(raw: bytes, limit: int = MAX_DEPTH) -> bool:

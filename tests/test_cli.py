@@ -15,7 +15,7 @@ from .conftest import REPO
     (["run"], ["--config", "--virtual", "SIGTERM"]),
     (["demo"], ["--json", "--seed", "4-5 s"]),
     (["monitor"], ["--endpoint", "--count", "--timeout"]),
-    (["cmd"], ["status", "--endpoint"]),
+    (["cmd"], ["status", "cycle", "abort", "reset", "scene", "task", "shutdown", "--endpoint"]),
 ])
 def test_help(command, expected):
     out = subprocess.run([sys.executable, "-m", "fluidsense.cli", *command, "--help"], cwd=REPO,

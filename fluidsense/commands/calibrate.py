@@ -8,7 +8,7 @@ import json
 import sys
 from pathlib import Path
 
-from controller.feature_names import FEATURES, FIT_DEGREE
+from controller.names import FEATURES, FIT_DEGREE
 from drivers.errors import CommandError, ConfigError, JobStopped
 
 from ..exitcodes import EXIT_FAULT, EXIT_INTERRUPTED, EXIT_OK

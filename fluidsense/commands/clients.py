@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 
+from controller.names import COMMANDS
+
 from ..exitcodes import EXIT_BAD_INPUT, EXIT_OK
 
 
@@ -24,7 +26,8 @@ def register(sub) -> None:
     p = sub.add_parser("cmd", help="send one request to the command socket",
                        description="Send a request and print the reply, e.g. "
                        "fluidsense cmd status, fluidsense cmd '{\"cmd\": \"cycle\", \"store_reference\": true}'.")
-    p.add_argument("request", help="a command name (status, cycle, abort, reset, shutdown) or a JSON object")
+    p.add_argument("request", help=f"a command name ({', '.join(COMMANDS)}) or a JSON object; the commands and "
+                   "their fields: docs/zmq-schema.md")
     p.add_argument("--config", "-c", help="cell config naming the endpoint (default: config/cell-sim.yaml)")
     p.add_argument("--endpoint", help="command endpoint, e.g. tcp://127.0.0.1:5561")
     p.add_argument("--timeout", type=float, default=5.0)

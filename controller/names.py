@@ -1,5 +1,5 @@
-"""The names of what a calibration can fit, in a module with no imports: the command
-line builds its choices from them without loading numpy or scipy."""
+"""Names the command line offers, in a module with no imports: its parsers are built
+from them without loading pydantic, numpy or scipy."""
 
 from __future__ import annotations
 
@@ -17,3 +17,6 @@ FEATURES: dict[str, tuple[str, str, float]] = {
     "t_c_onset": ("t_c_onset", "s", 1.0),
 }
 NEEDS_REFERENCE = {"dp_eq", "dp_max", "t_c_slope", "t_c_threshold", "t_c2", "t_c_onset"}
+
+#: the command socket's requests (controller/commands.py)
+COMMANDS = ("status", "cycle", "abort", "reset", "scene", "task", "shutdown")

@@ -26,8 +26,10 @@ import dataclasses
 import logging
 from collections.abc import Awaitable, Callable
 
-from .base import SampleBlock, SampleSource, ValveBank
-from .errors import DriverError, LinkLostError
+from common.errors import LinkLostError
+from common.samples import SampleBlock
+from drivers.base import SampleSource, ValveBank
+
 from .io import Reconnect, SamplerOptions
 from .sampler.config import PollerSpec, SamplerConfig
 from .sampler.source import SampledSource

@@ -9,7 +9,7 @@ from typing import Any, TextIO
 import zmq
 import zmq.auth
 
-from controller.publisher import WELCOME
+from controller.telemetry.publisher import WELCOME
 
 
 def format_message(topic: str, msg: dict[str, Any]) -> str | None:

@@ -13,11 +13,17 @@ from typing import Any
 
 from pydantic import TypeAdapter
 
-from controller.calibration import (FEATURES, NEEDS_REFERENCE, Calibration, CalibrationError, Estimate,
-                                    feature_value)
+from common.errors import FluidsenseError, JobStopped
+from common.scenes import TARGETS, EmptyScene, Scene
+from controller.sensing.calibration import (
+    FEATURES,
+    NEEDS_REFERENCE,
+    Calibration,
+    CalibrationError,
+    Estimate,
+    feature_value,
+)
 from controller.service import Controller
-from drivers.errors import FluidsenseError, JobStopped
-from drivers.scenes import TARGETS, EmptyScene, Scene
 
 from .journal import CycleJournal
 from .stopping import fault_dict, stopped_message
@@ -34,7 +40,7 @@ def scene_with(scene: Any, target: str, value: float) -> Any:
 async def ensure_reference(ctrl: Controller, place: Place, p0_kpa: float | None = None) -> None:
     """A free-air reference cycle at this P0 unless one is stored."""
     p0 = ctrl.profile.sequence.p0_kpa if p0_kpa is None else p0_kpa
-    if round(p0, 3) in ctrl.references:
+    if round(p0, 3) in ctrl.cycles.references:
         return
     await place(EmptyScene())
     res = await ctrl.run_cycle(p0_kpa=p0, label="reference", store_reference=True)

@@ -15,16 +15,16 @@ from typing import Any
 
 import numpy as np
 
-from controller.calibration import Calibration, feature_value
-from controller.cycle import CycleResult
+from common.errors import FluidsenseError
+from common.units import KPA
+from common.world import WorldObject, WorldSlot, WorldSpec
+from controller.cycles.analysis import CycleResult
+from controller.sensing.calibration import Calibration, feature_value
 from controller.service import Controller
-from drivers.errors import FluidsenseError
-from drivers.world import WorldObject, WorldSlot, WorldSpec
 
 from .config import PickingTask, RipenessTask, SortingTask
 
 Report = Callable[[dict[str, Any]], None]
-KPA = 1e3
 
 
 class Cell:
@@ -49,14 +49,14 @@ class Cell:
 
     async def go_to(self, slot: str) -> None:
         """Lift, travel above the slot, descend onto it."""
-        here = self.ctrl.backend.arm.tcp_pose
+        here = self.ctrl.tcp_pose
         target = self.task.slots[slot]
         await self.move(self._above(here))
         await self.move(self._above(target))
         await self.move(target)
 
     async def lift(self, dz: float | None = None) -> None:
-        await self.move(self._above(self.ctrl.backend.arm.tcp_pose, dz))
+        await self.move(self._above(self.ctrl.tcp_pose, dz))
 
     async def grip(self, p0_kpa: float | None = None, label: str | None = None) -> CycleResult:
         """Close on whatever is at the tool and measure; the gripper stays closed."""

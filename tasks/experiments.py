@@ -7,12 +7,12 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from common.errors import FluidsenseError
+from common.scenes import EmptyScene
 from controller.config import CellConfig, Profile
-from controller.cycle import CycleResult
+from controller.cycles.analysis import CycleResult
 from controller.service import Controller
 from drivers.config import SimDriverConfig, build_backend
-from drivers.errors import FluidsenseError
-from drivers.scenes import EmptyScene
 
 from .calibrate import scene_with
 

@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from common.errors import CommandError, FluidsenseError
+from common.scenes import CylinderScene, EmptyScene
 from controller.service import Controller
-from drivers.errors import CommandError, FluidsenseError
-from drivers.scenes import CylinderScene, EmptyScene
 
 
 @dataclass

@@ -9,9 +9,9 @@ import sys
 import numpy as np
 import pytest
 
-from controller.calibration import Calibration, CalibrationError
-from drivers.errors import ConfigError
-from drivers.scenes import PlateScene
+from common.errors import ConfigError
+from common.scenes import PlateScene
+from controller.sensing.calibration import Calibration, CalibrationError
 
 from .conftest import REPO, profile_controller
 

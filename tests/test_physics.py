@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.hardware import GripperActuator, LinearActuator
-from drivers.scenes import CylinderScene, EmptyScene, WallScene
-from drivers.sim.actuators import volume_law
-from drivers.sim.gas import ATMOSPHERE, Link, Network, VolumeLaw
-from drivers.sim.plant import Plant
-from drivers.units import KPA, LITRE, ML, P_ATM
+from common.hardware import GripperActuator, LinearActuator
+from common.scenes import CylinderScene, EmptyScene, WallScene
+from common.units import KPA, LITRE, ML, P_ATM
+from simulator.actuators import volume_law
+from simulator.gas import ATMOSPHERE, Link, Network, VolumeLaw
+from simulator.plant import Plant
 
 
 def tank_and_actuator(law: VolumeLaw, v_tank: float, p0_gauge: float, r: float = 1e8) -> Plant:

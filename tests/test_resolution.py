@@ -9,14 +9,14 @@ import sys
 import numpy as np
 import pytest
 
-from drivers.hardware import GripperActuator, LinearActuator
-from drivers.scenes import CylinderScene, WallScene
-from drivers.sim.actuators import volume_law
-from drivers.sim.equilibrium import eq2_resolution, equilibrium
-from drivers.sim.gas import Link, Network, VolumeLaw
-from drivers.sim.plant import Plant
-from drivers.sim.resolution import linear_sweep, resolution_at, search
-from drivers.units import KPA, LITRE, ML, P_ATM
+from common.hardware import GripperActuator, LinearActuator
+from common.scenes import CylinderScene, WallScene
+from common.units import KPA, LITRE, ML, P_ATM
+from simulator.actuators import volume_law
+from simulator.equilibrium import eq2_resolution, equilibrium
+from simulator.gas import Link, Network, VolumeLaw
+from simulator.plant import Plant
+from simulator.resolution import linear_sweep, resolution_at, search
 
 from .conftest import REPO
 

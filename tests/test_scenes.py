@@ -7,12 +7,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from drivers.scenes import (CylinderScene, EmptyScene, PlateScene, PullScene, RectangleScene, SampleScene,
-                            StopperScene)
-
-from drivers.hardware import BendingActuator
-from drivers.sim.actuators import contact_truth
-from drivers.units import P_ATM
+from common.hardware import BendingActuator
+from common.scenes import CylinderScene, PlateScene, PullScene, RectangleScene, SampleScene, StopperScene
+from common.units import P_ATM
+from simulator.actuators import contact_truth
 
 from .conftest import cycles_over, profile_controller
 

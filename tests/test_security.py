@@ -17,9 +17,9 @@ import zmq
 import zmq.asyncio
 from hypothesis import HealthCheck, given, settings
 
-from controller.commands import MAX_DEPTH, MAX_FRAME_BYTES, MAX_REQUEST_BYTES, CommandServer, too_deep
+from common.errors import ConfigError
+from controller.commands.server import MAX_DEPTH, MAX_FRAME_BYTES, MAX_REQUEST_BYTES, CommandServer, too_deep
 from controller.config import load_cell_config
-from drivers.errors import ConfigError
 from fluidsense.bench.fuzz import Client, answerable, message_strategy
 
 from .conftest import REPO, Daemon, ipc_endpoints, sim_config

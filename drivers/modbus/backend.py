@@ -9,10 +9,12 @@ import logging
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
+from common.errors import ConfigError, DriverError, LinkLostError
+from common.hardware import Hardware, RegulatedCircuit, TankCircuit
+from common.wiring import AnalogScale, RegulatorWiring, Wiring
+from drivers.io import BoxWatchdogConfig
+
 from ..base import Backend, BoxWatchdog, Regulator, ValveBank
-from ..errors import ConfigError, DriverError, LinkLostError
-from ..hardware import Hardware, RegulatedCircuit, TankCircuit
-from ..io import AnalogScale, BoxWatchdogConfig, RegulatorWiring, Wiring
 from ..remote import Link, PolledCellSource, confirm_safe_on_connect, sampler_config
 from ..ur.watchdog import box_script, send_script
 from .config import ModbusDriverConfig, RegisterMap
@@ -181,4 +183,4 @@ def build(cfg: ModbusDriverConfig, hw: Hardware) -> Backend:
     if script is not None:
         source.on_connect.append(lambda: send_script(cfg.host, cfg.watchdog.script_port, script))
     return Backend(name="modbus", source=source, valves=valves, regulator=regulator, arm=arm,
-                   scene=scene_link(cfg.host, cfg.sim_control_port), watchdog=watchdog, extras={"link": link})
+                   scene=scene_link(cfg.host, cfg.sim_control_port), watchdog=watchdog)

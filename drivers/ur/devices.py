@@ -6,9 +6,11 @@ from __future__ import annotations
 import logging
 import math
 
+from common.errors import DriverError, SafetyError
+from common.wiring import AnalogScale, RegulatorWiring, ValveWiring
+from drivers.io import BoxWatchdogConfig, UrArmConfig
+
 from ..base import Arm, BoxWatchdog, Pose, Regulator, ValveBank
-from ..errors import DriverError, SafetyError
-from ..io import AnalogScale, BoxWatchdogConfig, RegulatorWiring, UrArmConfig, ValveWiring
 from .link import WorkerLink
 from .worker import SCRIPT_START_S
 

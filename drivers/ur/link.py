@@ -17,7 +17,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..errors import DeviceTimeoutError, DriverError, LinkLostError
+from common.errors import DeviceTimeoutError, DriverError, LinkLostError
+
 from ..remote import Link
 
 log = logging.getLogger(__name__)

@@ -54,7 +54,7 @@ def _cell(tmp: Path, kind: str, host: str, driver: dict[str, Any]) -> Path:
 
 @contextlib.contextmanager
 def _simcell(cell: Path):
-    from drivers.sim.controlbox.process import EmulatorProcess
+    from simulator.controlbox.process import EmulatorProcess
 
     box = EmulatorProcess(command=[sys.executable, "-m", "fluidsense.cli", "simcell", "--config", str(cell)])
     box.start(timeout_s=30)
@@ -119,7 +119,7 @@ def _p_act_kpa(cell: Path, state: dict) -> float:
 
 
 def _one(kind: str, driver: dict[str, Any], scenario: str) -> float:
-    from drivers.sim.controlbox.process import free_loopback
+    from simulator.controlbox.process import free_loopback
 
     with tempfile.TemporaryDirectory(prefix="fluidsense-boxfaults-") as d:
         tmp = Path(d)

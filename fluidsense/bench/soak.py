@@ -220,7 +220,7 @@ async def _cycles(ctrl, end_s: float, window_h: float) -> tuple[list, dict, list
     """Cycle through the scenes until ``end_s`` of sample time; memory after warm-up."""
     from pydantic import TypeAdapter
 
-    from drivers.scenes import Scene
+    from common.scenes import Scene
 
     parse_scene = TypeAdapter(Scene).validate_python
     await ctrl.set_scene(parse_scene(SCENES["none"]))

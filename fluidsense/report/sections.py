@@ -12,14 +12,22 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from controller import features as F
-from drivers.hardware import BendingActuator
-from drivers.scenes import (CylinderScene, EmptyScene, PlateScene, ProfileScene, PullScene, RectangleScene,
-                            SampleScene, StopperScene)
-from drivers.sim.actuators import contact_truth, volume_law
-from drivers.sim.equilibrium import eq2_resolution, equilibrium
-from drivers.sim.resolution import LINEAR_PARAMS, linear_sweep, search
-from drivers.units import KPA, LITRE, ML, P_ATM
+from common.hardware import BendingActuator
+from common.scenes import (
+    CylinderScene,
+    EmptyScene,
+    PlateScene,
+    ProfileScene,
+    PullScene,
+    RectangleScene,
+    SampleScene,
+    StopperScene,
+)
+from common.units import KPA, LITRE, ML, P_ATM
+from controller.cycles import features as F
+from simulator.actuators import contact_truth, volume_law
+from simulator.equilibrium import eq2_resolution, equilibrium
+from simulator.resolution import LINEAR_PARAMS, linear_sweep, search
 from tasks.experiments import reference, sweep
 
 from .common import Section, errors_on, fit, img, interval95, md_table, profile, r4, run_on
@@ -248,7 +256,7 @@ def shape(out: Path, seed: int) -> Section:
                           drop_first=1)
         rect_cal = await sweep(ctrl, RectangleScene(width_mm=40), "width_mm", cal_w, cycles=3, drop_first=1)
         rect_test = await sweep(ctrl, RectangleScene(width_mm=40), "width_mm", test_w + [100], cycles=1)
-        ref_trace = ctrl.references[round(prof.sequence.p0_kpa, 3)]
+        ref_trace = ctrl.cycles.references[round(prof.sequence.p0_kpa, 3)]
         return cyl, rect_cal, rect_test, ref_trace
 
     cyl, rect_cal, rect_test, ref = run_on(prof, body, seed)
@@ -303,7 +311,7 @@ def stiffness(out: Path, seed: int) -> Section:
         await reference(ctrl)
         cal = await sweep(ctrl, PlateScene(height_mm=0), "height_mm", [0, 5, 10, 15, 20], cycles=3, drop_first=1)
         runs = await sweep(ctrl, None, None, plates, cycles=1)
-        return cal, runs, ctrl.references[round(prof.sequence.p0_kpa, 3)]
+        return cal, runs, ctrl.cycles.references[round(prof.sequence.p0_kpa, 3)]
 
     cal_runs, runs, ref = run_on(prof, body, seed)
     tc_cal = fit(cal_runs, "t_c_slope", "poly2", target="height_mm", target_unit="mm")
@@ -353,7 +361,7 @@ def profile_scan(out: Path, seed: int) -> Section:
         cal = await sweep(ctrl, PlateScene(height_mm=0), "height_mm", [0, 2, 4, 6, 8, 10, 12, 14], cycles=2,
                           drop_first=1)
         scans = await sweep(ctrl, None, None, shapes, cycles=1)
-        return cal, scans, ctrl.references[round(seq.p0_kpa, 3)]
+        return cal, scans, ctrl.cycles.references[round(seq.p0_kpa, 3)]
 
     cal_runs, scans, ref = run_on(prof, body, seed)
     cal = fit(cal_runs, "dp_eq", "poly2", target="height_mm", target_unit="mm")
@@ -574,7 +582,7 @@ def resolution(out: Path, seed: int) -> Section:
                             list(np.geomspace(prof.circuit.tank_l / 10, prof.circuit.tank_l * 10, 12)),
                             list(np.linspace(limit / 12, limit, 12)), P_ATM,
                             (prof.limits.min_kpa, prof.limits.max_kpa), tuple(prof.sensor.range_kpa))
-        from drivers.sim.resolution import evaluate
+        from simulator.resolution import evaluate
 
         cur = evaluate(prof.actuator, lambda x, s=plan.scene, t=plan.target: scene_with(s, t, x), targets,
                        prof.circuit.tank_l, prof.sequence.p0_kpa, P_ATM, (prof.limits.min_kpa, prof.limits.max_kpa),

@@ -17,16 +17,18 @@ from __future__ import annotations
 import asyncio
 from typing import Any
 
-from common.errors import CommandError, FaultError, NotSupportedError, SequenceError
+from common.errors import CommandError, FaultError, SequenceError
 from common.faults import Fault, FaultKind
 from common.samples import SampleBlock
 from drivers.base import Backend
 
+from .cell import ArmAccess, SceneAccess
 from .commands.dispatch import Dispatcher
+from .commands.status import heartbeat_of, status_of
 from .config import CellConfig
 from .cycles.analysis import CycleResult
 from .cycles.runner import CycleRunner
-from .safety.latch import SafetyLatch, vented_word
+from .safety.latch import SafetyLatch
 from .safety.outputs import OutputWatch
 from .safety.supervisor import Supervisor
 from .sampling.clock import SampleClock
@@ -50,6 +52,8 @@ class Controller:
         self.loop = SampleLoop(cfg, backend, connect=self._connect, handle=self._on_block, fail=self._read_failed,
                                wanted=self._wants_samples, demand=self.clock.demand, now=now)
         self.commands = Dispatcher(self)
+        self.arm = ArmAccess(backend, lambda: self.latch.fault, now)
+        self.scene = SceneAccess(backend, now)
         self.command_stats = None  # the daemon installs the command socket's counts here
         self.latch.before_vent.append(self.cycles.on_fault)
         self.latch.after_vent += [lambda f, event: self.telemetry.emit("fault", event),
@@ -189,40 +193,6 @@ class Controller:
         if seq.t_open + seconds > self.now:
             await self.wait(seq.t_open + seconds - self.now)
 
-    @property
-    def tcp_pose(self) -> tuple[float, ...]:
-        if self.backend.arm is None:
-            raise NotSupportedError(f"backend {self.backend.name!r} has no arm")
-        return self.backend.arm.tcp_pose
-
-    async def move_l(self, pose, speed: float, acc: float) -> None:
-        """Move the arm's tool in a straight line; returns on arrival (sample time)."""
-        if self.backend.arm is None:
-            raise NotSupportedError(f"backend {self.backend.name!r} has no arm")
-        if self.fault is not None:
-            raise FaultError(f"in FAULT ({self.fault.kind}); send reset")
-        await self.backend.arm.move_l(pose, speed, acc, self.now)
-
-    @property
-    def places_objects(self) -> bool:
-        """A simulated cell lays out its own objects; on a real one the operator does."""
-        return self.backend.scene is not None
-
-    async def set_scene(self, scene: Any) -> None:
-        if self.backend.scene is None:
-            raise NotSupportedError(f"backend {self.backend.name!r} cannot place objects")
-        await self.backend.scene.set_scene(scene, self.now)
-
-    async def set_world(self, world: Any) -> None:
-        if self.backend.scene is None:
-            raise NotSupportedError(f"backend {self.backend.name!r} cannot lay out a work cell")
-        await self.backend.scene.set_world(world, self.now)
-
-    async def ground_truth(self) -> dict[str, Any] | None:
-        """What a simulated cell knows and a real one cannot (for a task to score itself):
-        None on a real cell."""
-        return None if self.backend.scene is None else await self.backend.scene.read_truth()
-
     def add_sink(self, sink: Sink) -> None:
         self.telemetry.sinks.append(sink)
 
@@ -231,22 +201,7 @@ class Controller:
         self.telemetry.emit(topic, payload)
 
     def status(self) -> dict[str, Any]:
-        seq, valves, fault = self.cycles.sequencer, self.backend.valves, self.fault
-        return {
-            "state": seq.state.value if self.connected else "connecting", "connecting": self.connecting,
-            "cycle_id": seq.cycle_id, "t_s": self.now, "virtual": self.virtual, "backend": self.backend.name,
-            "profile": self.profile.name,
-            "fault": None if fault is None else {"kind": fault.kind, "detail": fault.detail, "t_s": fault.t},
-            "valves": valves.reported, "valves_age_s": valves.age_s(), "valves_commanded": valves.state,
-            "vented": vented_word(self.latch.vented()), "references_kpa": sorted(self.cycles.references),
-            "samples": self.loop.samples, "missed": self.loop.missed,
-            "last_cycle": self.cycles.results[-1].to_dict() if self.cycles.results else None,
-            "task": self.commands.task, "commands": None if self.command_stats is None else self.command_stats(),
-            "publisher": self.telemetry.pub.stats,
-        }
-
-    async def handle_command(self, cmd: Any) -> dict[str, Any]:
-        return await self.commands.handle(cmd)
+        return status_of(self)
 
     # ------------------------------------------------------------------ the loop's side
     def _check_running(self) -> None:
@@ -259,24 +214,16 @@ class Controller:
     async def _on_block(self, block: SampleBlock) -> None:
         self.clock.advance(block.t_end)
         self.cycles.trace(block)
-        arm = self.backend.arm
         fault = self.supervisor.check(block, holding=self.cycles.holding,
-                                      arm_stopped=arm is not None and arm.protective_stopped) or self.loop.overrun(block)
+                                      arm_stopped=self.arm.protective_stopped) or self.loop.overrun(block)
         if fault is not None:
             await self.latch.trip(fault, self.now)
         await self.cycles.on_block()
         self.outputs.on_block(self.now)
         self.telemetry.on_block(block)
         if self.telemetry.heartbeat_due():
-            self.telemetry.heartbeat(self._heartbeat_fields(), self.loop.proc_s)
+            self.telemetry.heartbeat(heartbeat_of(self), self.loop.proc_s)
         await self.latch.trip_deferred(self.now)
-
-    def _heartbeat_fields(self) -> dict[str, Any]:
-        seq, loop = self.cycles.sequencer, self.loop
-        return {"state": seq.state.value, "cycle_id": seq.cycle_id,
-                "fault": None if self.fault is None else self.fault.kind, "samples": loop.samples,
-                "blocks": loop.blocks, "missed": loop.missed, "late": loop.late,
-                "rate_hz": self.backend.source.rate_hz, "virtual": self.virtual}
 
     async def _trip(self, fault: Fault) -> None:
         await self.latch.trip(fault, self.now)

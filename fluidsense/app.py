@@ -205,7 +205,7 @@ async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: N
         async with controller(cfg, publisher=pub, record=True, connect_in_background=True,
                               own_process=own_process) as ctrl:
             ctrl.commands.task_runner = _task_runner(ctrl, tasks_dir)
-            server.handler = ctrl.handle_command
+            server.handler = ctrl.commands.handle
             ctrl.command_stats = lambda: server.stats
             serve = asyncio.create_task(server.serve(), name="command-socket")
             stopper = asyncio.create_task(stop.wait(), name="stop-signal")

@@ -64,7 +64,7 @@ async def calibrate(ctrl: Controller, scene: Any, target: str, values: Sequence[
     run that cannot finish raises JobStopped with what it had done."""
     if feature not in FEATURES:
         raise CalibrationError(f"unknown feature {feature!r}; known: {', '.join(FEATURES)}")
-    place = place or ctrl.set_scene
+    place = place or ctrl.scene.place
     unit = TARGETS.get(scene.kind, (target, ""))[1]
     entries: list[dict[str, Any]] = list(journal.entries) if journal is not None else []
     total = len(values) * cycles
@@ -127,7 +127,7 @@ class Sensing:
 async def sense(ctrl: Controller, cal: Calibration, scene: Any | None = None, cycles: int = 1,
                 place: Place | None = None) -> Sensing:
     """Measure ``cycles`` cycles (averaged) and invert the calibration."""
-    place = place or ctrl.set_scene
+    place = place or ctrl.scene.place
     if ctrl.profile.name != cal.profile:
         raise CalibrationError(f"calibration is for profile {cal.profile!r}, the cell runs {ctrl.profile.name!r}")
     if cal.feature in NEEDS_REFERENCE:

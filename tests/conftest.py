@@ -238,13 +238,13 @@ async def cycles_over(ctrl, scenes, n: int = 1, reference: bool = False):
     from common.scenes import EmptyScene
 
     if reference:
-        await ctrl.set_scene(EmptyScene())
+        await ctrl.scene.place(EmptyScene())
         await ctrl.run_cycle(store_reference=True)
     out = []
     for scene in scenes:
-        await ctrl.set_scene(scene)
+        await ctrl.scene.place(scene)
         for _ in range(n):
             res = await ctrl.run_cycle()
             assert res.ok, res.aborted
-            out.append((scene, res, ctrl.backend.scene.truth()))
+            out.append((scene, res, await ctrl.scene.truth()))
     return out

@@ -102,7 +102,7 @@ def test_tank_method_distance_accuracy_on_held_out_heights():
                               feature="p_eq", cycles=4, drop_first=1)
         errors, covered = [], 0
         for h in held_out:
-            await ctrl.set_scene(PlateScene(height_mm=float(h)))
+            await ctrl.scene.place(PlateScene(height_mm=float(h)))
             res = await ctrl.run_cycle()
             est = run.calibration.invert(res.p_eq / 1e3)
             errors.append(est.estimate - h)

@@ -37,11 +37,11 @@ def true_contact_time(diameter_mm: float) -> float:
 
 def test_contact_time_features_against_the_plants_truth(virtual_controller):
     async def body(ctrl):
-        await ctrl.set_scene(EmptyScene())
+        await ctrl.scene.place(EmptyScene())
         ref = await ctrl.run_cycle(store_reference=True)
         out = {}
         for d in (40, 60, 80, 100):
-            await ctrl.set_scene(CylinderScene(diameter_mm=d))
+            await ctrl.scene.place(CylinderScene(diameter_mm=d))
             out[d] = await ctrl.run_cycle()
         return ref, out
 
@@ -60,7 +60,7 @@ def test_contact_time_features_against_the_plants_truth(virtual_controller):
 
 def test_cycle_result_windows_and_offset(virtual_controller):
     async def body(ctrl):
-        await ctrl.set_scene(CylinderScene(diameter_mm=80))
+        await ctrl.scene.place(CylinderScene(diameter_mm=80))
         return await ctrl.run_cycle(label="x")
 
     res = virtual_controller(body)

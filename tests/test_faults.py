@@ -31,7 +31,7 @@ def _cell():
 def test_each_fault_is_detected_and_vented_within_one_block(kind, t_offset):
     async def body():
         async with _cell() as ctrl:
-            await ctrl.set_scene(CylinderScene(diameter_mm=60))
+            await ctrl.scene.place(CylinderScene(diameter_mm=60))
             rec = await bench.inject_once(ctrl, kind, t_offset)
             status_after_reset = ctrl.status()
             return rec, status_after_reset

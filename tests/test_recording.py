@@ -46,10 +46,10 @@ def the_file(tmp_path: Path) -> Path:
 async def varied_cycles(ctrl) -> list:
     """A reference, two objects, an aborted cycle, a held one, a sensor fault."""
     results = []
-    await ctrl.set_scene(EmptyScene())
+    await ctrl.scene.place(EmptyScene())
     results.append(await ctrl.run_cycle(store_reference=True))
     for d in (40, 80):
-        await ctrl.set_scene(CylinderScene(diameter_mm=d))
+        await ctrl.scene.place(CylinderScene(diameter_mm=d))
         results.append(await ctrl.run_cycle(label=f"D{d}"))
     fut = await ctrl.start_cycle(label="aborted")
     await ctrl.wait(23.456)  # inside ACTUATE
@@ -95,7 +95,7 @@ def good_file(tmp_path_factory) -> Path:
 
     async def two(ctrl):
         await ctrl.run_cycle(store_reference=True)
-        await ctrl.set_scene(CylinderScene(diameter_mm=60))
+        await ctrl.scene.place(CylinderScene(diameter_mm=60))
         await ctrl.run_cycle()
 
     record(tmp, two)
@@ -382,7 +382,7 @@ def test_files_are_never_overwritten(tmp_path):
 def test_rotation_between_cycles_keeps_every_file_replayable(tmp_path):
     async def body(ctrl):
         await ctrl.run_cycle(store_reference=True)
-        await ctrl.set_scene(CylinderScene(diameter_mm=70))
+        await ctrl.scene.place(CylinderScene(diameter_mm=70))
         return [await ctrl.run_cycle() for _ in range(3)]
 
     live = record(tmp_path, body, max_file_mb=0.2)

@@ -108,7 +108,7 @@ def test_an_exception_at_any_stage_latches_vents_and_releases_every_waiter(stage
         cfg = _cfg()
         ctrl = Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware), probe)
         async with ctrl:
-            await ctrl.set_scene(CylinderScene(diameter_mm=60))
+            await ctrl.scene.place(CylinderScene(diameter_mm=60))
             _inject(stage, ctrl, probe)
             fut = await ctrl.start_cycle(hold=True)  # held: without the fault it would wait for a release
             waiter = asyncio.ensure_future(ctrl.wait(1000.0))
@@ -149,7 +149,7 @@ def test_a_failing_command_handler_vents_and_answers_with_the_reason():
             await ctrl.wait(5.0)
             inflated = ctrl.backend.valves.reported["actuate"]
             with pytest.raises(CommandError, match="internal error.*safe state"):
-                await ctrl.handle_command(SceneCmd(cmd="scene", scene={"kind": "none"}))
+                await ctrl.commands.handle(SceneCmd(cmd="scene", scene={"kind": "none"}))
             return inflated, ctrl.fault, ctrl.latch.vented()
 
     inflated, fault, vented = asyncio.run(body())

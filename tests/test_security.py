@@ -163,7 +163,7 @@ def test_the_server_counts_what_it_answered_rejected_and_dropped(tmp_path):
     async def main():
         ctx = zmq.asyncio.Context()
         async with app.controller(cfg) as ctrl:
-            server = CommandServer(endpoint, ctrl.handle_command, context=ctx)
+            server = CommandServer(endpoint, ctrl.commands.handle, context=ctx)
             serving = asyncio.create_task(server.serve())
             sock = ctx.socket(zmq.DEALER)
             sock.setsockopt(zmq.LINGER, 0)

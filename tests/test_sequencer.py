@@ -80,7 +80,7 @@ def test_windows_must_fit_inside_the_actuation():
 
 # ------------------------------------------------------- on the simulated cell
 async def _abort_mid_hold(controller):
-    await controller.set_scene(CylinderScene(diameter_mm=60))
+    await controller.scene.place(CylinderScene(diameter_mm=60))
     fut = await controller.start_cycle()
     while controller.cycles.sequencer.state != State.HOLD:
         await controller.wait(0.5)

@@ -71,7 +71,7 @@ class Dispatcher:
             ctrl.reset()
             return {"state": ctrl.cycles.sequencer.state.value}
         if isinstance(cmd, SceneCmd):
-            await ctrl.set_scene(cmd.scene)
+            await ctrl.scene.place(cmd.scene)
             return {"scene": cmd.scene.model_dump()}
         if isinstance(cmd, ShutdownCmd):
             self.shutdown.set()

@@ -110,7 +110,7 @@ async def _injections(kinds, n: int, seed: int) -> list[dict[str, Any]]:
     cycle_s = seq.charge_s + seq.isolate_s + seq.actuate_s + seq.vent_s
     out = []
     async with Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware)) as ctrl:
-        await ctrl.set_scene(CylinderScene(diameter_mm=60))
+        await ctrl.scene.place(CylinderScene(diameter_mm=60))
         for kind in kinds:
             for _ in range(n):
                 out.append(await inject_once(ctrl, kind, float(rng.uniform(0, cycle_s))))
@@ -129,7 +129,7 @@ async def _clean(cycles: int, seed: int) -> tuple[int, list[str]]:
         for k in range(cycles):
             if k % 10 == 0:
                 d = float(rng.uniform(20, 110))
-                await ctrl.set_scene(EmptyScene() if d < 30 else CylinderScene(diameter_mm=d))
+                await ctrl.scene.place(EmptyScene() if d < 30 else CylinderScene(diameter_mm=d))
             await ctrl.run_cycle()
             if ctrl.fault is not None:
                 alarms.append(f"{ctrl.fault.kind}: {ctrl.fault.detail}")

@@ -417,9 +417,9 @@ def suction(out: Path, seed: int) -> Section:
         async def one(ctrl):
             s = pull.sequence
             scene = PullScene(material="OO-30", rate_n_per_s=0.2, delay_s=s.charge_s + s.isolate_s + 20.0)
-            await ctrl.set_scene(scene)
+            await ctrl.scene.place(scene)
             r = await ctrl.run_cycle()
-            return scene, r, ctrl.backend.scene.truth()
+            return scene, r, await ctrl.scene.truth()
 
         pulls.append(run_on(pull, one, seed + 100 + k))
     fig, ax = figure(2, 1)

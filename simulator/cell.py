@@ -17,7 +17,7 @@ from common.units import KPA
 
 from .actuators import contact_pressure, contact_truth, is_dynamic, update_step, volume_law
 from .arm import ArmModel
-from .gas import ATMOSPHERE, REGULATOR, FlowSource, Link, Network, VolumeLaw
+from .gas import ATMOSPHERE, REGULATOR, FlowSource, Pipe, Network, VolumeLaw
 from .plant import Plant
 from .sensor import SensorModel
 from .world import World
@@ -59,7 +59,7 @@ def _network(hw: Hardware, law: VolumeLaw) -> tuple[Network, dict[str, bool]]:
     p_atm = c.p_atm
     r_valve, r_res = c.valve_resistance_pa_s_per_m3, c.resistor_pa_s_per_m3
     r_vent = r_valve + (r_res if c.resistor_position == "downstream" else 0.0)
-    links: list[Link] = []
+    links: list[Pipe] = []
     sources: list[FlowSource] = []
     if isinstance(c, FlowControlledCircuit):
         names, laws = ["actuator"], [law]
@@ -69,17 +69,17 @@ def _network(hw: Hardware, law: VolumeLaw) -> tuple[Network, dict[str, bool]]:
         names, laws = ["tank", "actuator"], [VolumeLaw.constant(c.tank_m3, p_atm), law]
         tank, act = 0, 1
         supply_valve = SUPPLY if isinstance(c, TankCircuit) else None
-        links.append(Link(REGULATOR, tank, c.supply_resistance_pa_s_per_m3, supply_valve, True, "supply"))
-        links.append(Link(tank, act, r_valve + r_res, ACTUATE, True, "actuate"))
+        links.append(Pipe(REGULATOR, tank, c.supply_resistance_pa_s_per_m3, supply_valve, True, "supply"))
+        links.append(Pipe(tank, act, r_valve + r_res, ACTUATE, True, "actuate"))
     if isinstance(c, TankCircuit) and c.vent_valve:
-        links.append(Link(act, ATMOSPHERE, r_vent, VENT, True, "vent"))
+        links.append(Pipe(act, ATMOSPHERE, r_vent, VENT, True, "vent"))
     else:
-        links.append(Link(act, ATMOSPHERE, r_vent, ACTUATE, False, "vent"))
+        links.append(Pipe(act, ATMOSPHERE, r_vent, ACTUATE, False, "vent"))
     if c.leak_resistance_pa_s_per_m3 is not None:
-        links.append(Link(act, ATMOSPHERE, c.leak_resistance_pa_s_per_m3, None, True, "leak"))
-    links.append(Link(act, ATMOSPHERE, _AIR_RESISTANCE, AIR, True, AIR))
-    links.append(Link(act, ATMOSPHERE, 2e10, FAULT_LEAK, True, FAULT_LEAK))
-    links.append(Link(REGULATOR, act, c.valve_resistance_pa_s_per_m3, FAULT_SUPPLY, True, FAULT_SUPPLY))
+        links.append(Pipe(act, ATMOSPHERE, c.leak_resistance_pa_s_per_m3, None, True, "leak"))
+    links.append(Pipe(act, ATMOSPHERE, _AIR_RESISTANCE, AIR, True, AIR))
+    links.append(Pipe(act, ATMOSPHERE, 2e10, FAULT_LEAK, True, FAULT_LEAK))
+    links.append(Pipe(REGULATOR, act, c.valve_resistance_pa_s_per_m3, FAULT_SUPPLY, True, FAULT_SUPPLY))
     valves = {**dict.fromkeys(c.safe_valves, False), AIR: False, FAULT_LEAK: False, FAULT_SUPPLY: False}
     return Network(names, laws, links, p_atm=p_atm, p_std=p_atm, flow_sources=sources), valves
 
@@ -235,7 +235,7 @@ class SimulatedCell:
             self._cache_t = self._cache_t[:keep]
             self._cache_v = self._cache_v[:keep]
             self._cache_true = self._cache_true[:keep]
-            self.plant.rewind(float(self._cache_t[keep - 1]) if keep > 0 else self.t_last)
+            self.plant.check_resample_from(float(self._cache_t[keep - 1]) if keep > 0 else self.t_last)
 
     # ------------------------------------------------------------- commands
     def command_valve(self, valve: str, open_: bool, t: float) -> None:

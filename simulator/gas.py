@@ -112,7 +112,7 @@ class VolumeLaw:
 
 
 @dataclass(frozen=True)
-class Link:
+class Pipe:
     """A laminar path between two nodes (node index, or REGULATOR / ATMOSPHERE)."""
 
     a: int
@@ -138,7 +138,7 @@ class FlowSource:
 class Network:
     """Nodes (volumes with laws), links and sources; builds the ODE right-hand side."""
 
-    def __init__(self, names: Sequence[str], laws: Sequence[VolumeLaw], links: Sequence[Link],
+    def __init__(self, names: Sequence[str], laws: Sequence[VolumeLaw], links: Sequence[Pipe],
                  p_atm: float = P_ATM, p_std: float = P_ATM, flow_sources: Sequence[FlowSource] = ()):
         if len(names) != len(laws):
             raise ValueError("one volume law per node")

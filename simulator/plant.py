@@ -228,13 +228,14 @@ class Plant:
             total = total + self.flow_of_t(t)  # vectorised: np.interp profiles
         return total
 
-    def rewind(self, t: float) -> None:
-        """Forget samples after ``t``: the next ``sample`` may start again from there.
+    def check_resample_from(self, t: float) -> None:
+        """Refuse (RuntimeError) to sample again from ``t`` if an event was applied after it.
 
-        Only possible within the current segment (no event applied after ``t``).
+        The plant's solution is continuous within a segment, so samples dropped by the cell
+        can be recomputed from any ``t`` within the current segment.
         """
         if t < self._seg.t0 - 1e-12:
-            raise RuntimeError(f"cannot rewind the plant to t={t} before its last event at {self._seg.t0}")
+            raise RuntimeError(f"cannot sample the plant again from t={t}: an event was applied at {self._seg.t0}")
 
     def pressures_abs(self, state: np.ndarray) -> np.ndarray:
         """Absolute pressure of every node for a state array from ``sample``."""

@@ -22,13 +22,13 @@ def true_contact_time(diameter_mm: float) -> float:
     from common.hardware import GripperActuator, TankCircuit
     from common.units import P_ATM
     from simulator.actuators import volume_law
-    from simulator.gas import Link, Network, VolumeLaw
+    from simulator.gas import Pipe, Network, VolumeLaw
     from simulator.plant import Plant
 
     act, c = GripperActuator(), TankCircuit()
     law = volume_law(act, CylinderScene(diameter_mm=diameter_mm), P_ATM)
     net = Network(["tank", "actuator"], [VolumeLaw.constant(c.tank_m3), law],
-                  [Link(0, 1, c.valve_resistance_pa_s_per_m3 + c.resistor_pa_s_per_m3, "v", True)])
+                  [Pipe(0, 1, c.valve_resistance_pa_s_per_m3 + c.resistor_pa_s_per_m3, "v", True)])
     plant = Plant(net, {"v": True}, P_ATM, 0.05, p_initial_abs={"tank": P_ATM + 63e3})
     t = np.arange(0, 1, 1e-5)
     p = plant.pressures_abs(plant.sample(t)[0])[1] - P_ATM

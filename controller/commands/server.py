@@ -75,9 +75,9 @@ class ShutdownCmd(StrictModel):
     cmd: Literal["shutdown"]
 
 
-Command = Annotated[StatusCmd | CycleCmd | AbortCmd | ResetCmd | SceneCmd | TaskCmd | ShutdownCmd,
+Request = Annotated[StatusCmd | CycleCmd | AbortCmd | ResetCmd | SceneCmd | TaskCmd | ShutdownCmd,
                     Field(discriminator="cmd")]
-_ADAPTER = TypeAdapter(Command)
+_ADAPTER = TypeAdapter(Request)
 
 
 def too_deep(raw: bytes, limit: int = MAX_DEPTH) -> bool:

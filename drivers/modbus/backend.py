@@ -15,7 +15,7 @@ from common.wiring import AnalogScale, RegulatorWiring, Wiring
 from drivers.io import BoxWatchdogConfig
 
 from ..base import Backend, BoxWatchdog, Regulator, ValveBank
-from ..remote import Link, PolledCellSource, confirm_safe_on_connect, sampler_config
+from ..remote import Connection, PolledCellSource, confirm_safe_on_connect, sampler_config
 from ..ur.watchdog import box_script, send_script
 from .config import ModbusDriverConfig, RegisterMap
 
@@ -24,7 +24,7 @@ log = logging.getLogger(__name__)
 _DOMAIN_CODE = {"current": 0, "voltage": 1}  # UR's analog domain registers
 
 
-class ModbusLink(Link):
+class ModbusConnection(Connection):
     """One Modbus TCP connection, shared by the valves and the regulator."""
 
     def __init__(self, cfg: ModbusDriverConfig):
@@ -97,7 +97,7 @@ class ModbusValves(ValveBank):
 
     reports_outputs = True
 
-    def __init__(self, link: ModbusLink, wiring: Wiring, regs: RegisterMap, safe: dict[str, bool]):
+    def __init__(self, link: ModbusConnection, wiring: Wiring, regs: RegisterMap, safe: dict[str, bool]):
         super().__init__("modbus-valves", safe)
         self.link, self.wiring, self.regs = link, wiring.valves, regs
 
@@ -119,7 +119,7 @@ class ModbusHeartbeat(BoxWatchdog):
     """Cells without an arm: the daemon increments a general purpose register that the
     box's watchdog program watches (drivers/ur/watchdog.py)."""
 
-    def __init__(self, link: ModbusLink, cfg: BoxWatchdogConfig):
+    def __init__(self, link: ModbusConnection, cfg: BoxWatchdogConfig):
         super().__init__("modbus-heartbeat", cfg.timeout_s)
         self.link, self.register = link, cfg.heartbeat_register
         self.beats = 0
@@ -130,7 +130,7 @@ class ModbusHeartbeat(BoxWatchdog):
 
 
 class ModbusRegulator(Regulator):
-    def __init__(self, link: ModbusLink, wiring: RegulatorWiring, regs: RegisterMap, scale: AnalogScale):
+    def __init__(self, link: ModbusConnection, wiring: RegulatorWiring, regs: RegisterMap, scale: AnalogScale):
         super().__init__("modbus-regulator")
         self.link, self.wiring, self.regs, self.scale = link, wiring, regs, scale
 
@@ -158,8 +158,8 @@ def build(cfg: ModbusDriverConfig, hw: Hardware) -> Backend:
     from ..ur.backend import scene_link, worker_link  # noqa: PLC0415 - no ur_rtde import on this side
     from ..ur.devices import UrArm, WorkerKick  # noqa: PLC0415
 
-    link = ModbusLink(cfg)
-    links: list[Link] = [link]
+    link = ModbusConnection(cfg)
+    links: list[Connection] = [link]
     arm = watchdog = None
     if cfg.arm is not None:
         worker = worker_link(cfg.host, cfg.arm, io=False, watchdog=cfg.watchdog)

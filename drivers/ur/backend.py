@@ -11,7 +11,7 @@ from ..base import Backend
 from ..remote import PolledCellSource, confirm_safe_on_connect, sampler_config
 from .config import UrDriverConfig
 from .devices import UrArm, UrRegulator, UrValves, WorkerKick
-from .link import WorkerLink
+from .link import WorkerConnection
 from .watchdog import box_script, send_script
 
 
@@ -26,10 +26,10 @@ def rtde_inputs(wiring: Wiring, channels: tuple[str, ...]) -> list[list[float]]:
     return out
 
 
-def worker_link(host: str, arm, io: bool, watchdog: BoxWatchdogConfig | None = None) -> WorkerLink:
+def worker_link(host: str, arm, io: bool, watchdog: BoxWatchdogConfig | None = None) -> WorkerConnection:
     """``watchdog``: arm ur_rtde's RTDE watchdog so that the control script stops (and the
     box's run-state output actions vent) when the daemon stops kicking it."""
-    return WorkerLink({"host": arm.host or host, "io": io, "control": True, "status_hz": arm.status_hz,
+    return WorkerConnection({"host": arm.host or host, "io": io, "control": True, "status_hz": arm.status_hz,
                        "upper_range_registers": arm.upper_range_registers,
                        "watchdog_hz": None if watchdog is None else 1.0 / watchdog.timeout_s})
 

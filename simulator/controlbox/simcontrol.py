@@ -105,14 +105,14 @@ class NetworkCommand(StrictModel):
 
 
 _PLANT = (SceneCommand, WorldCommand, TruthCommand, InjectCommand, ClearFaultsCommand)
-Command = TypeAdapter(Annotated[StateCommand | SetCommand | SceneCommand | WorldCommand | TruthCommand
+SimRequest = TypeAdapter(Annotated[StateCommand | SetCommand | SceneCommand | WorldCommand | TruthCommand
                                 | InjectCommand | ClearFaultsCommand | NetworkCommand, Field(discriminator="cmd")])
 
 
 def handle(box: ControlBox, line: str) -> dict[str, Any]:
     """Execute one command line; the reply (never raises for a bad request)."""
     try:
-        command = Command.validate_python(json.loads(line))
+        command = SimRequest.validate_python(json.loads(line))
     except (ValueError, ValidationError) as exc:
         return {"ok": False, "error": f"bad command: {exc}".splitlines()[0]}
     reply: dict[str, Any] = {"ok": True} if command.id is None else {"ok": True, "id": command.id}

@@ -13,7 +13,7 @@ from typing import Any
 
 from common.errors import FaultError, NotSupportedError
 from common.faults import Fault
-from drivers.base import Backend
+from drivers.backend import Backend
 
 
 class ArmAccess:

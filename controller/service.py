@@ -20,7 +20,7 @@ from typing import Any
 from common.errors import CommandError, FaultError, SequenceError
 from common.faults import Fault, FaultKind
 from common.samples import SampleBlock
-from drivers.base import Backend
+from drivers.backend import Backend
 
 from .cell import ArmAccess, SceneAccess
 from .commands.dispatch import Dispatcher

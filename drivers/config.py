@@ -13,7 +13,7 @@ from common.hardware import Hardware
 from common.models import Integer, Real, StrictModel
 from common.scenes import EmptyScene, Scene
 
-from .base import Backend
+from .backend import Backend
 from .io import BLOCK_SIZE
 from .modbus.config import ModbusDriverConfig
 from .ur.config import UrDriverConfig

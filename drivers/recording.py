@@ -36,69 +36,18 @@ from common.files import nested_within, one_line, open_regular
 from common.samples import SampleBlock
 
 from .chunks import MAX_CHUNK_BYTES, ChunkError, chunk_records
+from .recording_schema import CONFIG, SAMPLES, SCHEMAS, event_schema
 
 log = logging.getLogger(__name__)
 
 FORMAT = "fluidsense-recording"
 FORMAT_VERSION = 1
 METADATA_NAME = "fluidsense"
-SAMPLES, CONFIG, REFERENCE = "samples", "config", "reference"
 # chunks close on flush(), not on size: this only bounds a chunk if flushes stop coming
 CHUNK_BYTES = 8 * 2**20
 # events and the config are a few levels deep (a cycle result, the wiring of a sensor)
 MAX_JSON_DEPTH = 32
 COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
-
-_NUMBERS = {"type": "array", "items": {"type": ["number", "null"]}}
-SCHEMAS: dict[str, dict[str, Any]] = {
-    SAMPLES: {
-        "title": "fluidsense.SampleBlock",
-        "description": "One block of samples as the driver delivered it. values[j][i] is channel j at "
-                       "times_s[i], SI units: Pa gauge for pressures, standard m^3/s for flows; null where "
-                       "the reading was not a finite number.",
-        "type": "object", "required": ["seq", "times_s", "channels", "values", "missed", "late"],
-        "properties": {
-            "seq": {"type": "integer"}, "times_s": _NUMBERS,
-            "channels": {"type": "array", "items": {"type": "string"}},
-            "values": {"type": "array", "items": _NUMBERS},
-            "missed": {"type": "integer", "description": "sample slots the source could not fill before this block"},
-            "late": {"type": "integer", "description": "samples taken after their slot deadline"},
-        },
-    },
-    REFERENCE: {
-        "title": "fluidsense.Reference",
-        "description": "A free-air reference the controller held when this file was opened: offset-corrected "
-                       "actuator pressure (Pa) against time since the valve opened (s).",
-        "type": "object", "required": ["t_s", "key_kpa", "cycle_id", "t_rel_s", "p_pa"],
-        "properties": {"t_s": {"type": "number"}, "key_kpa": {"type": "number"}, "cycle_id": {"type": "integer"},
-                       "t_rel_s": _NUMBERS, "p_pa": _NUMBERS},
-    },
-    "cycle_start": {
-        "title": "fluidsense.CycleStart",
-        "description": "What a cycle was started with (exact SI values, for replay).",
-        "type": "object", "required": ["t_s", "cycle_id", "p0_pa", "label", "store_reference", "hold"],
-        "properties": {"t_s": {"type": "number"}, "cycle_id": {"type": "integer"}, "p0_pa": {"type": "number"},
-                       "label": {"type": ["string", "null"]}, "store_reference": {"type": "boolean"},
-                       "hold": {"type": "boolean"}},
-    },
-    "command": {
-        "title": "fluidsense.Command",
-        "description": "A command the sequencer sent to a device (valve, regulator setpoint in Pa, flow "
-                       "profile in standard m^3/s at sample times).",
-        "type": "object", "required": ["t_s", "kind"],
-        "properties": {"t_s": {"type": "number"}, "kind": {"enum": ["valve", "setpoint", "flow_profile"]}},
-    },
-}
-
-
-def _event_schema(topic: str) -> dict[str, Any]:
-    return SCHEMAS.get(topic) or {
-        "title": f"fluidsense.{topic}",
-        "description": f"The payload of the published '{topic}' topic (docs/zmq-schema.md, schema version 1) "
-                       "with t_s, the sample time when it was emitted.",
-        "type": "object", "required": ["t_s"], "properties": {"t_s": {"type": "number"}},
-    }
-
 
 def _finite(obj: Any) -> Any:
     """JSON has no NaN or infinity: they become null (and NaN again when read)."""
@@ -209,7 +158,7 @@ class RecordingWriter:
         self._add(SAMPLES, block.t_end, to_json(block_payload(block)), SCHEMAS[SAMPLES])
 
     def write_event(self, topic: str, t_s: float, payload: dict[str, Any]) -> None:
-        self._add(topic, t_s, to_json({"t_s": t_s, **payload}), _event_schema(topic))
+        self._add(topic, t_s, to_json({"t_s": t_s, **payload}), event_schema(topic))
 
     def flush(self) -> None:
         self._mcap.flush()

@@ -18,7 +18,8 @@ from typing import Any
 from common.errors import EndOfRecording, RecordingError
 from common.hardware import Hardware
 from common.samples import SampleBlock
-from drivers.base import Backend, SampleSource, ValveBank
+from drivers.backend import Backend
+from drivers.base import SampleSource, ValveBank
 
 from .recording import SAMPLES, Record, RecordingReader
 

@@ -23,7 +23,7 @@ from drivers.config import build_backend
 from drivers.ur.watchdog import runstate_program, safe_levels, watchdog_program
 from simulator.controlbox.box import ControlBox, IdleProgram, RuntimeState
 from simulator.controlbox.config import ControlBoxConfig
-from simulator.controlbox.model import KinematicModel
+from simulator.controlbox.kinematic import KinematicModel
 from simulator.controlbox.scriptport import ScriptServer
 from simulator.controlbox.watchdog import WatchdogProgram
 

@@ -11,7 +11,8 @@ import pytest
 from common.errors import CommandError, SafetyError
 from simulator.controlbox.box import ControlBox, IdleProgram, RuntimeState
 from simulator.controlbox.config import AnalogScale, ControlBoxConfig
-from simulator.controlbox.model import AnalogDomain, KinematicModel, RobotMode, SafetyMode
+from simulator.controlbox.kinematic import KinematicModel
+from simulator.controlbox.model import AnalogDomain, RobotMode, SafetyMode
 from simulator.controlbox.motion import LineMove, Trapezoid
 from simulator.controlbox.urscript import RtdeControlScript, split_programs
 

@@ -21,7 +21,7 @@ from common.errors import NotSupportedError, SafetyError, SequenceError
 from common.faults import Fault, FaultKind
 from common.samples import SampleBlock
 from common.units import KPA
-from drivers.base import Backend
+from drivers.backend import Backend
 
 from ..config import Profile
 from .analysis import CycleResult, CycleTrace, Reference, analyse, make_reference, transition_dict

@@ -25,7 +25,7 @@ from typing import Any
 
 from common.errors import FaultError
 from common.faults import Fault, FaultKind
-from drivers.base import Backend
+from drivers.backend import Backend
 
 log = logging.getLogger(__name__)
 

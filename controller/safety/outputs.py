@@ -12,7 +12,7 @@ from collections.abc import Awaitable, Callable
 from typing import Any
 
 from common.faults import FaultKind
-from drivers.base import Backend
+from drivers.backend import Backend
 
 from .latch import SafetyLatch, vented_word
 

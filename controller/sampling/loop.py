@@ -22,7 +22,7 @@ from typing import Any
 from common.errors import DeviceTimeoutError, LinkLostError
 from common.faults import Fault, FaultKind
 from common.samples import SampleBlock
-from drivers.base import Backend
+from drivers.backend import Backend
 
 from ..config import CellConfig
 

@@ -28,7 +28,8 @@ from controller.config import CellConfig
 from controller.cycles.analysis import Reference
 from controller.service import Sink
 from drivers.base import SampleSource
-from drivers.recording import REFERENCE, RecordingWriter
+from drivers.recording import RecordingWriter
+from drivers.recording_schema import REFERENCE
 
 log = logging.getLogger(__name__)
 

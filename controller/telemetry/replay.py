@@ -29,7 +29,8 @@ from common.files import one_line
 from controller.config import CellConfig, SequenceConfig, validate
 from controller.cycles.analysis import CycleResult, CycleTrace, Reference, analyse, make_reference
 from controller.cycles.runner import reference_key
-from drivers.recording import REFERENCE, Record, to_json
+from drivers.recording import Record, to_json
+from drivers.recording_schema import REFERENCE
 from drivers.replay import ReplaySource
 
 log = logging.getLogger(__name__)

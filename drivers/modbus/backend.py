@@ -14,7 +14,8 @@ from common.hardware import Hardware, RegulatedCircuit, TankCircuit
 from common.wiring import AnalogScale, RegulatorWiring, Wiring
 from drivers.io import BoxWatchdogConfig
 
-from ..base import Backend, BoxWatchdog, Regulator, ValveBank
+from ..backend import Backend
+from ..base import BoxWatchdog, Regulator, ValveBank
 from ..remote import Connection, PolledCellSource, confirm_safe_on_connect, sampler_config
 from ..ur.watchdog import box_script, send_script
 from .config import ModbusDriverConfig, RegisterMap

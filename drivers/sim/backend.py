@@ -21,7 +21,8 @@ from common.hardware import FlowControlledCircuit, Hardware, RegulatedCircuit, T
 from common.samples import SampleBlock
 from simulator.cell import SimulatedCell
 
-from ..base import Backend, FlowController, Regulator, SampleSource, SceneControl, ValveBank
+from ..backend import Backend
+from ..base import FlowController, Regulator, SampleSource, SceneControl, ValveBank
 from ..config import SimDriverConfig
 from .arm import SimArm
 

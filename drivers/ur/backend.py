@@ -7,7 +7,7 @@ from common.hardware import Hardware, RegulatedCircuit, TankCircuit
 from common.wiring import Wiring
 from drivers.io import BoxWatchdogConfig
 
-from ..base import Backend
+from ..backend import Backend
 from ..remote import PolledCellSource, confirm_safe_on_connect, sampler_config
 from .config import UrDriverConfig
 from .devices import UrArm, UrRegulator, UrValves, WorkerKick

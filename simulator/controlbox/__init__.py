@@ -4,12 +4,12 @@ backed by a ``ControlBoxModel``. Run it as its own process: ``python -m
 simulator.controlbox``; see docs/controlbox.md."""
 
 from simulator.controlbox.config import AnalogScale, ControlBoxConfig
+from simulator.controlbox.kinematic import KinematicModel
 from simulator.controlbox.model import (
     AnalogDomain,
     AnalogInputSource,
     AnalogSignal,
     ControlBoxModel,
-    KinematicModel,
     RobotMode,
     SafetyMode,
 )

@@ -25,7 +25,8 @@ from common.errors import ConfigError, DriverError, FluidsenseError
 from simulator.controlbox import simcontrol
 from simulator.controlbox.config import AnalogScale, ControlBoxConfig
 from simulator.controlbox.emulator import Emulator
-from simulator.controlbox.model import ControlBoxModel, KinematicModel
+from simulator.controlbox.kinematic import KinematicModel
+from simulator.controlbox.model import ControlBoxModel
 
 log = logging.getLogger("simulator.controlbox")
 

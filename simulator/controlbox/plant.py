@@ -15,7 +15,8 @@ from typing import Any
 from common.hardware import Hardware
 from common.wiring import Wiring
 from simulator.cell import CellSettings, SimulatedCell
-from simulator.controlbox.model import AnalogDomain, KinematicModel, Pose
+from simulator.controlbox.kinematic import KinematicModel
+from simulator.controlbox.model import AnalogDomain, Pose
 
 log = logging.getLogger(__name__)
 

@@ -91,10 +91,13 @@ async def controller(cfg: CellConfig, publish: bool = False, record: bool = Fals
         await ctrl.start(connect_in_background)
         try:
             if record and cfg.recording.enabled:
+                from controller.telemetry.queued import QueuedSink
                 from controller.telemetry.recording import RecordingSink
 
-                # no await since start(): the loop has not handled a block yet
-                ctrl.add_sink(RecordingSink(cfg, backend.source, lambda: ctrl.cycles.references))
+                # no await since start(): the loop has not handled a block yet. The writer
+                # thread reads the references: dict() copies them in one step under the GIL
+                sink = RecordingSink(cfg, backend.source, lambda: dict(ctrl.cycles.references))
+                ctrl.add_sink(QueuedSink(sink, wait_when_full=backend.source.virtual))
             yield ctrl
         finally:
             await ctrl.stop()

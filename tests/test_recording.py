@@ -167,8 +167,9 @@ def test_what_is_on_disk_lags_sample_time_by_at_most_flush_s(tmp_path):
         fut = await ctrl.start_cycle()
         for step in (0.35, 1.73, 0.011, 2.5, 13.0, 0.99, 7.77):
             await ctrl.wait(step)
+            sink.wait_idle()  # the writer thread has what the loop handed it (normally within ms)
             copy = tmp_path / f"at-{ctrl.now:.3f}.mcap"
-            shutil.copyfile(sink.path, copy)
+            shutil.copyfile(sink.inner.path, copy)
             with RecordingReader(copy) as reader:
                 last = max((r.t_s for r in reader.records() if r.topic == SAMPLES), default=0.0)
                 seen.append((ctrl.now, last, reader.complete))
@@ -423,8 +424,10 @@ def test_a_write_error_drops_the_recording_and_control_goes_on(tmp_path, caplog)
         raise OSError(errno.ENOSPC, "No space left on device")
 
     async def body(ctrl):
-        sink = ctrl.telemetry.sinks[0]
+        queued = ctrl.telemetry.sinks[0]
         await ctrl.wait(30.0)
+        queued.wait_idle()
+        sink = queued.inner
         sink._writer.flush = disk_full
         res = await ctrl.run_cycle()
         return sink, res

@@ -24,6 +24,7 @@ def status_of(ctrl: Controller) -> dict[str, Any]:
         "last_cycle": ctrl.cycles.results[-1].to_dict() if ctrl.cycles.results else None,
         "task": ctrl.commands.task, "commands": None if ctrl.command_stats is None else ctrl.command_stats(),
         "publisher": ctrl.telemetry.pub.stats,
+        "sinks": [sink.stats for sink in ctrl.telemetry.sinks if hasattr(sink, "stats")],
     }
 
 

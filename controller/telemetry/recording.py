@@ -1,9 +1,13 @@
 """The recording sink: the daemon's samples, events and config in MCAP files on disk.
 
+The daemon runs this sink on a thread of its own behind a bounded queue (queued.py): the
+sample loop never waits on compression or the disk; in real time a full queue drops and
+counts (``status`` -> ``sinks``), in virtual time it waits.
+
 Flush guarantee: every ``flush_s`` of sample time the open chunk is closed and handed to
-the OS, so a daemon killed with SIGKILL loses at most the last ``flush_s`` (measured in
-tests/test_recording.py); with ``fsync`` a worker thread also forces it to storage, so
-the sample loop never waits on the disk. A file is started between cycles once it passes
+the OS, so a daemon killed with SIGKILL loses at most the last ``flush_s`` plus what was
+still queued (normally a block or two; tests/test_recording.py); with ``fsync`` another
+worker thread also forces it to storage. A file is started between cycles once it passes
 ``max_file_mb`` or covers ``max_file_s`` of sample time (the MCAP writer keeps an index
 entry per flushed chunk in memory until the file is closed: ~1 KB per ``flush_s``, 28 MB
 over 8 h in one file, found by fluidsense bench soak); each file carries the config and

@@ -126,25 +126,40 @@ def test_unknown_field(model):
         validate(model, data, PATH)
 
 
-@pytest.mark.parametrize("model", MODELS, ids=lambda m: m.__name__)
-def test_missing_required_fields(model):
-    required = [n for n, f in model.model_fields.items() if f.is_required()]
-    for name in required:
-        data = {k: v for k, v in example(model).items() if k != name}
-        with pytest.raises(ConfigError, match=rf"{PATH}: {name}: required field is missing"):
-            validate(model, data, PATH)
+# one case per (model, field): a model with no required or no numeric field adds no case
+# that would assert nothing
+REQUIRED = [(m, n) for m in MODELS for n, f in m.model_fields.items() if f.is_required()]
+NUMERIC = [(m, n, f) for m in MODELS for n, f in m.model_fields.items()
+           if f.annotation in (float, int, float | None, int | None)]
+BOUNDED = [(m, n, _bound(f)) for m, n, f in NUMERIC if _bound(f) is not None]
 
 
-@pytest.mark.parametrize("model", MODELS, ids=lambda m: m.__name__)
-def test_wrong_type_and_out_of_range(model):
-    numeric = [(n, f) for n, f in model.model_fields.items() if f.annotation in (float, int, float | None, int | None)]
-    for name, field in numeric:
-        data = {**example(model), name: "lots"}
-        with pytest.raises(ConfigError, match=rf"{PATH}: {name}: .*valid (number|integer)"):
-            validate(model, data, PATH)
-        bound = _bound(field)
-        if bound is not None:
-            side, edge = bound
-            bad = edge - 10**6 if side == "low" else edge + 10**6  # an int for an int field (strict)
-            with pytest.raises(ConfigError, match=rf"{PATH}: {name}: .*(greater|less) than"):
-                validate(model, {**example(model), name: bad}, PATH)
+def _ids(case) -> str:
+    return f"{case[0].__name__}.{case[1]}"
+
+
+def test_the_cases_cover_the_models():
+    assert len(REQUIRED) >= 70 and len(NUMERIC) >= 150 and len(BOUNDED) >= 150  # counted on this commit
+
+
+@pytest.mark.parametrize("case", REQUIRED, ids=_ids)
+def test_missing_required_field(case):
+    model, name = case
+    data = {k: v for k, v in example(model).items() if k != name}
+    with pytest.raises(ConfigError, match=rf"{PATH}: {name}: required field is missing"):
+        validate(model, data, PATH)
+
+
+@pytest.mark.parametrize("case", NUMERIC, ids=_ids)
+def test_wrong_type(case):
+    model, name, _ = case
+    with pytest.raises(ConfigError, match=rf"{PATH}: {name}: .*valid (number|integer)"):
+        validate(model, {**example(model), name: "lots"}, PATH)
+
+
+@pytest.mark.parametrize("case", BOUNDED, ids=_ids)
+def test_out_of_range(case):
+    model, name, (side, edge) = case
+    bad = edge - 10**6 if side == "low" else edge + 10**6  # an int for an int field (strict)
+    with pytest.raises(ConfigError, match=rf"{PATH}: {name}: .*(greater|less) than"):
+        validate(model, {**example(model), name: bad}, PATH)

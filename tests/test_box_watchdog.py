@@ -144,33 +144,10 @@ def _journal_after(state, t: float) -> list:
     return [e for e in state["output_journal"] if e[0] > t]
 
 
-def _vent_s(cfg) -> float:
-    """How long the plant itself takes from a closed empty grip to below 1 kPa once the
-    actuation valve vents (virtual time, the simulated cell alone): the physical floor."""
-    from controller.config import CellConfig
-    from drivers.config import SimDriverConfig
-
-    sim = CellConfig(driver=SimDriverConfig(clock="virtual", seed=1), profile=cfg.profile)
-
-    async def body():
-        async with Controller(sim, build_backend(sim.driver, sim.profile.hardware)) as ctrl:
-            await ctrl.start_cycle(hold=True)
-            await ctrl.measured()
-            cell, t0 = ctrl.backend.sim, ctrl.now
-            release = asyncio.ensure_future(ctrl.release())
-            while cell.true_values()["p_act"] >= 1e3:
-                await ctrl.wait(0.005)
-            await release
-            return ctrl.now - t0
-
-    return asyncio.run(body())
-
-
 def test_a_link_lost_without_a_box_watchdog_vents_as_the_first_act_when_it_returns(tmp_path):
     with free_simcell(tmp_path, "modbus", profile="sorting-gripper-quick.yaml",
                       driver={**NO_ARM, "watchdog": None}) as (box, cell):
         cfg = load_cell_config(cell)
-        vent_s = _vent_s(cfg)  # 1.47 s for this gripper from its 29.6 kPa grip
 
         async def body():
             ctrl = Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware))
@@ -190,10 +167,10 @@ def test_a_link_lost_without_a_box_watchdog_vents_as_the_first_act_when_it_retur
                 after = await _box(box.wait_for, lambda s: _p_act_kpa(cfg, s) < 1.0, 30, "the gripper vented")
                 writes = _journal_after(after, up["t"])
                 # the first output the box received after the link returned was the safe state,
-                # and from it the gripper vented as fast as its vent path allows (no later than
-                # the same plant vents in virtual time, plus this test's polling of the box)
+                # and nothing left it until the gripper had vented (how fast it vents, on the
+                # box's clock: fluidsense bench faults, scenario link_back)
                 assert writes and writes[0][1] & 0b11 == 0b01 and writes[0][2] == "modbus"
-                assert after["t"] - writes[0][0] < vent_s + 0.3
+                assert all(w[1] & 0b11 == 0b01 for w in writes), writes
                 ctrl.reset()
                 result = await asyncio.wait_for(ctrl.run_cycle(), 60)
                 return down, status, result

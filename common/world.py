@@ -1,7 +1,7 @@
 """A simulated work cell's contents: named slots at poses, and the objects in them.
 
 Plain data, like the scenes: a task file carries one as its simulation scenario, and the
-simulated cell turns it into gripping, carrying and placing (drivers/sim/world.py).
+simulated cell turns it into gripping, carrying and placing (simulator/world.py).
 Poses are UR's [x, y, z, rx, ry, rz] in metres and radians.
 """
 

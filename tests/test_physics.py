@@ -9,7 +9,8 @@ from common.hardware import GripperActuator, LinearActuator
 from common.scenes import CylinderScene, EmptyScene, WallScene
 from common.units import KPA, LITRE, ML, P_ATM
 from simulator.actuators import volume_law
-from simulator.gas import ATMOSPHERE, Pipe, Network, VolumeLaw
+from simulator.equilibrium import eq10_pressure, eq11_resolution
+from simulator.gas import ATMOSPHERE, Network, Pipe, VolumeLaw
 from simulator.plant import Plant
 
 
@@ -120,11 +121,11 @@ def linear_plant(act: LinearActuator, wall_mm: float | None, v_tank: float, p0: 
 
 
 def eq10(act: LinearActuator, wall: float, v_tank: float, p0_abs: float) -> float:
-    return (p0_abs * v_tank + P_ATM * act.area * act.l0) / (v_tank + act.area * (act.l0 + wall))
+    return eq10_pressure(p0_abs - P_ATM, v_tank, act.area, act.l0, wall, P_ATM)
 
 
 def eq11(act: LinearActuator, wall: float, v_tank: float, p0_abs: float) -> float:
-    return -(p0_abs * v_tank + P_ATM * act.area * act.l0) / (v_tank + act.area * (act.l0 + wall)) ** 2 * act.area
+    return eq11_resolution(p0_abs - P_ATM, v_tank, act.area, act.l0, wall, P_ATM)
 
 
 @pytest.mark.parametrize("wall_mm", [5.0, 15.0, 25.0, 31.0])

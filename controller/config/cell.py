@@ -25,7 +25,7 @@ from .profile import Profile
 
 
 class Supervision(StrictModel):
-    """Thresholds of the safety supervisor (controller/supervisor.py)."""
+    """Thresholds of the safety supervisor (controller/safety/supervisor.py)."""
 
     stuck_s: Real = Field(0.25, gt=0, le=60, description="a pressure reading that does not change for this long is stuck")
     leak_kpa_per_s: Real = Field(0.1, gt=0, le=100, description="decay towards atmosphere while held that is a leak")

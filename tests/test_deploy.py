@@ -116,27 +116,27 @@ def test_watchdog_interval_from_the_environment(env, expected):
 
 # --------------------------------------------------------------- the watchdog
 def test_watchdog_logic():
-    loop = SimpleNamespace(loop_ticks=0, loop_running=True, virtual=False, idle=False)
+    loop = SimpleNamespace(ticks=0, running=True, virtual=False, idle=False)
     dog = LoopWatchdog(loop)
     assert not dog.alive()  # real time, no block since the last look
-    loop.loop_ticks += 1
+    loop.ticks += 1
     assert dog.alive() and not dog.stalled
     assert not dog.alive() and dog.stalled
-    loop.loop_ticks += 5
+    loop.ticks += 5
     assert dog.alive() and not dog.stalled
     loop.virtual, loop.idle = True, True  # parked, nothing waits on samples: time stands still
     assert dog.alive() and dog.alive()
     loop.idle = False  # something waits on samples and none come: stalled
     assert not dog.alive()
-    loop.loop_ticks += 1
-    loop.loop_running = False  # the loop task ended
+    loop.ticks += 1
+    loop.running = False  # the loop task ended
     assert not dog.alive()
 
 
 def test_pings_stop_when_the_loop_stops_progressing(tmp_path):
     """keep_alive with an injected sleep: three periods with blocks, then none."""
     sock = notify_socket(tmp_path / "notify")
-    loop = SimpleNamespace(loop_ticks=0, loop_running=True, virtual=False, idle=False)
+    loop = SimpleNamespace(ticks=0, running=True, virtual=False, idle=False)
     periods = []
 
     async def sleep(period_s):
@@ -144,7 +144,7 @@ def test_pings_stop_when_the_loop_stops_progressing(tmp_path):
         if len(periods) > 6:
             raise asyncio.CancelledError
         if len(periods) <= 3:
-            loop.loop_ticks += 100
+            loop.ticks += 100
 
     with pytest.raises(asyncio.CancelledError):
         run(keep_alive(Notifier(str(tmp_path / "notify")), LoopWatchdog(loop), 5.0, sleep=sleep))

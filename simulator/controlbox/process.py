@@ -28,7 +28,7 @@ from typing import Any
 
 from common.errors import DeviceTimeoutError, DriverError, LinkLostError
 
-REPO = Path(__file__).resolve().parents[3]
+REPO = Path(__file__).resolve().parents[2]
 
 
 class EmulatorProcess:

@@ -19,7 +19,7 @@ demo: $(STAMP)
 	$(BIN)/fluidsense demo
 
 test: $(STAMP)
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n 2 --dist loadfile
 
 # Regenerates docs/reproduction (the paper's numbers beside ours; a few minutes).
 report: $(STAMP)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import itertools
 import json
 import subprocess
 import sys
@@ -37,7 +36,14 @@ def run_file(name: str, **kw):
     return run(main())
 
 
-def test_all_24_input_orders_of_four_cylinders_sort_correctly():
+# Every cylinder in every input slot once (a Latin square of cyclic shifts), and the fully
+# reversed order (the most moves for an insertion sort). All 24 orders: the sorting part of
+# fluidsense bench stability (ten orders per perturbation) and `fluidsense task run`.
+ORDERS = [tuple([40.0, 60.0, 80.0, 100.0][k:] + [40.0, 60.0, 80.0, 100.0][:k]) for k in range(4)] + \
+    [(100.0, 80.0, 60.0, 40.0)]
+
+
+def test_every_cylinder_in_every_input_slot_sorts_correctly():
     """The paper's sorting: modified insertion sort by P_eq, no calibration."""
 
     async def main():
@@ -46,12 +52,12 @@ def test_all_24_input_orders_of_four_cylinders_sort_correctly():
         cfg = load_cell_config(cell_path(path, task))
         results = []
         async with app.controller(cfg) as ctrl:
-            for order in itertools.permutations([40.0, 60.0, 80.0, 100.0]):
+            for order in ORDERS:
                 results.append((order, await run_task(ctrl, task, order_mm=list(order))))
         return results
 
     results = run(main())
-    assert len(results) == 24
+    assert len(results) == len(ORDERS)
     for order, summary in results:
         assert summary["success"], (order, summary["final_order_mm"])
         assert summary["final_order_mm"] == [100.0, 80.0, 60.0, 40.0]
@@ -87,8 +93,8 @@ def test_a_tomato_too_heavy_for_every_step_is_not_picked():
 
 
 def test_ripeness_picks_out_the_overripe_tomato_in_every_round():
-    s = run_file("ripeness.yaml")
-    assert s["success_rate"] == 1.0 and len(s["rounds"]) == 5
+    s = run_file("ripeness.yaml", edit={"rounds": 2})  # the shipped file: 5 rounds
+    assert s["success_rate"] == 1.0 and len(s["rounds"]) == 2
     for rnd in s["rounds"]:
         assert rnd["flagged"] == ["overripe"]
         dummy = next(o for o in rnd["objects"] if o["object"] == "dummy-50")

@@ -1,5 +1,5 @@
 """Driver selection: a pydantic discriminated union on ``kind`` (``sim``, ``ur``,
-``modbus``); the chosen backend's module is imported only when it is built, so a cell
+``modbus``, ``serial``, ``replay``); the chosen backend's module is imported only when it is built, so a cell
 that does not ask for the simulated plant (or for ur_rtde, or pymodbus) never imports it."""
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from .hardware import Hardware
 from .io import BLOCK_SIZE
 from .models import Integer, Real, StrictModel
 from .modbus.config import ModbusDriverConfig
+from .serial.config import SerialDriverConfig
 from .ur.config import UrDriverConfig
 from .scenes import EmptyScene, Scene
 
@@ -48,13 +49,14 @@ class ReplayDriverConfig(StrictModel):
     file: str = Field(min_length=1, description="the recording (.mcap)")
 
 
-AnyDriverConfig = SimDriverConfig | UrDriverConfig | ModbusDriverConfig | ReplayDriverConfig
+AnyDriverConfig = SimDriverConfig | UrDriverConfig | ModbusDriverConfig | SerialDriverConfig | ReplayDriverConfig
 DriverConfig = Annotated[AnyDriverConfig, Field(discriminator="kind")]
 
 _BACKEND_MODULES = {
     "sim": "drivers.sim",
     "ur": "drivers.ur.backend",
     "modbus": "drivers.modbus.backend",
+    "serial": "drivers.serial.backend",
     "replay": "drivers.replay",
 }
 

@@ -422,6 +422,8 @@ class Controller:
             "task": None if self._task_job is None else {"file": self._task_name, "running": not self._task_job.done()},
             "commands": None if self.command_stats is None else self.command_stats(),
             "publisher": self.pub.stats,
+            # a source that keeps link counts (the serial driver: frames lost and corrupt, resets, clock drift)
+            "source_link": getattr(self.backend.source, "link_stats", lambda: None)(),
         }
 
     async def handle_command(self, cmd: Any) -> dict[str, Any]:
@@ -559,7 +561,10 @@ class Controller:
         """Real time only: how far the loop is behind its samples."""
         if self.virtual:
             return None
-        lag = asyncio.get_running_loop().time() - block.t_end
+        # against the host clock through the source's origin: a device whose clock drifts
+        # (a serial device's crystal) moves its origin, which is not the loop falling behind
+        origin = self.backend.source.clock_origin_s
+        lag = asyncio.get_running_loop().time() - block.t_end - (origin or 0.0)
         if self._wall_lag0 is None or lag < self._wall_lag0:
             self._wall_lag0 = lag
             return None

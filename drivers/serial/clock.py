@@ -35,6 +35,7 @@ class Timeline:
         self._minima: deque[tuple[float, float]] = deque(maxlen=BUCKETS)
         self._bucket_end = -math.inf
         self._bucket_min = math.inf
+        self._bucket_at = 0.0  # the arrival of the bucket's minimum
         self._fit: tuple[float, float] | None = None  # origin = a + b * arrival
 
     def new_session(self) -> None:
@@ -59,11 +60,11 @@ class Timeline:
             self.origin = offset
         if arrival >= self._bucket_end:
             if math.isfinite(self._bucket_min):
-                self._minima.append((self._bucket_end - BUCKET_S / 2, self._bucket_min))
+                self._minima.append((self._bucket_at, self._bucket_min))
                 self._refit()
-            self._bucket_end, self._bucket_min = arrival + BUCKET_S, offset
-        else:
-            self._bucket_min = min(self._bucket_min, offset)
+            self._bucket_end, self._bucket_min, self._bucket_at = arrival + BUCKET_S, offset, arrival
+        elif offset < self._bucket_min:
+            self._bucket_min, self._bucket_at = offset, arrival
         if self._fit is not None:
             a, b = self._fit
             self.origin = a + b * arrival

@@ -202,7 +202,9 @@ class SimSerial:
         return code
 
     def control(self, line: bytes) -> dict[str, Any]:
-        """One sim control request -> its reply."""
+        """One sim control request -> its reply, after every record the board has written
+        (it reports an output change before it acknowledges the command)."""
+        self._records()
         try:
             req = json.loads(line)
             cmd = req.get("cmd") if isinstance(req, dict) else None

@@ -116,13 +116,32 @@ static uint8_t cmd_start(struct fs_core *c, const uint8_t *a, uint8_t n) {
     c->n_ch = count_bits(mask);
     for (uint8_t ch = 0; ch < FS_MAX_AOUT; ch++)
         c->safe_aout[ch] = fs_get_u16(a + 8 + 2 * ch);
+    go_safe(c); /* a session starts safe: what an earlier one left set is void */
     c->tick = NO_TICK;
     c->last_hb_tick = 0;
-    c->armed = 1;
+    c->armed = 0; /* from the first heartbeat, or the first output off its safe level */
     c->vented = 0;
     c->adc_late = 0;
     c->streaming = 1;
     return FS_OK;
+}
+
+static int all_safe(const struct fs_core *c) {
+    if ((c->outputs & c->used_outputs) != (c->safe_outputs & c->used_outputs))
+        return 0;
+    for (uint8_t ch = 0; ch < c->info.n_aout; ch++)
+        if (c->aout[ch] != c->safe_aout[ch])
+            return 0;
+    return 1;
+}
+
+/* No output leaves its safe level unguarded: a host that sets one before its first
+ * heartbeat arms the watchdog with it. */
+static void guard(struct fs_core *c, uint32_t now) {
+    if (!c->armed && !all_safe(c)) {
+        c->armed = 1;
+        c->last_hb_tick = now;
+    }
 }
 
 /* Handles one decoded command (CRC already checked); returns the ack status. */
@@ -135,10 +154,10 @@ static uint8_t command(struct fs_core *c, uint8_t type, const uint8_t *a, uint8_
     case FS_START:
         return cmd_start(c, a, n);
     case FS_STOP:
-        if (c->session) /* no session: nothing was configured, the outputs are as at power-on */
-            go_safe(c);
         c->streaming = 0;
         c->armed = 0;
+        if (c->session) /* no session: nothing was configured, the outputs are as at power-on */
+            go_safe(c);
         return FS_OK;
     default:
         break;
@@ -149,6 +168,7 @@ static uint8_t command(struct fs_core *c, uint8_t type, const uint8_t *a, uint8_
     case FS_HEARTBEAT:
         if (n != 0)
             return FS_E_LENGTH;
+        c->armed = 1;
         c->last_hb_tick = now;
         return FS_OK;
     case FS_ARM:
@@ -167,6 +187,7 @@ static uint8_t command(struct fs_core *c, uint8_t type, const uint8_t *a, uint8_
         if (c->vented && levels != (c->safe_outputs & mask))
             return FS_E_VENTED; /* held safe until the host re-arms */
         apply_outputs(c, (uint8_t)((c->outputs & ~mask) | levels));
+        guard(c, now);
         return FS_OK;
     }
     case FS_SET_AOUT: {
@@ -179,6 +200,7 @@ static uint8_t command(struct fs_core *c, uint8_t type, const uint8_t *a, uint8_
         if (c->vented && value != c->safe_aout[ch])
             return FS_E_VENTED;
         apply_aout(c, ch, value);
+        guard(c, now);
         return FS_OK;
     }
     default:

@@ -125,8 +125,16 @@ static void test_session(void) {
     CHECK(ack_status(FS_START, cmd_seq) == FS_OK && c.session == 7 && c.hb_ticks == 500 && configured_rate == 1000,
           "START: session, rate, heartbeat in ticks");
 
+    CHECK(!c.armed && out_levels == 0x01 && out_aout[1] == 0x1234,
+          "START puts the outputs safe and does not arm the watchdog (no heartbeat yet)");
+    uint8_t safe_bit[2] = {0x01, 0x01};
+    command(&c, FS_SET_OUTPUTS, safe_bit, 2, ++cmd_seq);
+    CHECK(ack_status(FS_SET_OUTPUTS, cmd_seq) == FS_OK && !c.armed, "outputs at their safe levels stay unarmed");
     command(&c, FS_SET_OUTPUTS, set, 2, ++cmd_seq);
-    CHECK(ack_status(FS_SET_OUTPUTS, cmd_seq) == FS_OK && out_levels == 0x02, "SET_OUTPUTS sets the masked bits");
+    CHECK(ack_status(FS_SET_OUTPUTS, cmd_seq) == FS_OK && out_levels == 0x03 && c.armed,
+          "SET_OUTPUTS sets the masked bits; an output off its safe level arms the watchdog");
+    uint8_t clear0[2] = {0x01, 0x00};
+    command(&c, FS_SET_OUTPUTS, clear0, 2, ++cmd_seq);
     uint8_t wrong[2] = {0x10, 0x10};
     command(&c, FS_SET_OUTPUTS, wrong, 2, ++cmd_seq);
     CHECK(ack_status(FS_SET_OUTPUTS, cmd_seq) == FS_E_ARG && out_levels == 0x02, "an output not in use is refused");

@@ -7,6 +7,7 @@ import argparse
 import asyncio
 import json
 import logging
+import os
 import signal
 import sys
 import threading
@@ -101,9 +102,14 @@ async def _serve(sim, driver) -> int:
 
 
 def _stdin(sim, loop: asyncio.AbstractEventLoop) -> None:
-    for line in sys.stdin.buffer:
-        if line.strip():
-            loop.call_soon_threadsafe(_answer, sim, line)
+    # the raw descriptor: a daemon thread blocked in sys.stdin's buffer holds its lock, and the
+    # interpreter aborts at exit waiting for it
+    pending = b""
+    while data := os.read(sys.stdin.fileno(), 1 << 16):
+        *lines, pending = (pending + data).split(b"\n")
+        for line in lines:
+            if line.strip():
+                loop.call_soon_threadsafe(_answer, sim, line)
 
 
 def _answer(sim, line: bytes) -> None:

@@ -281,3 +281,17 @@ def test_sorting_cycles_through_the_serial_driver_read_sensible_pressures(tmp_pa
     expected = profile_controller("sorting-gripper-quick", body)
     assert got[0] < got[1] < got[2]
     assert np.allclose(got, expected, atol=0.4), (got, expected)
+
+
+def test_a_device_that_does_not_fit_the_config_stops_the_daemon_with_exit_2(tmp_path, simserial):
+    """The device says what it is at every connection (INFO): a config that expects a 12-bit
+    ADC on a 10-bit device is a bad setting, not a link to retry for ever."""
+    sim = simserial(serial_config(tmp_path))
+    d = Daemon(serial_config(tmp_path, port=sim.port, driver={"adc": {"bits": 12, "reference_v": 5.0}}))
+    try:
+        assert d.proc.wait(60) == 2
+        err = d.proc.stderr.read().decode()
+        assert "does not fit this config" in err and "ADC has 10 bits" in err
+        assert "Traceback" not in err
+    finally:
+        d.close()

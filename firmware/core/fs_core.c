@@ -83,6 +83,8 @@ void fs_core_init(struct fs_core *c, const struct fs_board_info *info) {
     for (uint8_t ch = 0; ch < info->n_aout; ch++)
         apply_aout(c, ch, 0);
     fs_board_configure(c->rate_hz, 0x01);
+    static const uint8_t delimiter = 0;
+    fs_board_send(&delimiter, 1); /* ends whatever the line carried before the reset */
     send_info(c);
 }
 

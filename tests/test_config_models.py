@@ -14,7 +14,7 @@ from drivers.errors import ConfigError
 from drivers.models import StrictModel
 
 MODULES = ["drivers.hardware", "drivers.scenes", "drivers.world", "drivers.config", "drivers.sampler.config",
-           "drivers.io", "drivers.ur.config", "drivers.modbus.config",
+           "drivers.io", "drivers.ur.config", "drivers.modbus.config", "drivers.serial.config",
            "controller.config", "controller.commands", "controller.calibration", "tasks.config"]
 for m in MODULES:
     importlib.import_module(m)
@@ -56,6 +56,13 @@ EXAMPLES = {
     "ModbusDriverConfig": {"host": "10.0.0.2", "wiring": {
         "valves": {"actuate": {"output": 1}},
         "sensors": {"p_act": {"analog_input": 0, "transfer": {"kind": "linear", "range_kpa": [0, 600]}}}}},
+    "SerialValveWiring": {"output": 1},
+    "SerialSensorWiring": {"adc": 0, "transfer": {"kind": "ratiometric", "range_kpa": [-34.5, 34.5]}},
+    "SerialWiring": {"valves": {"actuate": {"output": 1}},
+                     "sensors": {"p_act": {"adc": 0, "transfer": {"kind": "ratiometric", "range_kpa": [-34.5, 34.5]}}}},
+    "SerialDriverConfig": {"port": "/dev/ttyACM0", "wiring": {
+        "valves": {"actuate": {"output": 1}},
+        "sensors": {"p_act": {"adc": 0, "transfer": {"kind": "ratiometric", "range_kpa": [-34.5, 34.5]}}}}},
     "SortingTask": {"task": "sorting", "cell": "c.yaml", "slots": {"a": [0, 0, 0, 0, 0, 0], "b": [0, 0, 0, 0, 0, 0]},
                     "input_slots": ["a"], "sorted_slots": ["b"]},
     "PickingTask": {"task": "picking", "cell": "c.yaml", "slots": {"a": [0, 0, 0, 0, 0, 0], "b": [0, 0, 0, 0, 0, 0]},

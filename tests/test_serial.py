@@ -218,10 +218,11 @@ def test_the_firmware_vents_when_the_daemon_dies(tmp_path, simserial):
         os.killpg(d.proc.pid, signal.SIGKILL)  # the daemon and its helpers: no STOP, no heartbeat
         d.proc.wait(30)
         # the board says when its watchdog fires (stderr): wait for that event
-        line = b""
-        while b"vented at tick" not in line:
-            assert select.select([sim.proc.stderr], [], [], 30)[0], "the board never vented"
-            line = sim.proc.stderr.readline()
+        said = b""
+        fd = sim.proc.stderr.fileno()  # unbuffered: select must see every byte not yet read
+        while b"vented at tick" not in said:
+            assert select.select([fd], [], [], 30)[0], f"the board never vented: {said!r}"
+            said += os.read(fd, 65536)
         state = sim.control(cmd="state")
         (vent,) = state["vents"]
         # 0.5 s at 1 kHz: the watchdog fires on the first tick more than 500 ticks after the last heartbeat

@@ -3,7 +3,7 @@ running firmware/ on USB serial, docs/drivers.md."""
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Literal
 
 from pydantic import Field, model_validator
 

@@ -15,54 +15,15 @@ import abc
 import logging
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from .errors import CommandError, DriverError, NotSupportedError, SafetyError
+from common.errors import CommandError, DriverError, NotSupportedError, SafetyError
+from common.samples import SampleBlock, SampleClock
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True, slots=True)
-class SampleBlock:
-    """A block of timestamped samples, all channels sampled at the same instants.
-
-    ``values[i, j]`` is channel ``channels[j]`` at time ``t[i]``, in SI units (Pa gauge for
-    pressure channels, standard m^3/s for flow channels). ``missed`` counts sample slots
-    that the source could not fill before this block; they are reported, never
-    interpolated. ``late`` counts samples in this block taken after their slot deadline
-    (polled sources only).
-    """
-
-    seq: int
-    t: np.ndarray
-    values: np.ndarray
-    channels: tuple[str, ...]
-    missed: int = 0
-    late: int = 0
-    lateness_s: np.ndarray | None = None
-
-    def __post_init__(self) -> None:
-        if self.values.shape != (len(self.t), len(self.channels)):
-            raise ValueError(
-                f"block values shape {self.values.shape} does not match "
-                f"{len(self.t)} samples x {len(self.channels)} channels"
-            )
-
-    def __len__(self) -> int:
-        return len(self.t)
-
-    def channel(self, name: str) -> np.ndarray:
-        try:
-            return self.values[:, self.channels.index(name)]
-        except ValueError:
-            raise KeyError(f"no channel {name!r} in block (have {self.channels})") from None
-
-    @property
-    def t_end(self) -> float:
-        return float(self.t[-1])
 
 
 class Device(abc.ABC):
@@ -327,9 +288,9 @@ class Arm(Device):
         super().__init__(name)
         self.max_speed = max_speed
         self.max_acc = max_acc
-        self.clock: Any = None
+        self.clock: SampleClock | None = None
 
-    def use_clock(self, clock: Any) -> None:
+    def use_clock(self, clock: SampleClock) -> None:
         """The controller's sample clock (``now``, ``wait_until(t)``), for arms that move
         in sample time."""
         self.clock = clock
@@ -424,7 +385,6 @@ class Backend:
     scene: SceneControl | None = None
     arm: Arm | None = None
     watchdog: BoxWatchdog | None = None
-    extras: dict[str, Any] = field(default_factory=dict)
 
     async def safe_state(self, t: float) -> bool | None:
         """Actuator vented, tank isolated, no flow commanded, arm stopped; then the valve

@@ -9,14 +9,15 @@ from typing import Annotated, Literal
 
 from pydantic import Field
 
+from common.hardware import Hardware
+from common.models import Integer, Real, StrictModel
+from common.scenes import EmptyScene, Scene
+
 from .base import Backend
-from .hardware import Hardware
 from .io import BLOCK_SIZE
-from .models import Integer, Real, StrictModel
 from .modbus.config import ModbusDriverConfig
 from .serial.config import SerialDriverConfig
 from .ur.config import UrDriverConfig
-from .scenes import EmptyScene, Scene
 
 
 class Perturbations(StrictModel):

@@ -31,10 +31,11 @@ from mcap.records import Channel, Chunk, Footer, Message, Metadata
 from mcap.stream_reader import StreamReader
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
-from .base import SampleBlock
+from common.errors import RecordingError
+from common.files import nested_within, one_line, open_regular
+from common.samples import SampleBlock
+
 from .chunks import MAX_CHUNK_BYTES, ChunkError, chunk_records
-from .errors import RecordingError
-from .files import nested_within, one_line, open_regular
 
 log = logging.getLogger(__name__)
 

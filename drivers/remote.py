@@ -1,7 +1,7 @@
 """What the production drivers share: links to remote equipment, and a sample source
 that polls analog inputs in the sampler process and reconnects after a loss.
 
-A backend's devices (valves, regulator, arm) talk through one or more ``Link``s (a
+A backend's devices (valves, regulator, arm) talk through one or more ``Connection``s (a
 Modbus client, the ur_rtde worker process). The source is the backend's heartbeat:
 every block it delivers also checks every link, so a link lost while the cell is idle
 still becomes a fault within one block. After a loss every read raises
@@ -26,8 +26,10 @@ import dataclasses
 import logging
 from collections.abc import Awaitable, Callable
 
-from .base import SampleBlock, SampleSource, ValveBank
-from .errors import DriverError, LinkLostError
+from common.errors import LinkLostError
+from common.samples import SampleBlock
+from drivers.base import SampleSource, ValveBank
+
 from .io import Reconnect, SamplerOptions
 from .sampler.config import PollerSpec, SamplerConfig
 from .sampler.source import SampledSource
@@ -35,7 +37,7 @@ from .sampler.source import SampledSource
 log = logging.getLogger(__name__)
 
 
-class Link(abc.ABC):
+class Connection(abc.ABC):
     """A connection that several devices share. ``check()`` raises LinkLostError once the
     link is known to be gone; ``open()`` (re)connects."""
 
@@ -66,7 +68,7 @@ def sampler_config(poller: str, kwargs: dict, channels: tuple[str, ...], rate_hz
 
 
 class PolledCellSource(SampleSource):
-    def __init__(self, name: str, cfg: SamplerConfig, links: list[Link], reconnect: Reconnect):
+    def __init__(self, name: str, cfg: SamplerConfig, links: list[Connection], reconnect: Reconnect):
         super().__init__(name)
         self.cfg = cfg
         self.links = links
@@ -92,7 +94,7 @@ class PolledCellSource(SampleSource):
         await self._connect()
 
     async def _connect(self) -> None:
-        opened: list[Link] = []
+        opened: list[Connection] = []
         try:
             # asyncio.timeout, not wait_for: Python 3.11's wait_for can swallow the cancel of
             # a daemon that stops while an attempt ends, and the attempts then go on for ever

@@ -15,9 +15,11 @@ import math
 from pathlib import Path
 from typing import Any
 
-from .base import Backend, SampleBlock, SampleSource, ValveBank
-from .errors import EndOfRecording, RecordingError
-from .hardware import Hardware
+from common.errors import EndOfRecording, RecordingError
+from common.hardware import Hardware
+from common.samples import SampleBlock
+from drivers.base import Backend, SampleSource, ValveBank
+
 from .recording import SAMPLES, Record, RecordingReader
 
 log = logging.getLogger(__name__)

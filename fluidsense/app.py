@@ -12,13 +12,13 @@ from typing import Any
 
 import zmq
 
-from controller.commands import CommandServer
+from common.errors import CommandError, ConfigError, FaultError, FluidsenseError
+from controller.commands.server import CommandServer
 from controller.config import CellConfig, load_cell_config
-from controller.latch import vented_word
-from controller.publisher import Publisher
+from controller.safety.latch import vented_word
 from controller.service import Controller
+from controller.telemetry.publisher import Publisher
 from drivers.config import build_backend
-from drivers.errors import CommandError, ConfigError, FaultError, FluidsenseError
 
 from .exitcodes import EXIT_FAILURE, EXIT_OK
 from .notify import LoopWatchdog, Notifier, keep_alive
@@ -91,10 +91,10 @@ async def controller(cfg: CellConfig, publish: bool = False, record: bool = Fals
         await ctrl.start(connect_in_background)
         try:
             if record and cfg.recording.enabled:
-                from controller.recording import RecordingSink
+                from controller.telemetry.recording import RecordingSink
 
                 # no await since start(): the loop has not handled a block yet
-                ctrl.add_sink(RecordingSink(cfg, backend.source, lambda: ctrl.references))
+                ctrl.add_sink(RecordingSink(cfg, backend.source, lambda: ctrl.cycles.references))
             yield ctrl
         finally:
             await ctrl.stop()
@@ -167,7 +167,7 @@ async def _until_stopped(ctrl: Controller, cfg: CellConfig, notifier: Notifier,
     notifier.send("READY=1", f"STATUS=running: {running}")
     pinger = None
     if notifier.ping_period_s is not None:
-        pinger = asyncio.create_task(keep_alive(notifier, LoopWatchdog(ctrl), notifier.ping_period_s),
+        pinger = asyncio.create_task(keep_alive(notifier, LoopWatchdog(ctrl.loop), notifier.ping_period_s),
                                      name="systemd-watchdog")
     try:
         done, _ = await asyncio.wait(set(ends), return_when=asyncio.FIRST_COMPLETED)
@@ -204,12 +204,12 @@ async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: N
     try:
         async with controller(cfg, publisher=pub, record=True, connect_in_background=True,
                               own_process=own_process) as ctrl:
-            ctrl.task_runner = _task_runner(ctrl, tasks_dir)
-            server.handler = ctrl.handle_command
+            ctrl.commands.task_runner = _task_runner(ctrl, tasks_dir)
+            server.handler = ctrl.commands.handle
             ctrl.command_stats = lambda: server.stats
             serve = asyncio.create_task(server.serve(), name="command-socket")
             stopper = asyncio.create_task(stop.wait(), name="stop-signal")
-            shutdown = asyncio.create_task(ctrl.wait_shutdown_command(), name="shutdown-command")
+            shutdown = asyncio.create_task(ctrl.commands.shutdown.wait(), name="shutdown-command")
             core = {serve: "the command socket", ctrl.loop_task: "the sample loop"}
             done = await _until_stopped(ctrl, cfg, notifier, stopper, shutdown, *core)
             notifier.send("STOPPING=1", "STATUS=stopping: venting and closing")

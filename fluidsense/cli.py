@@ -6,11 +6,10 @@ import argparse
 import os
 import sys
 
-from drivers.errors import CommandError, ConfigError, FluidsenseError, RecordingError, SafetyError
+from common.errors import CommandError, ConfigError, FluidsenseError, RecordingError, SafetyError
 
 from .commands import MODULES, bench
-from .exitcodes import (EXIT_BAD_INPUT, EXIT_CODES, EXIT_FAILURE, EXIT_FAULT, EXIT_INTERRUPTED,  # noqa: F401
-                        EXIT_OK, EXIT_TIMEOUT)
+from .exitcodes import EXIT_BAD_INPUT, EXIT_CODES, EXIT_FAILURE, EXIT_FAULT, EXIT_INTERRUPTED, EXIT_OK, EXIT_TIMEOUT  # noqa: F401
 
 BAD_INPUT = (ConfigError, RecordingError, CommandError, SafetyError)
 

@@ -9,7 +9,7 @@ from typing import Any, TextIO
 import zmq
 import zmq.auth
 
-from controller.publisher import WELCOME
+from controller.telemetry.publisher import WELCOME
 
 
 def format_message(topic: str, msg: dict[str, Any]) -> str | None:
@@ -31,7 +31,8 @@ def format_message(topic: str, msg: dict[str, Any]) -> str | None:
         return (f"[{t:10.3f}] heartbeat: {msg['state']}, {msg['samples']} samples, {msg['missed']} missed, "
                 f"block p99 {p.get('p99', 0):.0f} us, fault {msg.get('fault')}")
     if topic == "fault":
-        return f"[{t:10.3f}] FAULT {msg['kind']}: {msg['detail']} (vented)"
+        vented = {True: "vented", False: "NOT VENTED", "unknown": "vent not confirmed"}.get(msg.get("vented"), "vent not confirmed")
+        return f"[{t:10.3f}] FAULT {msg['kind']}: {msg['detail']} ({vented})"
     if topic == "pressure":
         ch = msg["channels"]
         last = [row[-1] for row in msg["values"]]

@@ -94,10 +94,10 @@ def watchdog_interval(env: Mapping[str, str] = os.environ, pid: int | None = Non
 
 
 class LoopState(Protocol):
-    """What the watchdog reads from the controller."""
+    """What the watchdog reads from the sample loop (controller/sampling/loop.py)."""
 
-    loop_ticks: int
-    loop_running: bool
+    ticks: int
+    running: bool
     virtual: bool
     idle: bool
 
@@ -107,14 +107,14 @@ class LoopWatchdog:
 
     def __init__(self, loop: LoopState):
         self._loop = loop
-        self._seen = loop.loop_ticks
+        self._seen = loop.ticks
         self.stalled = False
 
     def alive(self) -> bool:
-        ctrl = self._loop
-        ticks = ctrl.loop_ticks
+        loop = self._loop
+        ticks = loop.ticks
         progressed, self._seen = ticks != self._seen, ticks
-        ok = ctrl.loop_running and (progressed or (ctrl.virtual and ctrl.idle))
+        ok = loop.running and (progressed or (loop.virtual and loop.idle))
         if ok == self.stalled:  # log the change only, not every period
             self.stalled = not ok
             if ok:

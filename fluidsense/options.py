@@ -33,8 +33,8 @@ def _exists(path: Path) -> bool:
 
 
 def profile_path(name: str) -> Path:
-    from drivers.errors import ConfigError
-    from drivers.files import one_line
+    from common.errors import ConfigError
+    from common.files import one_line
 
     for candidate in (Path(name), PROFILES / name, PROFILES / f"{name}.yaml"):
         if _exists(candidate):
@@ -45,9 +45,9 @@ def profile_path(name: str) -> Path:
 
 def cell_config(args: argparse.Namespace, default_profile: str | None = None):
     """The cell for a job. Simulated cells run in virtual time with ``--seed``."""
+    from common.errors import ConfigError
     from controller.config import CellConfig, load_cell_config, load_profile
     from drivers.config import SimDriverConfig
-    from drivers.errors import ConfigError
 
     if args.config:
         cfg = load_cell_config(args.config)
@@ -77,9 +77,9 @@ def scene_from_args(args: argparse.Namespace, base: Any | None = None) -> Any | 
     """``--scene NAME --set k=v ...`` on top of ``base`` (a scene or None)."""
     from pydantic import TypeAdapter, ValidationError
 
-    from drivers.errors import ConfigError
-    from drivers.models import first_error
-    from drivers.scenes import Scene
+    from common.errors import ConfigError
+    from common.models import first_error
+    from common.scenes import Scene
 
     if args.scene is None and not args.set:
         return base

@@ -13,11 +13,17 @@ from typing import Any
 
 from pydantic import TypeAdapter
 
-from controller.calibration import (FEATURES, NEEDS_REFERENCE, Calibration, CalibrationError, Estimate,
-                                    feature_value)
+from common.errors import FluidsenseError, JobStopped
+from common.scenes import TARGETS, EmptyScene, Scene
+from controller.sensing.calibration import (
+    FEATURES,
+    NEEDS_REFERENCE,
+    Calibration,
+    CalibrationError,
+    Estimate,
+    feature_value,
+)
 from controller.service import Controller
-from drivers.errors import FluidsenseError, JobStopped
-from drivers.scenes import TARGETS, EmptyScene, Scene
 
 from .journal import CycleJournal
 from .stopping import fault_dict, stopped_message
@@ -34,7 +40,7 @@ def scene_with(scene: Any, target: str, value: float) -> Any:
 async def ensure_reference(ctrl: Controller, place: Place, p0_kpa: float | None = None) -> None:
     """A free-air reference cycle at this P0 unless one is stored."""
     p0 = ctrl.profile.sequence.p0_kpa if p0_kpa is None else p0_kpa
-    if round(p0, 3) in ctrl.references:
+    if round(p0, 3) in ctrl.cycles.references:
         return
     await place(EmptyScene())
     res = await ctrl.run_cycle(p0_kpa=p0, label="reference", store_reference=True)
@@ -58,7 +64,7 @@ async def calibrate(ctrl: Controller, scene: Any, target: str, values: Sequence[
     run that cannot finish raises JobStopped with what it had done."""
     if feature not in FEATURES:
         raise CalibrationError(f"unknown feature {feature!r}; known: {', '.join(FEATURES)}")
-    place = place or ctrl.set_scene
+    place = place or ctrl.scene.place
     unit = TARGETS.get(scene.kind, (target, ""))[1]
     entries: list[dict[str, Any]] = list(journal.entries) if journal is not None else []
     total = len(values) * cycles
@@ -121,7 +127,7 @@ class Sensing:
 async def sense(ctrl: Controller, cal: Calibration, scene: Any | None = None, cycles: int = 1,
                 place: Place | None = None) -> Sensing:
     """Measure ``cycles`` cycles (averaged) and invert the calibration."""
-    place = place or ctrl.set_scene
+    place = place or ctrl.scene.place
     if ctrl.profile.name != cal.profile:
         raise CalibrationError(f"calibration is for profile {cal.profile!r}, the cell runs {ctrl.profile.name!r}")
     if cal.feature in NEEDS_REFERENCE:

@@ -15,16 +15,16 @@ from typing import Any
 
 import numpy as np
 
-from controller.calibration import Calibration, feature_value
-from controller.cycle import CycleResult
+from common.errors import FluidsenseError
+from common.units import KPA
+from common.world import WorldObject, WorldSlot, WorldSpec
+from controller.cycles.analysis import CycleResult
+from controller.sensing.calibration import Calibration, feature_value
 from controller.service import Controller
-from drivers.errors import FluidsenseError
-from drivers.world import WorldObject, WorldSlot, WorldSpec
 
 from .config import PickingTask, RipenessTask, SortingTask
 
 Report = Callable[[dict[str, Any]], None]
-KPA = 1e3
 
 
 class Cell:
@@ -37,10 +37,10 @@ class Cell:
 
     @property
     def simulated(self) -> bool:
-        return self.ctrl.backend.scene is not None
+        return self.ctrl.scene.available
 
     async def move(self, pose) -> None:
-        await self.ctrl.move_l(pose, self.speed, self.acc)
+        await self.ctrl.arm.move_l(pose, self.speed, self.acc)
 
     def _above(self, pose, dz: float | None = None):
         p = list(pose)
@@ -49,14 +49,14 @@ class Cell:
 
     async def go_to(self, slot: str) -> None:
         """Lift, travel above the slot, descend onto it."""
-        here = self.ctrl.backend.arm.tcp_pose
+        here = self.ctrl.arm.tcp_pose
         target = self.task.slots[slot]
         await self.move(self._above(here))
         await self.move(self._above(target))
         await self.move(target)
 
     async def lift(self, dz: float | None = None) -> None:
-        await self.move(self._above(self.ctrl.backend.arm.tcp_pose, dz))
+        await self.move(self._above(self.ctrl.arm.tcp_pose, dz))
 
     async def grip(self, p0_kpa: float | None = None, label: str | None = None) -> CycleResult:
         """Close on whatever is at the tool and measure; the gripper stays closed."""
@@ -71,9 +71,8 @@ class Cell:
 
 
 async def _truth(ctrl: Controller) -> dict[str, Any] | None:
-    if ctrl.backend.scene is None:
-        return None
-    return (await ctrl.backend.scene.read_truth()).get("world")
+    truth = await ctrl.scene.truth()
+    return None if truth is None else truth.get("world")
 
 
 def _timing(ctrl: Controller, t0_sample: float, t0_wall: float) -> dict[str, float]:
@@ -97,7 +96,7 @@ async def sorting(ctrl: Controller, task: SortingTask, report: Report, order_mm:
         slots = [WorldSlot(name=s, pose=task.slots[s], object=objects[i].name if i < len(objects) else None)
                  for i, s in enumerate(task.input_slots)]
         slots += [WorldSlot(name=s, pose=task.slots[s]) for s in task.sorted_slots]
-        await ctrl.set_world(WorldSpec(slots=slots, objects=objects))
+        await ctrl.scene.lay_out(WorldSpec(slots=slots, objects=objects))
         names = {o.name: o.diameter_mm for o in objects}
     t0, w0 = ctrl.now, time.perf_counter()
     sorted_vals: list[float] = []  # P_eq (kPa) of the objects in sorted_slots, largest first
@@ -150,7 +149,7 @@ async def picking(ctrl: Controller, task: PickingTask, report: Report) -> dict:
         slots = [WorldSlot(name=s, pose=task.slots[s], object=objects[i].name)
                  for i, s in enumerate(task.tomato_slots)]
         slots += [WorldSlot(name=s, pose=task.slots[s]) for s in task.place_slots]
-        await ctrl.set_world(WorldSpec(slots=slots, objects=objects))
+        await ctrl.scene.lay_out(WorldSpec(slots=slots, objects=objects))
     t0, w0 = ctrl.now, time.perf_counter()
     refs: dict[float, float] = {}
     if task.home is not None:
@@ -251,7 +250,7 @@ async def ripeness(ctrl: Controller, task: RipenessTask, report: Report) -> dict
 
     # calibration round: first grip on each dummy aligns it, the rest calibrate
     if cell.simulated:
-        await ctrl.set_world(layout(objects, [0.0] * len(objects)))
+        await ctrl.scene.lay_out(layout(objects, [0.0] * len(objects)))
     await reference()
     xs, y0, y1 = [], [], []
     for slot, d in zip(task.dummy_slots, task.dummy_diameters_mm):
@@ -275,7 +274,7 @@ async def ripeness(ctrl: Controller, task: RipenessTask, report: Report) -> dict
         rng.shuffle(order)
         offsets = [rng.uniform(0, task.misalignment_mm) for _ in order]
         if cell.simulated:
-            await ctrl.set_world(layout(order, offsets))
+            await ctrl.scene.lay_out(layout(order, offsets))
         await reference()
         per_object = []
         for slot, obj in zip(task.object_slots, order):

@@ -8,10 +8,10 @@ from typing import Annotated, Literal
 
 from pydantic import Field, RootModel, model_validator
 
+from common.models import Integer, Real, StrictModel
+from common.world import Pose, WorldObject
 from controller.config import load_model
-from controller.loading import referenced_file
-from drivers.models import Integer, Real, StrictModel
-from drivers.world import Pose, WorldObject
+from controller.config.loading import referenced_file
 
 
 class Motion(StrictModel):

@@ -7,12 +7,12 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from common.errors import FluidsenseError
+from common.scenes import EmptyScene
 from controller.config import CellConfig, Profile
-from controller.cycle import CycleResult
+from controller.cycles.analysis import CycleResult
 from controller.service import Controller
 from drivers.config import SimDriverConfig, build_backend
-from drivers.errors import FluidsenseError
-from drivers.scenes import EmptyScene
 
 from .calibrate import scene_with
 
@@ -32,7 +32,7 @@ def sim_cell(profile: Profile, seed: int, block_size: int = 10) -> tuple[CellCon
 
 
 async def reference(ctrl: Controller, p0_kpa: float | None = None) -> CycleResult:
-    await ctrl.set_scene(EmptyScene())
+    await ctrl.scene.place(EmptyScene())
     res = await ctrl.run_cycle(p0_kpa=p0_kpa, label="reference", store_reference=True)
     if not res.ok:
         raise FluidsenseError(f"reference cycle failed: {res.aborted}")
@@ -47,7 +47,7 @@ async def sweep(ctrl: Controller, scene: Any, target: str | None, values: Sequen
     runs = []
     for value in values:
         sc = value if target is None else scene_with(scene, target, value)
-        await ctrl.set_scene(sc)
+        await ctrl.scene.place(sc)
         for k in range(cycles):
             res = await ctrl.run_cycle(p0_kpa=p0_kpa)
             if on_cycle is not None:
@@ -56,5 +56,5 @@ async def sweep(ctrl: Controller, scene: Any, target: str | None, values: Sequen
                 raise FluidsenseError(f"cycle {res.cycle_id} on {sc} failed: {res.aborted}")
             if k >= drop_first:
                 tv = None if target is None else float(value)
-                runs.append(Run(sc, tv, res, ctrl.backend.scene.truth()))
+                runs.append(Run(sc, tv, res, await ctrl.scene.truth()))
     return runs

@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
+from common.errors import CommandError, FluidsenseError
+from common.scenes import CylinderScene, EmptyScene
 from controller.service import Controller
-from drivers.errors import CommandError, FluidsenseError
-from drivers.scenes import CylinderScene, EmptyScene
 
 
 @dataclass
@@ -71,7 +71,7 @@ async def size_survey(ctrl: Controller, diameters_mm: Sequence[float | None], cy
     t_virtual0, t_wall0 = ctrl.now, time.perf_counter()
     points: list[SurveyPoint] = []
     for d in diameters_mm:
-        await ctrl.set_scene(EmptyScene() if d is None else CylinderScene(diameter_mm=d))
+        await ctrl.scene.place(EmptyScene() if d is None else CylinderScene(diameter_mm=d))
         values = []
         for k in range(cycles):
             res = await ctrl.run_cycle(label=f"D={d}" if d is not None else "empty")

@@ -15,7 +15,7 @@ import pytest
 import yaml
 import zmq
 
-from drivers.sim.controlbox.process import SIMCELL_PORTS, free_loopback  # noqa: F401 - tests import them from here
+from simulator.controlbox.process import SIMCELL_PORTS, free_loopback  # noqa: F401 - tests import them from here
 
 REPO = Path(__file__).resolve().parent.parent
 CONFIG = REPO / "config"
@@ -76,7 +76,7 @@ def simcell_config(tmp_path: Path, kind: str, host: str, profile: str | None = N
 def free_simcell(tmp_path: Path, kind: str, profile: str | None = None, driver: dict | None = None):
     """``fluidsense simcell`` for a ``kind`` (ur, modbus) cell config on a free 127.0.0.x;
     yields (the box process, the cell config). The box must end cleanly."""
-    from drivers.sim.controlbox.process import EmulatorProcess
+    from simulator.controlbox.process import EmulatorProcess
 
     for _ in range(5):
         cell = simcell_config(tmp_path, kind, free_loopback(SIMCELL_PORTS), profile, driver)
@@ -235,16 +235,16 @@ def profile_controller(profile: str, body, seed: int = 1):
 
 async def cycles_over(ctrl, scenes, n: int = 1, reference: bool = False):
     """Results of n cycles per scene (after an optional free-air reference)."""
-    from drivers.scenes import EmptyScene
+    from common.scenes import EmptyScene
 
     if reference:
-        await ctrl.set_scene(EmptyScene())
+        await ctrl.scene.place(EmptyScene())
         await ctrl.run_cycle(store_reference=True)
     out = []
     for scene in scenes:
-        await ctrl.set_scene(scene)
+        await ctrl.scene.place(scene)
         for _ in range(n):
             res = await ctrl.run_cycle()
             assert res.ok, res.aborted
-            out.append((scene, res, ctrl.backend.scene.truth()))
+            out.append((scene, res, await ctrl.scene.truth()))
     return out

@@ -1,9 +1,9 @@
-"""Model factories for ``python -m drivers.sim.controlbox --model tests.controlbox_models:NAME``:
+"""Model factories for ``python -m simulator.controlbox --model tests.controlbox_models:NAME``:
 what a plant-backed subclass of KinematicModel does, in miniature."""
 
 from __future__ import annotations
 
-from drivers.sim.controlbox import AnalogDomain, KinematicModel
+from simulator.controlbox import AnalogDomain, KinematicModel
 
 
 class LoopbackModel(KinematicModel):

@@ -14,11 +14,11 @@ import contextlib
 import numpy as np
 import pytest
 
+from common.errors import CommandError, DriverError, SafetyError
+from common.hardware import Hardware
+from common.scenes import CylinderScene
 from controller.config import load_cell_config
 from drivers.config import SimDriverConfig, build_backend
-from drivers.errors import CommandError, DriverError, SafetyError
-from drivers.hardware import Hardware
-from drivers.scenes import CylinderScene
 
 from .conftest import free_simcell, sim_config
 
@@ -130,7 +130,7 @@ def test_a_command_inside_a_precomputed_chunk_takes_effect_at_its_time():
 
     async def body():
         backend = _sim(1, CylinderScene(diameter_mm=60))
-        cell = backend.extras["cell"]
+        cell = backend.sim
         async with backend:
             await backend.regulator.set_setpoint(63e3, 0.0)
             await backend.valves.set("supply", True, 0.0)

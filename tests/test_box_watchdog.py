@@ -16,16 +16,16 @@ import time
 
 import pytest
 
+from common.errors import FaultError
 from controller.config import load_cell_config
 from controller.service import Controller
 from drivers.config import build_backend
-from drivers.errors import FaultError
-from drivers.sim.controlbox.box import ControlBox, IdleProgram, RuntimeState
-from drivers.sim.controlbox.config import ControlBoxConfig
-from drivers.sim.controlbox.model import KinematicModel
-from drivers.sim.controlbox.scriptport import ScriptServer
-from drivers.sim.controlbox.watchdog import WatchdogProgram
 from drivers.ur.watchdog import runstate_program, safe_levels, watchdog_program
+from simulator.controlbox.box import ControlBox, IdleProgram, RuntimeState
+from simulator.controlbox.config import ControlBoxConfig
+from simulator.controlbox.model import KinematicModel
+from simulator.controlbox.scriptport import ScriptServer
+from simulator.controlbox.watchdog import WatchdogProgram
 
 from .conftest import CONFIG, Daemon, free_simcell
 
@@ -134,7 +134,7 @@ async def _box(call, *args):
 
 async def _inflate(ctrl, box, cfg) -> dict:
     await ctrl.start_cycle(hold=True)
-    await _until(lambda: ctrl.sequencer.state.value == "hold", 60, "the gripper holding")
+    await _until(lambda: ctrl.cycles.sequencer.state.value == "hold", 60, "the gripper holding")
     state = await _box(box.state)
     assert state["digital_outputs"] & 0b11 == INFLATED and _p_act_kpa(cfg, state) > 20
     return state
@@ -156,7 +156,7 @@ def _vent_s(cfg) -> float:
         async with Controller(sim, build_backend(sim.driver, sim.profile.hardware)) as ctrl:
             await ctrl.start_cycle(hold=True)
             await ctrl.measured()
-            cell, t0 = ctrl.backend.extras["cell"], ctrl.now
+            cell, t0 = ctrl.backend.sim, ctrl.now
             release = asyncio.ensure_future(ctrl.release())
             while cell.true_values()["p_act"] >= 1e3:
                 await ctrl.wait(0.005)

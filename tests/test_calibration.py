@@ -9,9 +9,9 @@ import sys
 import numpy as np
 import pytest
 
-from controller.calibration import Calibration, CalibrationError
-from drivers.errors import ConfigError
-from drivers.scenes import PlateScene
+from common.errors import ConfigError
+from common.scenes import PlateScene
+from controller.sensing.calibration import Calibration, CalibrationError
 
 from .conftest import REPO, profile_controller
 
@@ -102,7 +102,7 @@ def test_tank_method_distance_accuracy_on_held_out_heights():
                               feature="p_eq", cycles=4, drop_first=1)
         errors, covered = [], 0
         for h in held_out:
-            await ctrl.set_scene(PlateScene(height_mm=float(h)))
+            await ctrl.scene.place(PlateScene(height_mm=float(h)))
             res = await ctrl.run_cycle()
             est = run.calibration.invert(res.p_eq / 1e3)
             errors.append(est.estimate - h)

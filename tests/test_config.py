@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from common.errors import ConfigError
 from controller.config import load_cell_config, load_profile
-from drivers.errors import ConfigError
 
 from .conftest import CONFIG, PROFILE, REPO, sim_config
 

@@ -9,13 +9,13 @@ from pathlib import Path
 import annotated_types as at
 import pytest
 
+from common.errors import ConfigError
+from common.models import StrictModel
 from controller.config import validate
-from drivers.errors import ConfigError
-from drivers.models import StrictModel
 
-MODULES = ["drivers.hardware", "drivers.scenes", "drivers.world", "drivers.config", "drivers.sampler.config",
-           "drivers.io", "drivers.ur.config", "drivers.modbus.config", "drivers.serial.config",
-           "controller.config", "controller.commands", "controller.calibration", "tasks.config"]
+MODULES = ["common.hardware", "common.scenes", "common.world", "drivers.config", "drivers.sampler.config",
+           "drivers.io", "common.wiring", "drivers.ur.config", "drivers.modbus.config", "drivers.serial.config",
+           "controller.config", "controller.commands.server", "controller.sensing.calibration", "tasks.config"]
 for m in MODULES:
     importlib.import_module(m)
 
@@ -79,7 +79,7 @@ def curve_keys(tmp_path_factory):
     """CurveKeys checks its files at load: a private server key and a client key to let in."""
     import zmq
 
-    from controller.curve import write_key_file
+    from controller.config.curve import write_key_file
 
     keys = tmp_path_factory.mktemp("curve")
     (keys / "clients").mkdir()
@@ -94,7 +94,7 @@ def all_models():
     seen, todo = [], list(StrictModel.__subclasses__())
     while todo:
         cls = todo.pop()
-        if cls not in seen and cls.__module__.split(".")[0] in ("drivers", "controller", "tasks") \
+        if cls not in seen and cls.__module__.split(".")[0] in ("common", "drivers", "controller", "tasks") \
                 and not cls.__name__.startswith("_"):  # private bases are never configured alone
             seen.append(cls)
         todo.extend(cls.__subclasses__())

@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 from pymodbus.client import AsyncModbusTcpClient
 
-from drivers.errors import DriverError, LinkLostError
-from drivers.sim.controlbox.process import EmulatorProcess
+from common.errors import DriverError, LinkLostError
+from simulator.controlbox.process import EmulatorProcess
 
 from .conftest import free_loopback
 from .ur_client import UrClient

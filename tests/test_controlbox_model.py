@@ -8,12 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from drivers.errors import CommandError, SafetyError
-from drivers.sim.controlbox.box import ControlBox, IdleProgram, RuntimeState
-from drivers.sim.controlbox.config import AnalogScale, ControlBoxConfig
-from drivers.sim.controlbox.model import AnalogDomain, KinematicModel, RobotMode, SafetyMode
-from drivers.sim.controlbox.motion import LineMove, Trapezoid
-from drivers.sim.controlbox.urscript import RtdeControlScript, split_programs
+from common.errors import CommandError, SafetyError
+from simulator.controlbox.box import ControlBox, IdleProgram, RuntimeState
+from simulator.controlbox.config import AnalogScale, ControlBoxConfig
+from simulator.controlbox.model import AnalogDomain, KinematicModel, RobotMode, SafetyMode
+from simulator.controlbox.motion import LineMove, Trapezoid
+from simulator.controlbox.urscript import RtdeControlScript, split_programs
 
 START = (0.3, -0.2, 0.4, 0.0, 3.1416, 0.0)
 

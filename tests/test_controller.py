@@ -9,27 +9,26 @@ import sys
 
 import numpy as np
 import pytest
-import yaml
 
-from drivers.errors import FaultError, SafetyError
-from drivers.scenes import CylinderScene, EmptyScene
+from common.errors import FaultError, SafetyError
+from common.scenes import CylinderScene, EmptyScene
 
-from .conftest import PROFILE, REPO
+from .conftest import REPO
 
 
 def true_contact_time(diameter_mm: float) -> float:
     """When the plant's true actuator pressure reaches the contact pressure, seconds after
     the valve was commanded open (valve delay included), from the plant alone."""
-    from drivers.hardware import GripperActuator, TankCircuit
-    from drivers.sim.actuators import volume_law
-    from drivers.sim.gas import Link, Network, VolumeLaw
-    from drivers.sim.plant import Plant
-    from drivers.units import P_ATM
+    from common.hardware import GripperActuator, TankCircuit
+    from common.units import P_ATM
+    from simulator.actuators import volume_law
+    from simulator.gas import Pipe, Network, VolumeLaw
+    from simulator.plant import Plant
 
     act, c = GripperActuator(), TankCircuit()
     law = volume_law(act, CylinderScene(diameter_mm=diameter_mm), P_ATM)
     net = Network(["tank", "actuator"], [VolumeLaw.constant(c.tank_m3), law],
-                  [Link(0, 1, c.valve_resistance_pa_s_per_m3 + c.resistor_pa_s_per_m3, "v", True)])
+                  [Pipe(0, 1, c.valve_resistance_pa_s_per_m3 + c.resistor_pa_s_per_m3, "v", True)])
     plant = Plant(net, {"v": True}, P_ATM, 0.05, p_initial_abs={"tank": P_ATM + 63e3})
     t = np.arange(0, 1, 1e-5)
     p = plant.pressures_abs(plant.sample(t)[0])[1] - P_ATM
@@ -38,11 +37,11 @@ def true_contact_time(diameter_mm: float) -> float:
 
 def test_contact_time_features_against_the_plants_truth(virtual_controller):
     async def body(ctrl):
-        await ctrl.set_scene(EmptyScene())
+        await ctrl.scene.place(EmptyScene())
         ref = await ctrl.run_cycle(store_reference=True)
         out = {}
         for d in (40, 60, 80, 100):
-            await ctrl.set_scene(CylinderScene(diameter_mm=d))
+            await ctrl.scene.place(CylinderScene(diameter_mm=d))
             out[d] = await ctrl.run_cycle()
         return ref, out
 
@@ -61,7 +60,7 @@ def test_contact_time_features_against_the_plants_truth(virtual_controller):
 
 def test_cycle_result_windows_and_offset(virtual_controller):
     async def body(ctrl):
-        await ctrl.set_scene(CylinderScene(diameter_mm=80))
+        await ctrl.scene.place(CylinderScene(diameter_mm=80))
         return await ctrl.run_cycle(label="x")
 
     res = virtual_controller(body)
@@ -85,7 +84,7 @@ def test_over_pressure_faults_vents_and_latches(virtual_controller):
         with pytest.raises(SafetyError, match=f"within {margin:.2f} kPa of the profile's limits"):
             await ctrl.run_cycle(p0_kpa=ctrl.profile.limits.max_kpa - margin / 2)
         fut = await ctrl.start_cycle()
-        ctrl.backend.extras["cell"].inject("over_pressure", ctrl.now + 0.5)
+        ctrl.backend.sim.inject("over_pressure", ctrl.now + 0.5)
         res = await fut
         status = ctrl.status()
         with pytest.raises(FaultError):
@@ -166,15 +165,11 @@ def test_a_polled_sources_jitter_does_not_hold_a_batch_for_a_second_block(tmp_pa
     """A polled source stamps each read when it starts: the first sample of a block can be
     a few microseconds later than its slot while the last is on time. A 10 ms batch is
     still one block of 10 (it once waited for a second block, doubling the latency)."""
+    from common.samples import SampleBlock
     from controller.config import load_cell_config
-    from controller.service import Controller
-    from drivers.base import SampleBlock
-    from drivers.config import build_backend
+    from controller.config import PublisherConfig
+    from controller.telemetry.fanout import Telemetry
 
-    from .conftest import sim_config
-
-    cfg = load_cell_config(sim_config(tmp_path))
-    cfg = cfg.model_copy(update={"publisher": cfg.publisher.model_copy(update={"pressure_batch_s": 0.01})})
     sent = []
 
     class Capture:
@@ -186,11 +181,13 @@ def test_a_polled_sources_jitter_does_not_hold_a_batch_for_a_second_block(tmp_pa
         def close(self):
             pass
 
-    ctrl = Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware), Capture())
+    clock = {"now": 0.0}
+    telemetry = Telemetry(Capture(), PublisherConfig(pressure_batch_s=0.01), now=lambda: clock["now"], rate_hz=lambda: 1000.0,
+                          clock_origin=lambda: None, on_failure=lambda detail: None)
     slots = np.arange(30) / 1000.0
     lateness = np.tile(np.r_[5e-6, np.zeros(9)], 3)  # each block's first read 5 us late
     for i in range(3):
         t = slots[10 * i:10 * i + 10] + lateness[10 * i:10 * i + 10]
-        ctrl.now = float(t[-1])
-        ctrl._batch_pressure(SampleBlock(seq=i, t=t, values=np.zeros((10, 1)), channels=("p",)))
+        clock["now"] = float(t[-1])
+        telemetry.on_block(SampleBlock(seq=i, t=t, values=np.zeros((10, 1)), channels=("p",)))
     assert sent == [10, 10, 10]

@@ -16,7 +16,7 @@ from types import SimpleNamespace
 import pytest
 
 from controller.config import load_cell_config
-from controller.replay import replay_file
+from controller.telemetry.replay import replay_file
 from fluidsense.notify import LoopWatchdog, Notifier, keep_alive, watchdog_interval
 
 from .conftest import REPO, run, sim_config
@@ -164,7 +164,7 @@ def test_a_stalled_sample_loop_fails_the_watchdog(virtual_controller):
     cycle waits on samples, or a valve command that never returns, is a stall."""
 
     async def body(ctrl):
-        dog = LoopWatchdog(ctrl)
+        dog = LoopWatchdog(ctrl.loop)
         await asyncio.sleep(0)
         idle = [dog.alive(), dog.alive()]
         await ctrl.run_cycle()
@@ -197,7 +197,7 @@ def test_a_stalled_sample_loop_fails_the_watchdog(virtual_controller):
 
 def test_a_loop_stuck_in_a_device_command_fails_the_watchdog(virtual_controller):
     async def body(ctrl):
-        dog = LoopWatchdog(ctrl)
+        dog = LoopWatchdog(ctrl.loop)
         valves = ctrl.backend.valves
         real_set, stuck, never = valves.set, asyncio.Event(), asyncio.Event()
 

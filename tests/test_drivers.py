@@ -21,13 +21,13 @@ import numpy as np
 import pytest
 import yaml
 
+from common.errors import ConfigError
+from common.wiring import Linear, Mpx, Ratiometric, RegulatorWiring
 from controller.config import load_cell_config
 from controller.service import Controller
 from drivers.config import build_backend
-from drivers.errors import ConfigError
-from drivers.io import Linear, Mpx, Ratiometric, RegulatorWiring
-from drivers.sim.controlbox.model import AnalogDomain
-from drivers.sim.controlbox.plant import PlantModel
+from simulator.controlbox.model import AnalogDomain
+from simulator.controlbox.plant import PlantModel
 
 from .conftest import CONFIG, REPO, Daemon, free_simcell, write_cell
 
@@ -208,16 +208,16 @@ def test_link_loss_is_a_fault_and_the_driver_reconnects_on_one_clock(kind, no_da
         async def body():
             ctrl = Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware))
             async with ctrl:
-                await _until(lambda: ctrl.samples > 100, 20, "samples")
+                await _until(lambda: ctrl.loop.samples > 100, 20, "samples")
                 box.kill()
                 t_kill = ctrl.now
                 await _until(lambda: ctrl.fault is not None, 10, "a fault")
                 assert ctrl.fault.kind in ("link_lost", "no_data")
                 assert ctrl.fault.t - t_kill < 1.5
                 box.start(timeout_s=30)
-                missed_before = ctrl.missed
-                await _until(lambda: ctrl.now > t_kill + 3.0 and ctrl.missed > missed_before, 60, "reconnection")
-                assert ctrl.missed - missed_before >= (3.0 - 1.5) * ctrl.backend.source.rate_hz * 0.5
+                missed_before = ctrl.loop.missed
+                await _until(lambda: ctrl.now > t_kill + 3.0 and ctrl.loop.missed > missed_before, 60, "reconnection")
+                assert ctrl.loop.missed - missed_before >= (3.0 - 1.5) * ctrl.backend.source.rate_hz * 0.5
                 ctrl.reset()
                 result = await asyncio.wait_for(ctrl.run_cycle(), 30)
                 assert result.ok and 25e3 < result.p_eq < 40e3

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from common.errors import FaultError
+from common.samples import SampleBlock
+from common.scenes import CylinderScene
 from controller.config import load_profile
-from controller.supervisor import Supervisor
-from drivers.base import SampleBlock
-from drivers.errors import FaultError
-from drivers.scenes import CylinderScene
+from controller.safety.supervisor import Supervisor
 from fluidsense.bench import faults as bench
 
 from .conftest import CONFIG, run
@@ -31,7 +31,7 @@ def _cell():
 def test_each_fault_is_detected_and_vented_within_one_block(kind, t_offset):
     async def body():
         async with _cell() as ctrl:
-            await ctrl.set_scene(CylinderScene(diameter_mm=60))
+            await ctrl.scene.place(CylinderScene(diameter_mm=60))
             rec = await bench.inject_once(ctrl, kind, t_offset)
             status_after_reset = ctrl.status()
             return rec, status_after_reset
@@ -47,7 +47,7 @@ def test_each_fault_is_detected_and_vented_within_one_block(kind, t_offset):
 def test_a_fault_latches_until_reset_and_refuses_cycles():
     async def body():
         async with _cell() as ctrl:
-            cell = ctrl.backend.extras["cell"]
+            cell = ctrl.backend.sim
             fut = await ctrl.start_cycle()
             cell.inject("sensor_nan", ctrl.now + 3.0)
             res = await fut
@@ -133,7 +133,7 @@ def test_a_stalled_loop_is_an_overrun_vented_at_once_and_latched_once_and_the_co
         stall.at = ctrl.now + 0.1
         await until_fault(ctrl)
         first, vented = ctrl.fault, ctrl.backend.valves.in_safe_state
-        fault, t_vent = ctrl.last_vent
+        fault, t_vent = ctrl.latch.last_vent
         ctrl.reset()  # at once: the loop is still about 0.5 s behind its samples
         await ctrl.wait(1.0)
         second = ctrl.fault

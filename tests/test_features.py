@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from controller import features as F
+from controller.cycles import features as F
 
 FS = 1000.0
 

@@ -23,12 +23,12 @@ import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings
 
-from controller.calibration import MAX_FILE_BYTES, Calibration
+from common.errors import ConfigError
+from common.files import YAML_MAX_BYTES
+from common.models import StrictModel
 from controller.config import load_cell_config, load_profile, validate
-from controller.yamlfile import MAX_DEPTH, MAX_NODES
-from drivers.errors import ConfigError
-from drivers.files import YAML_MAX_BYTES
-from drivers.models import StrictModel
+from controller.config.yamlfile import MAX_DEPTH, MAX_NODES
+from controller.sensing.calibration import MAX_FILE_BYTES, Calibration
 from fluidsense import cli
 from fluidsense.bench import fuzz_files
 from tasks.config import SortingTask, load_task
@@ -248,9 +248,9 @@ def test_a_date_shaped_name_stays_a_string(tmp_path):
     assert load_profile(path).name == "2024-13-45"
 
 
-FILE_MODULES = ["drivers.hardware", "drivers.scenes", "drivers.world", "drivers.config", "drivers.sampler.config",
-                "drivers.io", "drivers.ur.config", "drivers.modbus.config", "controller.config",
-                "controller.calibration", "tasks.config"]
+FILE_MODULES = ["common.hardware", "common.scenes", "common.world", "drivers.config", "drivers.sampler.config",
+                "drivers.io", "common.wiring", "drivers.ur.config", "drivers.modbus.config", "controller.config",
+                "controller.sensing.calibration", "tasks.config"]
 
 
 def _numbers(schema) -> list[dict]:

@@ -12,10 +12,10 @@ import sys
 import pytest
 import yaml
 
+from common.errors import CommandError, ConfigError, JobStopped
+from common.scenes import CylinderScene
 from controller.config import CellConfig, load_profile
 from drivers.config import SimDriverConfig
-from drivers.errors import CommandError, ConfigError, JobStopped
-from drivers.scenes import CylinderScene
 from fluidsense import app
 from tasks.calibrate import calibrate
 from tasks.journal import CycleJournal, journal_path
@@ -44,7 +44,7 @@ async def _calibrate(cfg, journal, fault_after: int | None = None):
         def progress(n: int) -> None:
             done["n"] += n
             if done["n"] == fault_after:  # the cell fails during the next cycle
-                ctrl.backend.extras["cell"].inject("sensor_nan", ctrl.now + 1.0)
+                ctrl.backend.sim.inject("sensor_nan", ctrl.now + 1.0)
 
         return await calibrate(ctrl, CylinderScene(diameter_mm=40), feature="p_eq", fit="linear",
                                progress=progress, journal=journal, **PLAN)
@@ -102,7 +102,7 @@ def test_a_task_stopped_by_a_fault_reports_it_with_what_it_did():
             def emit(topic, payload):
                 seen.append((topic, payload))
                 if topic == "task" and payload.get("event") == "measured" and payload["position"] == 0:
-                    ctrl.backend.extras["cell"].inject("sensor_stuck", ctrl.now + 0.2)
+                    ctrl.backend.sim.inject("sensor_stuck", ctrl.now + 0.2)
                 original(topic, payload)
 
             ctrl.emit = emit

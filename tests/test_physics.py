@@ -5,18 +5,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.hardware import GripperActuator, LinearActuator
-from drivers.scenes import CylinderScene, EmptyScene, WallScene
-from drivers.sim.actuators import volume_law
-from drivers.sim.gas import ATMOSPHERE, Link, Network, VolumeLaw
-from drivers.sim.plant import Plant
-from drivers.units import KPA, LITRE, ML, P_ATM
+from common.hardware import GripperActuator, LinearActuator
+from common.scenes import CylinderScene, EmptyScene, WallScene
+from common.units import KPA, LITRE, ML, P_ATM
+from simulator.actuators import volume_law
+from simulator.gas import ATMOSPHERE, Pipe, Network, VolumeLaw
+from simulator.plant import Plant
 
 
 def tank_and_actuator(law: VolumeLaw, v_tank: float, p0_gauge: float, r: float = 1e8) -> Plant:
     """Tank charged to p0, actuator at atmosphere, valve opened at t = 0."""
     net = Network(["tank", "actuator"], [VolumeLaw.constant(v_tank), law],
-                  [Link(0, 1, r, "valve", True, "valve")])
+                  [Pipe(0, 1, r, "valve", True, "valve")])
     return Plant(net, {"valve": True}, p_reg_abs=P_ATM, regulator_tau_s=0.05,
                  p_initial_abs={"tank": P_ATM + p0_gauge})
 
@@ -156,7 +156,7 @@ def test_linear_actuator_has_no_resolution_where_it_cannot_reach():
 def test_vent_returns_the_actuator_to_atmosphere():
     law = volume_law(GripperActuator(), EmptyScene(), P_ATM)
     net = Network(["tank", "actuator"], [VolumeLaw.constant(0.3 * LITRE), law],
-                  [Link(0, 1, 1e8, "valve", True), Link(1, ATMOSPHERE, 1e8, "valve", False)])
+                  [Pipe(0, 1, 1e8, "valve", True), Pipe(1, ATMOSPHERE, 1e8, "valve", False)])
     plant = Plant(net, {"valve": True}, P_ATM, 0.05, p_initial_abs={"tank": P_ATM + 63 * KPA})
     plant.schedule_valve(5.0, "valve", False)
     p = plant.pressures_abs(plant.sample(np.array([4.9, 30.0]))[0])

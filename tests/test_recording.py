@@ -19,13 +19,13 @@ import numpy as np
 import pytest
 import yaml
 
+from common.errors import ConfigError, EndOfRecording, RecordingError
+from common.scenes import CylinderScene, EmptyScene
 from controller.config import CellConfig, load_cell_config
-from controller.recording import new_path
-from controller.replay import CycleReplay, comparable, replay_file
 from controller.service import Sink
-from drivers.errors import ConfigError, EndOfRecording, RecordingError
+from controller.telemetry.recording import new_path
+from controller.telemetry.replay import CycleReplay, comparable, replay_file
 from drivers.recording import CONFIG, SAMPLES, RecordingReader, RecordingWriter
-from drivers.scenes import CylinderScene, EmptyScene
 from fluidsense import app, cli
 
 from .conftest import PROFILE, REPO, sim_config
@@ -46,10 +46,10 @@ def the_file(tmp_path: Path) -> Path:
 async def varied_cycles(ctrl) -> list:
     """A reference, two objects, an aborted cycle, a held one, a sensor fault."""
     results = []
-    await ctrl.set_scene(EmptyScene())
+    await ctrl.scene.place(EmptyScene())
     results.append(await ctrl.run_cycle(store_reference=True))
     for d in (40, 80):
-        await ctrl.set_scene(CylinderScene(diameter_mm=d))
+        await ctrl.scene.place(CylinderScene(diameter_mm=d))
         results.append(await ctrl.run_cycle(label=f"D{d}"))
     fut = await ctrl.start_cycle(label="aborted")
     await ctrl.wait(23.456)  # inside ACTUATE
@@ -60,9 +60,9 @@ async def varied_cycles(ctrl) -> list:
     await ctrl.wait(3.0)
     results.append(await ctrl.release())
     fut = await ctrl.start_cycle(label="nan")
-    ctrl.backend.extras["cell"].inject("sensor_nan", ctrl.now + 25.0)
+    ctrl.backend.sim.inject("sensor_nan", ctrl.now + 25.0)
     results.append(await fut)
-    ctrl.backend.extras["cell"].clear_faults()
+    ctrl.backend.sim.clear_faults()
     ctrl.reset()
     results.append(await ctrl.run_cycle(label="after reset"))
     return results
@@ -95,7 +95,7 @@ def good_file(tmp_path_factory) -> Path:
 
     async def two(ctrl):
         await ctrl.run_cycle(store_reference=True)
-        await ctrl.set_scene(CylinderScene(diameter_mm=60))
+        await ctrl.scene.place(CylinderScene(diameter_mm=60))
         await ctrl.run_cycle()
 
     record(tmp, two)
@@ -163,7 +163,7 @@ def test_what_is_on_disk_lags_sample_time_by_at_most_flush_s(tmp_path):
     seen = []
 
     async def body(ctrl):
-        sink = ctrl.sinks[0]
+        sink = ctrl.telemetry.sinks[0]
         fut = await ctrl.start_cycle()
         for step in (0.35, 1.73, 0.011, 2.5, 13.0, 0.99, 7.77):
             await ctrl.wait(step)
@@ -382,7 +382,7 @@ def test_files_are_never_overwritten(tmp_path):
 def test_rotation_between_cycles_keeps_every_file_replayable(tmp_path):
     async def body(ctrl):
         await ctrl.run_cycle(store_reference=True)
-        await ctrl.set_scene(CylinderScene(diameter_mm=70))
+        await ctrl.scene.place(CylinderScene(diameter_mm=70))
         return [await ctrl.run_cycle() for _ in range(3)]
 
     live = record(tmp_path, body, max_file_mb=0.2)
@@ -423,7 +423,7 @@ def test_a_write_error_drops_the_recording_and_control_goes_on(tmp_path, caplog)
         raise OSError(errno.ENOSPC, "No space left on device")
 
     async def body(ctrl):
-        sink = ctrl.sinks[0]
+        sink = ctrl.telemetry.sinks[0]
         await ctrl.wait(30.0)
         sink._writer.flush = disk_full
         res = await ctrl.run_cycle()
@@ -448,10 +448,10 @@ def test_a_nearly_full_disk_stops_the_recording_and_says_so(tmp_path, monkeypatc
 
     async def body(ctrl):
         await ctrl.wait(5.0)
-        monkeypatch.setattr("controller.recording.shutil.disk_usage",
+        monkeypatch.setattr("controller.telemetry.recording.shutil.disk_usage",
                             lambda p: real(p)._replace(free=10 * 2**20))
         await ctrl.run_cycle()
-        return ctrl.sinks
+        return ctrl.telemetry.sinks
 
     with caplog.at_level(logging.ERROR):
         sinks = record(tmp_path / "second", body)

@@ -9,14 +9,14 @@ import sys
 import numpy as np
 import pytest
 
-from drivers.hardware import GripperActuator, LinearActuator
-from drivers.scenes import CylinderScene, WallScene
-from drivers.sim.actuators import volume_law
-from drivers.sim.equilibrium import eq2_resolution, equilibrium
-from drivers.sim.gas import Link, Network, VolumeLaw
-from drivers.sim.plant import Plant
-from drivers.sim.resolution import linear_sweep, resolution_at, search
-from drivers.units import KPA, LITRE, ML, P_ATM
+from common.hardware import GripperActuator, LinearActuator
+from common.scenes import CylinderScene, WallScene
+from common.units import KPA, LITRE, ML, P_ATM
+from simulator.actuators import volume_law
+from simulator.equilibrium import eq2_resolution, equilibrium
+from simulator.gas import Pipe, Network, VolumeLaw
+from simulator.plant import Plant
+from simulator.resolution import linear_sweep, resolution_at, search
 
 from .conftest import REPO
 
@@ -74,7 +74,7 @@ def test_design_search_picks_the_best_feasible_and_the_plant_agrees():
     assert any(not d.feasible and "no contact" in d.reason for d in grid)  # small tank, low P0
     # the dynamic plant (eq. 3-9) settles where the static model says, at the recommendation
     law = volume_law(act, WallScene(distance_mm=30.0), P_ATM)
-    net = Network(["tank", "actuator"], [VolumeLaw.constant(best.tank_l * LITRE), law], [Link(0, 1, 1e8, "v", True)])
+    net = Network(["tank", "actuator"], [VolumeLaw.constant(best.tank_l * LITRE), law], [Pipe(0, 1, 1e8, "v", True)])
     plant = Plant(net, {"v": True}, P_ATM, 0.05, p_initial_abs={"tank": P_ATM + best.p0_kpa * KPA})
     state, _ = plant.sample(np.array([60.0]))
     p_dyn = plant.pressures_abs(state)[1, 0] - P_ATM

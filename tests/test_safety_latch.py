@@ -7,13 +7,13 @@ import asyncio
 
 import pytest
 
+from common.errors import CommandError, FaultError
+from common.scenes import CylinderScene
 from controller.config import CellConfig, load_cell_config, load_profile
-from controller.publisher import NullPublisher
-from controller.sequencer import State
+from controller.cycles.sequencer import State
 from controller.service import Controller, Sink
+from controller.telemetry.publisher import NullPublisher
 from drivers.config import SimDriverConfig, build_backend
-from drivers.errors import CommandError, FaultError
-from drivers.scenes import CylinderScene
 
 from .conftest import CONFIG, sim_config
 
@@ -60,13 +60,13 @@ def _once(fn, when):
 
 
 def _inject(stage: str, ctrl: Controller, probe: Probe) -> None:
-    actuating = lambda: ctrl.sequencer.state in (State.ACTUATE, State.HOLD)  # noqa: E731
+    actuating = lambda: ctrl.cycles.sequencer.state in (State.ACTUATE, State.HOLD)  # noqa: E731
     if stage == "supervisor":
         ctrl.supervisor.check = _once(ctrl.supervisor.check, actuating)
     elif stage == "sequencer":
-        ctrl.sequencer.on_time = _once(ctrl.sequencer.on_time, actuating)
+        ctrl.cycles.sequencer.on_time = _once(ctrl.cycles.sequencer.on_time, actuating)
     elif stage == "features":
-        ctrl._analyse = _once(ctrl._analyse, lambda: True)
+        ctrl.cycles._analyse = _once(ctrl.cycles._analyse, lambda: True)
     elif stage == "publisher":
         probe.fail_on = "heartbeat"
     elif stage == "sink":
@@ -108,7 +108,7 @@ def test_an_exception_at_any_stage_latches_vents_and_releases_every_waiter(stage
         cfg = _cfg()
         ctrl = Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware), probe)
         async with ctrl:
-            await ctrl.set_scene(CylinderScene(diameter_mm=60))
+            await ctrl.scene.place(CylinderScene(diameter_mm=60))
             _inject(stage, ctrl, probe)
             fut = await ctrl.start_cycle(hold=True)  # held: without the fault it would wait for a release
             waiter = asyncio.ensure_future(ctrl.wait(1000.0))
@@ -139,7 +139,7 @@ def test_a_failing_command_handler_vents_and_answers_with_the_reason():
         cfg = _cfg()
         ctrl = Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware), Probe())
         async with ctrl:
-            from controller.commands import SceneCmd
+            from controller.commands.server import SceneCmd
 
             async def broken(scene, t):
                 raise Boom("injected in the scene device")
@@ -149,7 +149,7 @@ def test_a_failing_command_handler_vents_and_answers_with_the_reason():
             await ctrl.wait(5.0)
             inflated = ctrl.backend.valves.reported["actuate"]
             with pytest.raises(CommandError, match="internal error.*safe state"):
-                await ctrl.handle_command(SceneCmd(cmd="scene", scene={"kind": "none"}))
+                await ctrl.commands.handle(SceneCmd(cmd="scene", scene={"kind": "none"}))
             return inflated, ctrl.fault, ctrl.latch.vented()
 
     inflated, fault, vented = asyncio.run(body())
@@ -162,7 +162,7 @@ def test_a_second_fault_does_not_replace_the_first():
         cfg = _cfg()
         ctrl = Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware), Probe())
         async with ctrl:
-            cell = ctrl.backend.extras["cell"]
+            cell = ctrl.backend.sim
             fut = await ctrl.start_cycle()
             cell.inject("sensor_nan", ctrl.now + 4.0)
             await asyncio.wait_for(fut, HANG_S)
@@ -182,7 +182,7 @@ def _daemon_cfg(tmp_path) -> CellConfig:
 def test_a_sample_loop_that_dies_stops_the_daemon_vented_with_status_1(tmp_path, monkeypatch):
     """The loop's own guard fails too (the latch itself raises): the loop task ends, and
     the daemon must notice, vent on the way out and exit 1 for systemd to restart it."""
-    from controller.latch import SafetyLatch
+    from controller.safety.latch import SafetyLatch
     from fluidsense import app
 
     built = {}
@@ -204,13 +204,13 @@ def test_a_sample_loop_that_dies_stops_the_daemon_vented_with_status_1(tmp_path,
     monkeypatch.setattr(Controller, "_on_block", broken_block)
     monkeypatch.setattr(SafetyLatch, "trip", broken_trip)
     code = asyncio.run(asyncio.wait_for(app.run_daemon(_daemon_cfg(tmp_path)), HANG_S))
-    cell = built["backend"].extras["cell"]
+    cell = built["backend"].sim
     assert code == 1
     assert cell.outputs == built["backend"].valves.safe_positions  # vented on the way out
 
 
 def test_a_command_socket_that_dies_stops_the_daemon_with_status_1(tmp_path, monkeypatch):
-    from controller.commands import CommandServer
+    from controller.commands.server import CommandServer
     from fluidsense import app
 
     async def broken_serve(self):
@@ -254,7 +254,7 @@ def test_sigterm_ends_the_daemon_vented_in_every_state(state, tmp_path, monkeypa
         while "backend" not in built or not built["backend"].source.connected:
             await asyncio.sleep(0.01)  # polling start-up, bounded by HANG_S below
         backend = built["backend"]
-        cell = backend.extras["cell"]
+        cell = backend.sim
         if state == "actuating":
             backend.valves._state["actuate"] = True  # as a cycle leaves it, without running one
             cell.command_valve("actuate", True, cell.t_last)

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.errors import ConfigError
+from common.errors import ConfigError
 from drivers.sampler import realtime
 from drivers.sampler.loop import Block, SlotLoop, SpinClock
 from drivers.sampler.poller import NoNewSample

@@ -17,7 +17,7 @@ import numpy as np
 import pydantic
 import pytest
 
-from drivers.errors import ConfigError, DriverError, LinkLostError
+from common.errors import ConfigError, DriverError, LinkLostError
 from drivers.sampler import SampledSource, SamplerConfig
 from drivers.sampler.synthetic import SyntheticPoller
 

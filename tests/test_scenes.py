@@ -7,12 +7,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from drivers.scenes import (CylinderScene, EmptyScene, PlateScene, PullScene, RectangleScene, SampleScene,
-                            StopperScene)
-
-from drivers.hardware import BendingActuator
-from drivers.sim.actuators import contact_truth
-from drivers.units import P_ATM
+from common.hardware import BendingActuator
+from common.scenes import CylinderScene, PlateScene, PullScene, RectangleScene, SampleScene, StopperScene
+from common.units import P_ATM
+from simulator.actuators import contact_truth
 
 from .conftest import cycles_over, profile_controller
 
@@ -106,7 +104,7 @@ def test_suction_cup_ranks_the_four_silicones_and_p0_tunes_resolution():
         deep = await cycles_over(ctrl, samples)
         shallow = []
         for s in samples:
-            await ctrl.set_scene(s)
+            await ctrl.scene.place(s)
             shallow.append(await ctrl.run_cycle(p0_kpa=-21.0))
         return deep, shallow
 
@@ -125,9 +123,9 @@ def test_suction_cup_pull_test_predicts_detachment():
     async def body(ctrl):
         seq = ctrl.profile.sequence
         scene = PullScene(material="OO-30", rate_n_per_s=0.2, delay_s=seq.charge_s + seq.isolate_s + 20)
-        await ctrl.set_scene(scene)
+        await ctrl.scene.place(scene)
         res = await ctrl.run_cycle()
-        return scene, res, ctrl.backend.scene.truth()
+        return scene, res, await ctrl.scene.truth()
 
     scene, res, truth = profile_controller("suction-cup-pull", body)
     t_rel, p = res.trace

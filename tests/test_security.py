@@ -17,10 +17,11 @@ import zmq
 import zmq.asyncio
 from hypothesis import HealthCheck, given, settings
 
-from controller.commands import MAX_DEPTH, MAX_FRAME_BYTES, MAX_REQUEST_BYTES, CommandServer, too_deep
+from common.errors import ConfigError
+from controller.commands.server import MAX_DEPTH, MAX_FRAME_BYTES, MAX_REQUEST_BYTES, CommandServer, too_deep
 from controller.config import load_cell_config
-from drivers.errors import ConfigError
 from fluidsense.bench.fuzz import Client, answerable, message_strategy
+from fluidsense.monitor import send_command
 
 from .conftest import REPO, Daemon, ipc_endpoints, sim_config
 
@@ -163,7 +164,7 @@ def test_the_server_counts_what_it_answered_rejected_and_dropped(tmp_path):
     async def main():
         ctx = zmq.asyncio.Context()
         async with app.controller(cfg) as ctrl:
-            server = CommandServer(endpoint, ctrl.handle_command, context=ctx)
+            server = CommandServer(endpoint, ctrl.commands.handle, context=ctx)
             serving = asyncio.create_task(server.serve())
             sock = ctx.socket(zmq.DEALER)
             sock.setsockopt(zmq.LINGER, 0)
@@ -294,16 +295,23 @@ def test_fluidsense_run_refuses_them_with_exit_code_2_and_one_line(keys, tmp_pat
         assert len(lines) == 1 and f"{path}: publisher.cmd_curve.{field}: " in lines[0] and reason in lines[0]
 
 
+def _status_when_connected(endpoint: str, curve: tuple[str, str]) -> dict:
+    """``status`` over CURVE once the daemon has left ``connecting`` (each request waits for
+    the daemon's answer: bounded by the daemon, not a sleep)."""
+
+    while True:
+        reply = send_command(endpoint, {"cmd": "status"}, 30.0, curve=curve)
+        if reply.get("state") != "connecting":
+            return reply
+
+
 def test_curve_lets_in_known_clients_only(keys, tmp_path, daemon_factory):
     path, port = _curve_config(tmp_path, {"server_secret_file": str(keys / "server.key_secret"),
                                           "clients_dir": str(keys / "clients")})
     d = daemon_factory(path)
-    d.wait_welcome()
+    d.wait_welcome(ready=False)  # the test's own REQ socket has no keys: it would get no reply
     endpoint = f"tcp://127.0.0.1:{port}"
-    from fluidsense.monitor import send_command
-
-    ok = send_command(endpoint, {"cmd": "status"}, 10.0,
-                      curve=(str(keys / "client.key_secret"), str(keys / "server.key")))
+    ok = _status_when_connected(endpoint, (str(keys / "client.key_secret"), str(keys / "server.key")))
     assert ok["ok"] and ok["state"] == "idle"
     with pytest.raises(TimeoutError):  # no keys: the handshake never completes, no reply
         send_command(endpoint, {"cmd": "status"}, 2.0)
@@ -324,11 +332,9 @@ def test_allow_any_client_lets_any_key_in_when_asked_for(keys, tmp_path, daemon_
     path, port = _curve_config(tmp_path, {"server_secret_file": str(keys / "server.key_secret"),
                                           "clients_dir": "*", "allow_any_client": True})
     d = daemon_factory(path)
-    d.wait_welcome()
+    d.wait_welcome(ready=False)
     stranger = tmp_path / "stranger"
     assert _keys(stranger).returncode == 0
-    from fluidsense.monitor import send_command
-
-    reply = send_command(f"tcp://127.0.0.1:{port}", {"cmd": "status"}, 10.0,
-                         curve=(str(stranger / "client.key_secret"), str(keys / "server.key")))
+    reply = _status_when_connected(f"tcp://127.0.0.1:{port}",
+                                   (str(stranger / "client.key_secret"), str(keys / "server.key")))
     assert reply["ok"]

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from common.errors import SequenceError
+from common.scenes import CylinderScene
 from controller.config import SequenceConfig, Window
-from controller.sequencer import Sequencer, SetpointCmd, State, ValveCmd
-from drivers.errors import SequenceError
-from drivers.scenes import CylinderScene
+from controller.cycles.sequencer import Sequencer, SetpointAction, State, ValveAction
 
 CFG = SequenceConfig(p0_kpa=63, charge_s=10, isolate_s=10, actuate_s=20, vent_s=10,
                      windows=[Window(name="eq", start_s=4, end_s=5)])
@@ -27,12 +27,12 @@ def drive(seq: Sequencer, t_from: float, t_to: float, dt: float = 0.01):
 def test_cycle_runs_the_states_in_order_with_the_configured_durations():
     seq = Sequencer(CFG)
     start = seq.start(0.0)
-    assert start == [ValveCmd("actuate", False), SetpointCmd(63e3), ValveCmd("supply", True)]
+    assert start == [ValveAction("actuate", False), SetpointAction(63e3), ValveAction("supply", True)]
     assert seq.state == State.CHARGE
     cmds = drive(seq, 0.01, 60.0)
-    assert cmds == [(10.0, [ValveCmd("supply", False)]),
-                    (20.0, [ValveCmd("actuate", True)]),
-                    (40.0, [ValveCmd("supply", False), ValveCmd("actuate", False)])]
+    assert cmds == [(10.0, [ValveAction("supply", False)]),
+                    (20.0, [ValveAction("actuate", True)]),
+                    (40.0, [ValveAction("supply", False), ValveAction("actuate", False)])]
     tr = [(round(x.t, 6), x.source, x.target) for x in seq.drain_transitions()]
     assert tr == [(0.0, State.IDLE, State.CHARGE), (10.0, State.CHARGE, State.ISOLATE),
                   (20.0, State.ISOLATE, State.ACTUATE), (24.0, State.ACTUATE, State.HOLD),
@@ -49,7 +49,7 @@ def test_abort_from_any_state_goes_to_vent_with_every_valve_closed(abort_at, sta
     drive(seq, 0.01, abort_at)
     assert seq.state == state
     cmds = seq.abort(abort_at, "operator")
-    assert set(cmds) == {ValveCmd("actuate", False), ValveCmd("supply", False)}  # the safe positions
+    assert set(cmds) == {ValveAction("actuate", False), ValveAction("supply", False)}  # the safe positions
     assert seq.state == State.VENT
     later = drive(seq, abort_at + 0.01, abort_at + 20.0)
     assert later == []  # nothing re-opens after an abort
@@ -80,11 +80,11 @@ def test_windows_must_fit_inside_the_actuation():
 
 # ------------------------------------------------------- on the simulated cell
 async def _abort_mid_hold(controller):
-    await controller.set_scene(CylinderScene(diameter_mm=60))
+    await controller.scene.place(CylinderScene(diameter_mm=60))
     fut = await controller.start_cycle()
-    while controller.sequencer.state != State.HOLD:
+    while controller.cycles.sequencer.state != State.HOLD:
         await controller.wait(0.5)
-    cell = controller.backend.extras["cell"]
+    cell = controller.backend.sim
     p_before = cell.true_pressures()[0]
     assert await controller.abort("test")
     result = await fut

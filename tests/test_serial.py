@@ -20,7 +20,7 @@ import pytest
 
 from controller.config import load_cell_config
 from drivers.config import build_backend
-from drivers.errors import DriverError, LinkLostError
+from common.errors import DriverError, LinkLostError
 
 from .conftest import Daemon, profile_controller
 from .serial_helpers import Proxy, SimSerialProcess, serial_config
@@ -262,7 +262,7 @@ def test_sorting_cycles_through_the_serial_driver_read_sensible_pressures(tmp_pa
             assert d.request({"cmd": "scene", "scene": scene})["ok"]
             assert d.request({"cmd": "cycle"})["ok"]
             _, result = d.next_message("cycle", timeout_s=60)
-            assert result["ok"] and result["missed"] == 0, result
+            assert result["ok"] and result["missed"] == 0, (result, d.request({"cmd": "status"}))
             got.append(result["p_eq_kpa"])
         assert d.request({"cmd": "status"})["source_link"]["lost_frames"] == 0
     finally:
@@ -271,11 +271,11 @@ def test_sorting_cycles_through_the_serial_driver_read_sensible_pressures(tmp_pa
     async def body(ctrl):
         from pydantic import TypeAdapter
 
-        from drivers.scenes import Scene
+        from common.scenes import Scene
 
         out = []
         for scene in scenes:
-            await ctrl.set_scene(TypeAdapter(Scene).validate_python(scene))
+            await ctrl.scene.place(TypeAdapter(Scene).validate_python(scene))
             out.append((await ctrl.run_cycle()).p_eq / 1e3)
         return out
 

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.errors import ConfigError
+from common.errors import ConfigError
 from drivers.serial import protocol as p
 from drivers.serial.clock import Timeline
 

@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from drivers.base import SampleBlock
+from common.samples import SampleBlock
 from fluidsense.bench.soak import SCENES, GapCounter
 
 from .conftest import REPO
@@ -80,7 +80,7 @@ def test_the_cycle_history_keeps_no_traces(virtual_controller):
 
     async def body(ctrl):
         results = [await ctrl.run_cycle() for _ in range(2)]
-        return results, list(ctrl.results)
+        return results, list(ctrl.cycles.results)
 
     returned, kept = virtual_controller(body)
     assert all(r.trace is not None for r in returned)

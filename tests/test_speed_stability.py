@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from controller import features as F
+from controller.cycles import features as F
 from fluidsense.bench import speed_accuracy as SA
 from fluidsense.bench import stability as ST
 

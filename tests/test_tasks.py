@@ -11,8 +11,8 @@ import jsonschema
 import pytest
 import yaml
 
+from common.errors import ConfigError
 from controller.config import load_cell_config
-from drivers.errors import ConfigError
 from fluidsense import app
 from tasks.config import cell_path, load_task
 from tasks.runner import run_task

@@ -9,11 +9,13 @@ import logging
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
+from common.errors import ConfigError, DriverError, LinkLostError
+from common.hardware import Hardware, RegulatedCircuit, TankCircuit
+from common.wiring import AnalogScale, RegulatorWiring, Wiring
+from drivers.io import BoxWatchdogConfig
+
 from ..base import Backend, BoxWatchdog, Regulator, ValveBank
-from ..errors import ConfigError, DriverError, LinkLostError
-from ..hardware import Hardware, RegulatedCircuit, TankCircuit
-from ..io import AnalogScale, BoxWatchdogConfig, RegulatorWiring, Wiring
-from ..remote import Link, PolledCellSource, confirm_safe_on_connect, sampler_config
+from ..remote import Connection, PolledCellSource, confirm_safe_on_connect, sampler_config
 from ..ur.watchdog import box_script, send_script
 from .config import ModbusDriverConfig, RegisterMap
 
@@ -22,7 +24,7 @@ log = logging.getLogger(__name__)
 _DOMAIN_CODE = {"current": 0, "voltage": 1}  # UR's analog domain registers
 
 
-class ModbusLink(Link):
+class ModbusConnection(Connection):
     """One Modbus TCP connection, shared by the valves and the regulator."""
 
     def __init__(self, cfg: ModbusDriverConfig):
@@ -95,7 +97,7 @@ class ModbusValves(ValveBank):
 
     reports_outputs = True
 
-    def __init__(self, link: ModbusLink, wiring: Wiring, regs: RegisterMap, safe: dict[str, bool]):
+    def __init__(self, link: ModbusConnection, wiring: Wiring, regs: RegisterMap, safe: dict[str, bool]):
         super().__init__("modbus-valves", safe)
         self.link, self.wiring, self.regs = link, wiring.valves, regs
 
@@ -117,7 +119,7 @@ class ModbusHeartbeat(BoxWatchdog):
     """Cells without an arm: the daemon increments a general purpose register that the
     box's watchdog program watches (drivers/ur/watchdog.py)."""
 
-    def __init__(self, link: ModbusLink, cfg: BoxWatchdogConfig):
+    def __init__(self, link: ModbusConnection, cfg: BoxWatchdogConfig):
         super().__init__("modbus-heartbeat", cfg.timeout_s)
         self.link, self.register = link, cfg.heartbeat_register
         self.beats = 0
@@ -128,7 +130,7 @@ class ModbusHeartbeat(BoxWatchdog):
 
 
 class ModbusRegulator(Regulator):
-    def __init__(self, link: ModbusLink, wiring: RegulatorWiring, regs: RegisterMap, scale: AnalogScale):
+    def __init__(self, link: ModbusConnection, wiring: RegulatorWiring, regs: RegisterMap, scale: AnalogScale):
         super().__init__("modbus-regulator")
         self.link, self.wiring, self.regs, self.scale = link, wiring, regs, scale
 
@@ -156,8 +158,8 @@ def build(cfg: ModbusDriverConfig, hw: Hardware) -> Backend:
     from ..ur.backend import scene_link, worker_link  # noqa: PLC0415 - no ur_rtde import on this side
     from ..ur.devices import UrArm, WorkerKick  # noqa: PLC0415
 
-    link = ModbusLink(cfg)
-    links: list[Link] = [link]
+    link = ModbusConnection(cfg)
+    links: list[Connection] = [link]
     arm = watchdog = None
     if cfg.arm is not None:
         worker = worker_link(cfg.host, cfg.arm, io=False, watchdog=cfg.watchdog)
@@ -181,4 +183,4 @@ def build(cfg: ModbusDriverConfig, hw: Hardware) -> Backend:
     if script is not None:
         source.on_connect.append(lambda: send_script(cfg.host, cfg.watchdog.script_port, script))
     return Backend(name="modbus", source=source, valves=valves, regulator=regulator, arm=arm,
-                   scene=scene_link(cfg.host, cfg.sim_control_port), watchdog=watchdog, extras={"link": link})
+                   scene=scene_link(cfg.host, cfg.sim_control_port), watchdog=watchdog)

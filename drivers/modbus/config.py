@@ -6,8 +6,9 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from ..io import BLOCK_SIZE, AnalogScale, BoxWatchdogConfig, Host, Port, Reconnect, SamplerOptions, UrArmConfig, Wiring
-from ..models import Integer, Real, StrictModel
+from common.models import Host, Integer, Port, Real, StrictModel
+from common.wiring import AnalogScale, Wiring
+from drivers.io import BLOCK_SIZE, BoxWatchdogConfig, Reconnect, SamplerOptions, UrArmConfig
 
 Register = Annotated[Integer, Field(ge=0, le=65535)]
 

@@ -6,7 +6,8 @@ from typing import Annotated, Literal
 
 from pydantic import Field, JsonValue, model_validator
 
-from ..models import Integer, Real, StrictModel
+from common.models import Integer, Real, StrictModel
+
 from .poller import SPEC_PATTERN
 
 ChannelName = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$", max_length=64)]

@@ -37,7 +37,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from ..errors import ConfigError
+from common.errors import ConfigError
+
 from .poller import NoNewSample, Poller
 
 log = logging.getLogger(__name__)

@@ -31,7 +31,8 @@ import importlib
 import re
 from typing import Any
 
-from ..errors import ConfigError
+from common.errors import ConfigError
+
 
 class NoNewSample(Exception):  # noqa: N818 - a slot's outcome, not an error
     """``read()`` found nothing new since the last read: the slot is missed."""

@@ -28,7 +28,8 @@ from typing import Any
 
 import zmq
 
-from ..errors import ConfigError
+from common.errors import ConfigError
+
 from . import realtime, wire
 from .loop import Block, SlotLoop, SpinClock
 from .poller import load_poller

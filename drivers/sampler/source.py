@@ -28,8 +28,10 @@ import numpy as np
 import zmq
 import zmq.asyncio
 
-from ..base import SampleBlock, SampleSource
-from ..errors import ConfigError, DeviceTimeoutError, DriverError, LinkLostError
+from common.errors import ConfigError, DeviceTimeoutError, DriverError, LinkLostError
+from common.samples import SampleBlock
+from drivers.base import SampleSource
+
 from . import wire
 from .config import SamplerConfig
 

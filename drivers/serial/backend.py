@@ -20,10 +20,12 @@ from typing import Any
 
 import numpy as np
 
-from ..base import Backend, BoxWatchdog, Regulator, SampleBlock, SampleSource, ValveBank
-from ..errors import LinkLostError
-from ..hardware import Hardware, RegulatedCircuit, TankCircuit
-from ..io import AnalogScale, RegulatorWiring
+from common.errors import LinkLostError
+from common.hardware import Hardware, RegulatedCircuit, TankCircuit
+from common.samples import SampleBlock
+from common.wiring import AnalogScale, RegulatorWiring
+
+from ..base import Backend, BoxWatchdog, Regulator, SampleSource, ValveBank
 from . import protocol as p
 from .clock import Timeline
 from .config import SerialDriverConfig, SerialValveWiring
@@ -268,8 +270,8 @@ def build(cfg: SerialDriverConfig, hw: Hardware) -> Backend:
     regulator = SerialRegulator(source, cfg.wiring.regulator, cfg.analog_out) if regulated else None
     scene = None
     if cfg.sim_control_port is not None:
-        from ..sim.link import RemoteScene  # noqa: PLC0415 - a simulated device was asked for
+        from drivers.simlink import RemoteScene  # noqa: PLC0415 - a simulated device was asked for
 
         scene = RemoteScene("127.0.0.1", cfg.sim_control_port)
     return Backend(name="serial", source=source, valves=valves, regulator=regulator, scene=scene,
-                   watchdog=SerialHeartbeat(source, cfg.watchdog.timeout_s), extras={"source": source})
+                   watchdog=SerialHeartbeat(source, cfg.watchdog.timeout_s))

@@ -7,8 +7,10 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
-from ..io import BLOCK_SIZE, AnalogScale, Port, Reconnect, RegulatorWiring, Transfer, ValveWiring
-from ..models import Integer, Real, StrictModel
+from common.models import Integer, Port, Real, StrictModel
+from common.wiring import AnalogScale, RegulatorWiring, Transfer, ValveWiring
+
+from ..io import BLOCK_SIZE, Reconnect
 
 #: the devices' boards: ADC inputs, digital outputs, analog outputs (firmware/README.md)
 MAX_ADC, MAX_OUTPUTS = 8, 8

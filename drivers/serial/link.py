@@ -31,8 +31,9 @@ from typing import Any
 import numpy as np
 import serial
 
-from ..base import SampleBlock
-from ..errors import ConfigError, DeviceTimeoutError, DriverError, LinkLostError
+from common.errors import ConfigError, DeviceTimeoutError, DriverError, LinkLostError
+from common.samples import SampleBlock
+
 from . import protocol as p
 from .clock import Timeline
 from .config import SerialDriverConfig

@@ -1,5 +1,6 @@
-"""Simulated pneumatic cell (imported only when a config selects ``driver: sim``)."""
+"""The simulated cell as a backend: device adapters over simulator/ (imported only when a
+config selects ``driver: sim``)."""
 
-from .backend import SimCell, build
+from .backend import SimBackend, build
 
-__all__ = ["SimCell", "build"]
+__all__ = ["SimBackend", "build"]

@@ -3,13 +3,15 @@ for the analog inputs, the simulated cell's control channel when there is one.""
 
 from __future__ import annotations
 
+from common.hardware import Hardware, RegulatedCircuit, TankCircuit
+from common.wiring import Wiring
+from drivers.io import BoxWatchdogConfig
+
 from ..base import Backend
-from ..hardware import Hardware, RegulatedCircuit, TankCircuit
-from ..io import BoxWatchdogConfig, Wiring
 from ..remote import PolledCellSource, confirm_safe_on_connect, sampler_config
 from .config import UrDriverConfig
 from .devices import UrArm, UrRegulator, UrValves, WorkerKick
-from .link import WorkerLink
+from .link import WorkerConnection
 from .watchdog import box_script, send_script
 
 
@@ -24,10 +26,10 @@ def rtde_inputs(wiring: Wiring, channels: tuple[str, ...]) -> list[list[float]]:
     return out
 
 
-def worker_link(host: str, arm, io: bool, watchdog: BoxWatchdogConfig | None = None) -> WorkerLink:
+def worker_link(host: str, arm, io: bool, watchdog: BoxWatchdogConfig | None = None) -> WorkerConnection:
     """``watchdog``: arm ur_rtde's RTDE watchdog so that the control script stops (and the
     box's run-state output actions vent) when the daemon stops kicking it."""
-    return WorkerLink({"host": arm.host or host, "io": io, "control": True, "status_hz": arm.status_hz,
+    return WorkerConnection({"host": arm.host or host, "io": io, "control": True, "status_hz": arm.status_hz,
                        "upper_range_registers": arm.upper_range_registers,
                        "watchdog_hz": None if watchdog is None else 1.0 / watchdog.timeout_s})
 
@@ -35,7 +37,7 @@ def worker_link(host: str, arm, io: bool, watchdog: BoxWatchdogConfig | None = N
 def scene_link(host: str, port: int | None):
     if port is None:
         return None
-    from ..sim.link import RemoteScene  # noqa: PLC0415 - a simulated cell was asked for
+    from drivers.simlink import RemoteScene  # noqa: PLC0415 - a simulated cell was asked for
 
     return RemoteScene(host, port)
 
@@ -57,4 +59,4 @@ def build(cfg: UrDriverConfig, hw: Hardware) -> Backend:
         script = box_script(cfg.wiring.valves, hw.circuit.safe_valves, cfg.watchdog, arm=True)
         source.on_connect.append(lambda: send_script(cfg.host, cfg.watchdog.script_port, script))
     return Backend(name="ur", source=source, valves=valves, regulator=regulator, arm=UrArm(link, cfg.arm),
-                   scene=scene_link(cfg.host, cfg.sim_control_port), watchdog=watchdog, extras={"link": link})
+                   scene=scene_link(cfg.host, cfg.sim_control_port), watchdog=watchdog)

@@ -7,8 +7,9 @@ from typing import Literal
 
 from pydantic import Field, ValidationInfo, field_validator
 
-from ..io import BLOCK_SIZE, AnalogScale, BoxWatchdogConfig, Host, Port, Reconnect, SamplerOptions, UrArmConfig, Wiring
-from ..models import Integer, Real, StrictModel
+from common.models import Host, Integer, Port, Real, StrictModel
+from common.wiring import AnalogScale, Wiring
+from drivers.io import BLOCK_SIZE, BoxWatchdogConfig, Reconnect, SamplerOptions, UrArmConfig
 
 #: highest RTDE output rate per controller generation (UR's RTDE guide)
 RTDE_MAX_HZ = {"e-series": 500.0, "cb3": 125.0}

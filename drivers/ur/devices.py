@@ -6,10 +6,12 @@ from __future__ import annotations
 import logging
 import math
 
+from common.errors import DriverError, SafetyError
+from common.wiring import AnalogScale, RegulatorWiring, ValveWiring
+from drivers.io import BoxWatchdogConfig, UrArmConfig
+
 from ..base import Arm, BoxWatchdog, Pose, Regulator, ValveBank
-from ..errors import DriverError, SafetyError
-from ..io import AnalogScale, BoxWatchdogConfig, RegulatorWiring, UrArmConfig, ValveWiring
-from .link import WorkerLink
+from .link import WorkerConnection
 from .worker import SCRIPT_START_S
 
 log = logging.getLogger(__name__)
@@ -18,7 +20,7 @@ log = logging.getLogger(__name__)
 class UrValves(ValveBank):
     reports_outputs = True
 
-    def __init__(self, link: WorkerLink, wiring: dict[str, ValveWiring], safe: dict[str, bool]):
+    def __init__(self, link: WorkerConnection, wiring: dict[str, ValveWiring], safe: dict[str, bool]):
         super().__init__("ur-valves", safe)
         self.link, self.wiring = link, wiring
 
@@ -38,7 +40,7 @@ class WorkerKick(BoxWatchdog):
     """Kicks ur_rtde's RTDE watchdog through the worker; the control script stops (and the
     box's run-state output actions vent) when the kicks stop (drivers/ur/watchdog.py)."""
 
-    def __init__(self, link: WorkerLink, cfg: BoxWatchdogConfig):
+    def __init__(self, link: WorkerConnection, cfg: BoxWatchdogConfig):
         super().__init__("ur-rtde-watchdog", cfg.timeout_s)
         self.link = link
 
@@ -50,7 +52,7 @@ class WorkerKick(BoxWatchdog):
 
 
 class UrRegulator(Regulator):
-    def __init__(self, link: WorkerLink, wiring: RegulatorWiring, scale: AnalogScale):
+    def __init__(self, link: WorkerConnection, wiring: RegulatorWiring, scale: AnalogScale):
         super().__init__("ur-regulator")
         self.link, self.wiring, self.scale = link, wiring, scale
 
@@ -71,7 +73,7 @@ class UrArm(Arm):
     """The arm through ur_rtde's control script. ``move_l`` returns on arrival; a move that
     ends elsewhere (stopped, protective stop, script ended) raises."""
 
-    def __init__(self, link: WorkerLink, cfg: UrArmConfig):
+    def __init__(self, link: WorkerConnection, cfg: UrArmConfig):
         super().__init__("ur-arm", max_speed=cfg.max_speed_m_s, max_acc=cfg.max_acc_m_s2)
         self.link = link
 

@@ -17,13 +17,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ..errors import DeviceTimeoutError, DriverError, LinkLostError
-from ..remote import Link
+from common.errors import DeviceTimeoutError, DriverError, LinkLostError
+
+from ..remote import Connection
 
 log = logging.getLogger(__name__)
 
 
-class WorkerLink(Link):
+class WorkerConnection(Connection):
     def __init__(self, args: dict[str, Any], name: str = "ur-rtde", call_timeout_s: float = 2.0,
                  stale_s: float = 1.0) -> None:
         self.args = args

@@ -29,8 +29,9 @@ import asyncio
 import logging
 from collections.abc import Mapping
 
-from ..errors import LinkLostError
-from ..io import BoxWatchdogConfig, ValveWiring
+from common.errors import LinkLostError
+from common.wiring import ValveWiring
+from drivers.io import BoxWatchdogConfig
 
 log = logging.getLogger(__name__)
 

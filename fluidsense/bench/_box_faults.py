@@ -54,7 +54,7 @@ def _cell(tmp: Path, kind: str, host: str, driver: dict[str, Any]) -> Path:
 
 @contextlib.contextmanager
 def _simcell(cell: Path):
-    from drivers.sim.controlbox.process import EmulatorProcess
+    from simulator.controlbox.process import EmulatorProcess
 
     box = EmulatorProcess(command=[sys.executable, "-m", "fluidsense.cli", "simcell", "--config", str(cell)])
     box.start(timeout_s=30)
@@ -76,6 +76,21 @@ class _Daemon:
         self.sub.connect(cfg["pub"])
         self.cmd = cfg["cmd"]
         self._next(lambda t, m: t == "hello", 60)
+        # the daemon binds its sockets before it reaches its devices and refuses cycles until then
+        while self.request({"cmd": "status"})["state"] == "connecting":
+            pass  # each request waits for the daemon's answer
+
+    def request(self, payload: dict) -> dict:
+        req = self.ctx.socket(zmq.REQ)
+        req.setsockopt(zmq.LINGER, 0)
+        req.connect(self.cmd)
+        try:
+            req.send(json.dumps(payload).encode())
+            if not req.poll(30_000):
+                raise TimeoutError(f"no reply to {payload['cmd']}")
+            return json.loads(req.recv())
+        finally:
+            req.close()
 
     def _next(self, want, timeout_s: float) -> dict:
         deadline = time.monotonic() + timeout_s
@@ -89,14 +104,9 @@ class _Daemon:
         raise TimeoutError("the daemon did not get there")
 
     def hold(self) -> None:
-        req = self.ctx.socket(zmq.REQ)
-        req.setsockopt(zmq.LINGER, 0)
-        req.connect(self.cmd)
-        req.send(json.dumps({"cmd": "cycle"}).encode())
-        if not req.poll(30_000):
-            raise TimeoutError("no reply to cycle")
-        req.recv()
-        req.close()
+        reply = self.request({"cmd": "cycle"})
+        if not reply.get("ok"):
+            raise RuntimeError(f"cycle refused: {reply.get('error')}")
         self._next(lambda t, m: t == "state" and m.get("to") == "hold", 60)
 
     def close(self) -> None:
@@ -119,7 +129,7 @@ def _p_act_kpa(cell: Path, state: dict) -> float:
 
 
 def _one(kind: str, driver: dict[str, Any], scenario: str) -> float:
-    from drivers.sim.controlbox.process import free_loopback
+    from simulator.controlbox.process import free_loopback
 
     with tempfile.TemporaryDirectory(prefix="fluidsense-boxfaults-") as d:
         tmp = Path(d)

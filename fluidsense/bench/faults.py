@@ -58,7 +58,7 @@ def _cfg(seed: int, clock: str = "virtual"):
 
 async def inject_once(ctrl, kind: str, t_offset: float) -> dict[str, Any]:
     """Inject ``kind`` ``t_offset`` s into a fresh cycle; run until a fault or two cycles."""
-    cell = ctrl.backend.extras["cell"]
+    cell = ctrl.backend.sim
     rate = ctrl.backend.source.rate_hz
     fut = await ctrl.start_cycle()
     t_inj = ctrl.now + t_offset
@@ -75,8 +75,8 @@ async def inject_once(ctrl, kind: str, t_offset: float) -> dict[str, Any]:
             break
         fut = await ctrl.start_cycle()
     out = {"kind": kind, "t_inj": t_inj, "detected": False}
-    if ctrl.last_vent is not None and ctrl.fault is not None:
-        fault, t_vent = ctrl.last_vent
+    if ctrl.latch.last_vent is not None and ctrl.fault is not None:
+        fault, t_vent = ctrl.latch.last_vent
         out.update(detected=fault.kind in EXPECTED[kind], reported=fault.kind,
                    vent_latency_samples=int(round((t_vent - fault.t) * rate)),
                    detect_delay_s=max(fault.t - t_inj, 0.0), vented=ctrl.backend.valves.in_safe_state)
@@ -100,9 +100,9 @@ def _raise_in_loop(ctrl, t: float) -> None:
 
 
 async def _injections(kinds, n: int, seed: int) -> list[dict[str, Any]]:
+    from common.scenes import CylinderScene
     from controller.service import Controller
     from drivers.config import build_backend
-    from drivers.scenes import CylinderScene
 
     rng = np.random.default_rng(seed)
     cfg = _cfg(seed)
@@ -110,7 +110,7 @@ async def _injections(kinds, n: int, seed: int) -> list[dict[str, Any]]:
     cycle_s = seq.charge_s + seq.isolate_s + seq.actuate_s + seq.vent_s
     out = []
     async with Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware)) as ctrl:
-        await ctrl.set_scene(CylinderScene(diameter_mm=60))
+        await ctrl.scene.place(CylinderScene(diameter_mm=60))
         for kind in kinds:
             for _ in range(n):
                 out.append(await inject_once(ctrl, kind, float(rng.uniform(0, cycle_s))))
@@ -118,9 +118,9 @@ async def _injections(kinds, n: int, seed: int) -> list[dict[str, Any]]:
 
 
 async def _clean(cycles: int, seed: int) -> tuple[int, list[str]]:
+    from common.scenes import CylinderScene, EmptyScene
     from controller.service import Controller
     from drivers.config import build_backend
-    from drivers.scenes import CylinderScene, EmptyScene
 
     rng = np.random.default_rng(seed + 7)
     cfg = _cfg(seed + 1)
@@ -129,7 +129,7 @@ async def _clean(cycles: int, seed: int) -> tuple[int, list[str]]:
         for k in range(cycles):
             if k % 10 == 0:
                 d = float(rng.uniform(20, 110))
-                await ctrl.set_scene(EmptyScene() if d < 30 else CylinderScene(diameter_mm=d))
+                await ctrl.scene.place(EmptyScene() if d < 30 else CylinderScene(diameter_mm=d))
             await ctrl.run_cycle()
             if ctrl.fault is not None:
                 alarms.append(f"{ctrl.fault.kind}: {ctrl.fault.detail}")
@@ -139,9 +139,9 @@ async def _clean(cycles: int, seed: int) -> tuple[int, list[str]]:
 
 async def _overrun(n: int, seed: int) -> list[dict[str, Any]]:
     """Real time: a sink that blocks the loop for 0.5 s, once per cycle."""
+    from common.errors import FaultError
     from controller.service import Controller, Sink
     from drivers.config import build_backend
-    from drivers.errors import FaultError
 
     class Stall(Sink):
         def __init__(self):
@@ -168,8 +168,8 @@ async def _overrun(n: int, seed: int) -> list[dict[str, Any]]:
             except FaultError:
                 pass
             rec = {"kind": "overrun", "detected": False}
-            if ctrl.fault is not None and ctrl.last_vent is not None:
-                fault, t_vent = ctrl.last_vent
+            if ctrl.fault is not None and ctrl.latch.last_vent is not None:
+                fault, t_vent = ctrl.latch.last_vent
                 rec.update(detected=fault.kind == "overrun", reported=fault.kind,
                            vent_latency_samples=int(round((t_vent - fault.t) * ctrl.backend.source.rate_hz)),
                            detect_delay_s=0.0, vented=ctrl.backend.valves.in_safe_state)
@@ -181,7 +181,7 @@ async def _overrun(n: int, seed: int) -> list[dict[str, Any]]:
 
 def run_bench(injections: int = 20, clean_cycles: int = 1000, overrun_injections: int = 5,
               seed: int = SEED, box_runs: int = 0) -> dict[str, Any]:
-    from drivers.sim.backend import FAULTS
+    from simulator.cell import FAULTS
 
     from ._box_faults import run_box_faults
 

@@ -31,7 +31,7 @@ from typing import Any
 import yaml
 import zmq
 
-from controller.commands import MAX_FRAME_BYTES, MAX_HOPS, MAX_REQUEST_BYTES, MAX_ROUTING_ID_BYTES
+from controller.commands.server import MAX_FRAME_BYTES, MAX_HOPS, MAX_REQUEST_BYTES, MAX_ROUTING_ID_BYTES
 
 NAME = "fuzz"
 HELP = "hostile command messages (REQ and DEALER framing) against a live daemon: replies, drops, crashes"

@@ -226,7 +226,7 @@ def load(path: Path, loader: str) -> None:
 
 def outcome(path: Path, loader: str) -> tuple[str, str]:
     """("loaded" | "rejected" | "bad message" | "crash", detail) of loading ``path``."""
-    from drivers.errors import ConfigError
+    from common.errors import ConfigError
 
     try:
         load(path, loader)

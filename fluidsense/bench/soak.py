@@ -220,16 +220,16 @@ async def _cycles(ctrl, end_s: float, window_h: float) -> tuple[list, dict, list
     """Cycle through the scenes until ``end_s`` of sample time; memory after warm-up."""
     from pydantic import TypeAdapter
 
-    from drivers.scenes import Scene
+    from common.scenes import Scene
 
     parse_scene = TypeAdapter(Scene).validate_python
-    await ctrl.set_scene(parse_scene(SCENES["none"]))
+    await ctrl.scene.place(parse_scene(SCENES["none"]))
     await ctrl.run_cycle(store_reference=True)
     rows, rss, warm = [], [], None
     names = list(SCENES)
     while ctrl.now < end_s:
         scene = names[len(rows) % len(names)]
-        await ctrl.set_scene(parse_scene(SCENES[scene]))
+        await ctrl.scene.place(parse_scene(SCENES[scene]))
         res = await ctrl.run_cycle(label=scene)
         rows.append((scene, res.t_start, _kpa(res.p_eq), res.ok))
         if warm is None and ctrl.now >= window_h * HOUR:

@@ -58,9 +58,9 @@ def _profile(name: str, resistor: float):
 
 
 async def _collect(prof, target: str, cal_targets, test_targets, cal_cycles: int, seed: int):
-    from controller.decision import features_at
+    from common.scenes import CylinderScene, PlateScene
+    from controller.sensing.decision import features_at
     from controller.service import Controller
-    from drivers.scenes import CylinderScene, PlateScene
     from tasks.experiments import reference, sim_cell, sweep
 
     base = CylinderScene(diameter_mm=40) if target == "diameter_mm" else PlateScene(height_mm=0)
@@ -79,7 +79,7 @@ async def _collect(prof, target: str, cal_targets, test_targets, cal_cycles: int
 
 
 def _evaluate(cal, test, method: str, td: float) -> dict[str, Any]:
-    from controller.calibration import Calibration, CalibrationError
+    from controller.sensing.calibration import Calibration, CalibrationError
 
     xs = [x for x, f in cal if f[td][method] is not None]
     ys = [f[td][method] for x, f in cal if f[td][method] is not None]
@@ -129,7 +129,7 @@ def run_bench(trials: int = 200, cal_cycles: int = 6, seed: int = SEED,
               only: tuple[str, str] | None = None) -> dict[str, Any]:
     """All scenes and circuits, or ``only`` one (scene, circuit): its rows are the same
     either way (each pair has its own seeded cell)."""
-    from controller.decision import METHODS
+    from controller.sensing.decision import METHODS
 
     rows, t0 = [], time.perf_counter()
     for scene, (pname, target, cal_targets, (lo, hi)) in SCENES.items():
@@ -188,7 +188,7 @@ def write(out_dir: Path, res: dict[str, Any]) -> None:
     rows = res["rows"]
     (out_dir / "results.json").write_text(json.dumps({**res, "rows": _round(rows), "wall_s": None}, indent=1,
                                                      sort_keys=True) + "\n")
-    from controller.decision import METHODS
+    from controller.sensing.decision import METHODS
 
     fig, ax = figure(2, 2, width=5.2, height=3.6)
     for i, scene in enumerate(SCENES):
@@ -216,7 +216,7 @@ def write(out_dir: Path, res: dict[str, Any]) -> None:
 
 
 def _markdown(res) -> str:
-    from controller.decision import METHODS
+    from controller.sensing.decision import METHODS
 
     rows = res["rows"]
     crit = criterion(rows)

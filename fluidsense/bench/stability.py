@@ -101,10 +101,10 @@ def _variant(name: str, strength: float):
 
 
 async def _run_cell(prof, pert, scene_kw, targets, seed, cycles=1, drop=0):
+    from common.scenes import CylinderScene
+    from controller.config import CellConfig
     from controller.service import Controller
     from drivers.config import SimDriverConfig, build_backend
-    from controller.config import CellConfig
-    from drivers.scenes import CylinderScene
     from tasks.experiments import reference, sweep
 
     cfg = CellConfig(driver=SimDriverConfig(clock="virtual", seed=seed, perturb=pert), profile=prof)
@@ -132,7 +132,7 @@ def _features(ref_stale, runs) -> list[tuple[float, dict[str, float | None]]]:
 
 
 def size_part(name: str, trials: int, seed: int) -> list[dict[str, Any]]:
-    from controller.calibration import Calibration, CalibrationError
+    from controller.sensing.calibration import Calibration, CalibrationError
 
     nominal = _gripper()
     from drivers.config import Perturbations
@@ -174,8 +174,9 @@ def size_part(name: str, trials: int, seed: int) -> list[dict[str, Any]]:
 
 # ---------------------------------------------------------------------- tasks
 def _task(name: str):
-    from ..app import REPO_ROOT
     from tasks.config import cell_path, load_task
+
+    from ..app import REPO_ROOT
 
     path = REPO_ROOT / "config" / "tasks" / f"{name}.yaml"
     task = load_task(path)
@@ -185,7 +186,7 @@ def _task(name: str):
 def _attempt(task, cell, **kw) -> dict[str, Any] | None:
     """A task's summary, or None when it ended in a fault or an error: a failed run of
     the perturbed cell, which the row counts, not a failed benchmark."""
-    from drivers.errors import FluidsenseError
+    from common.errors import FluidsenseError
 
     try:
         return asyncio.run(_run_task(task, cell, **kw))

@@ -61,7 +61,7 @@ def _fault_line(stderr: str) -> str | None:
 
 
 def _sorting(kind: str, runs: int, rng) -> dict[str, Any]:
-    from drivers.sim.controlbox.process import EmulatorProcess, free_loopback
+    from simulator.controlbox.process import EmulatorProcess, free_loopback
 
     from ..app import REPO_ROOT
 

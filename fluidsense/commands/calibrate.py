@@ -8,8 +8,8 @@ import json
 import sys
 from pathlib import Path
 
-from controller.names import FEATURES, FIT_DEGREE
-from drivers.errors import CommandError, ConfigError, JobStopped
+from common.errors import CommandError, ConfigError, JobStopped
+from common.names import FEATURES, FIT_DEGREE
 
 from ..exitcodes import EXIT_FAULT, EXIT_INTERRUPTED, EXIT_OK
 from ..options import add_cell_options, add_scene_options, cell_config, scene_from_args
@@ -207,7 +207,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def cmd_sense(args: argparse.Namespace) -> int:
-    from controller.calibration import Calibration
+    from controller.sensing.calibration import Calibration
     from tasks.calibrate import sense
 
     from .. import app

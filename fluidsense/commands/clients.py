@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from controller.names import COMMANDS
+from common.names import COMMANDS
 
 from ..exitcodes import EXIT_BAD_INPUT, EXIT_OK
 
@@ -60,7 +60,7 @@ def cmd_cmd(args: argparse.Namespace) -> int:
         request = {"cmd": args.request}
     curve = (args.client_key, args.server_key) if args.client_key and args.server_key else None
     if curve is not None:
-        from controller.curve import read_secret_key
+        from controller.config.curve import read_secret_key
 
         read_secret_key(args.client_key)  # refused when others can read it, like the daemon's own key
     reply = send_command(endpoint, request, args.timeout, curve=curve)

@@ -8,7 +8,7 @@ import json
 import sys
 from typing import Any
 
-from drivers.errors import FluidsenseError
+from common.errors import FluidsenseError
 
 from ._common import setup_logging
 

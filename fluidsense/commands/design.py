@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from drivers.errors import ConfigError
+from common.errors import ConfigError
 
 from ..options import profile_path
 
@@ -35,9 +35,9 @@ def _floats(text: str, name: str) -> list[float]:
 def main(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from common.scenes import TARGETS
     from controller.config import load_profile
-    from drivers.scenes import TARGETS
-    from drivers.sim.resolution import evaluate, search
+    from simulator.resolution import evaluate, search
     from tasks.calibrate import scene_with
 
     prof = load_profile(profile_path(args.profile))

@@ -21,7 +21,7 @@ def register(sub) -> None:
 def main(args: argparse.Namespace) -> int:
     import zmq
 
-    from controller.curve import write_key_file
+    from controller.config.curve import write_key_file
 
     out = Path(args.dir)
     name = Path(args.client).name

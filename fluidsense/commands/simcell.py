@@ -7,7 +7,7 @@ import asyncio
 import logging
 import sys
 
-from drivers.errors import ConfigError
+from common.errors import ConfigError
 
 from ..options import add_scene_options, scene_from_args
 from ._common import setup_logging
@@ -36,10 +36,10 @@ def register(sub) -> None:
 def main(args: argparse.Namespace) -> int:
     from controller.config import load_cell_config
     from drivers.config import SimDriverConfig
-    from drivers.sim.controlbox.__main__ import main_async
-    from drivers.sim.controlbox.config import ControlBoxConfig
-    from drivers.sim.controlbox.plant import PlantModel
     from drivers.ur.config import RTDE_MAX_HZ
+    from simulator.controlbox.__main__ import main_async
+    from simulator.controlbox.config import ControlBoxConfig
+    from simulator.controlbox.plant import PlantModel
 
     cfg = load_cell_config(args.config)
     driver = cfg.driver

@@ -12,7 +12,7 @@ import signal
 import sys
 import threading
 
-from drivers.errors import ConfigError
+from common.errors import ConfigError
 
 from ..options import add_scene_options, scene_from_args
 from ._common import setup_logging
@@ -44,7 +44,7 @@ def register(sub) -> None:
 def main(args: argparse.Namespace) -> int:
     from controller.config import load_cell_config
     from drivers.config import SimDriverConfig
-    from drivers.serial.simdevice import SerialPlant, SimSerial, build_board
+    from ..serialboard import SerialPlant, SimSerial, build_board
 
     cfg = load_cell_config(args.config)
     driver = cfg.driver

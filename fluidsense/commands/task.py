@@ -6,7 +6,7 @@ import argparse
 import asyncio
 import json
 
-from drivers.errors import ConfigError, JobStopped
+from common.errors import ConfigError, JobStopped
 
 from ..exitcodes import EXIT_FAULT, EXIT_OK
 from ._common import print_stopped, setup_logging

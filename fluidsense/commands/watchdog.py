@@ -20,8 +20,8 @@ def register(sub) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    from common.errors import ConfigError
     from controller.config import load_cell_config
-    from drivers.errors import ConfigError
     from drivers.ur.watchdog import box_script, send_script
 
     cfg = load_cell_config(args.config)

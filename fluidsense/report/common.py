@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from controller.calibration import Calibration, feature_value
 from controller.config import Profile, load_profile
+from controller.sensing.calibration import Calibration, feature_value
 from controller.service import Controller
 from tasks.experiments import sim_cell
 

@@ -1,0 +1,255 @@
+"""A cell config: which driver, which profile, where to publish, how to supervise and
+record. A bad file fails before anything starts, with one line per problem in the form
+``FILE: field.path: reason``. Profiles may live in their own file (``profile: PATH``,
+relative to the file that names it); their errors then name the profile file.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import stat
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, Field, ValidationInfo, field_validator, model_validator
+
+from common.errors import ConfigError
+from common.files import one_line
+from common.models import FieldError, Integer, Real, StrictModel
+from drivers.config import DriverConfig
+
+from .curve import ALLOW_ANY, count_public_keys, read_secret_key
+from .loading import load_model, read_yaml, referenced_file, validate
+from .profile import Profile
+
+
+class Supervision(StrictModel):
+    """Thresholds of the safety supervisor (controller/supervisor.py)."""
+
+    stuck_s: Real = Field(0.25, gt=0, le=60, description="a pressure reading that does not change for this long is stuck")
+    leak_kpa_per_s: Real = Field(0.1, gt=0, le=100, description="decay towards atmosphere while held that is a leak")
+    no_data_s: Real = Field(0.5, gt=0, le=60, description="real time: no block for this long is a fault")
+    overrun_s: Real = Field(0.25, gt=0, le=60, description="real time: the loop this far behind the samples is a fault")
+
+
+class LoopConfig(StrictModel):
+    """Scheduling of the daemon's event loop (real time only)."""
+
+    rt_priority: Annotated[Integer, Field(ge=1, le=99)] | None = Field(
+        20, description="SCHED_FIFO priority of the sample loop's thread when permitted (null: normal "
+        "scheduling). Below the sampler process (40) and fluidsense simcell (30), above every normal process: "
+        "beside two busy processes at normal priority, a daemon at normal priority fell 0.25 s behind its "
+        "samples and faulted mid-task (docs/performance.md)")
+
+
+class CurveKeys(StrictModel):
+    """ZeroMQ CURVE for the command socket: the server's secret key file and a directory
+    of the public keys of the clients allowed in (``fluidsense keys`` makes both). Both are
+    checked at load: a key file others can read, or no client key to let in, would give a
+    daemon anyone or no one can command. Paths are relative to the working directory."""
+
+    server_secret_file: str = Field(min_length=1, max_length=4096)
+    allow_any_client: bool = Field(False, description="let any client key in (clients_dir must then be '*'): "
+                                   "traffic is encrypted but not authenticated")
+    clients_dir: str = Field(min_length=1, max_length=4096,
+                             description="directory of the allowed clients' public keys (*.key)")
+
+    @field_validator("server_secret_file")
+    @classmethod
+    def _private_key(cls, value: str) -> str:
+        read_secret_key(value)
+        return value
+
+    @field_validator("clients_dir")
+    @classmethod
+    def _known_clients(cls, value: str, info: ValidationInfo) -> str:
+        any_client = info.data.get("allow_any_client", False)
+        if value == ALLOW_ANY or any_client:
+            if not (value == ALLOW_ANY and any_client):
+                raise ValueError("'*' (any client key) and allow_any_client: true go together; "
+                                 "without them, name the directory of the allowed clients' public keys")
+            return value
+        if count_public_keys(value) == 0:
+            raise ValueError(f"{value}: holds no client public key (*.key): nobody could send a command")
+        return value
+
+
+def _is_local(endpoint: str) -> bool:
+    if endpoint.startswith(("ipc://", "inproc://")):
+        return True
+    host = endpoint.removeprefix("tcp://").rsplit(":", 1)[0]
+    return host in ("127.0.0.1", "localhost", "[::1]") or host.startswith("127.")
+
+
+class PublisherConfig(StrictModel):
+    """ZeroMQ endpoints. The command socket stays on loopback unless CURVE keys are
+    configured: whoever can reach it can move the gripper."""
+
+    pub: str = Field("tcp://127.0.0.1:5560", min_length=6, pattern=r"^(tcp|ipc|inproc)://")
+    cmd: str = Field("tcp://127.0.0.1:5561", min_length=6, pattern=r"^(tcp|ipc|inproc)://")
+    cmd_curve: CurveKeys | None = None
+    pressure_batch_s: Real = Field(0.1, gt=0, le=10, description="pressure samples are sent in batches this long")
+    heartbeat_s: Real = Field(1.0, gt=0, le=60)
+
+    @field_validator("pub", "cmd")
+    @classmethod
+    def _endpoint(cls, endpoint: str) -> str:
+        scheme, _, rest = endpoint.partition("://")
+        if scheme == "tcp":
+            host, colon, port = rest.rpartition(":")
+            if not colon or not host:
+                raise ValueError(f"{endpoint!r}: expected tcp://HOST:PORT")
+            # libzmq binds a wildcard port ("*", 0) or one past 65535 to a random port, where
+            # no client configured with this file would ever find the daemon
+            if not (port.isascii() and port.isdigit() and 1 <= int(port) <= 65535):
+                raise ValueError(f"{endpoint!r}: the port must be a number in 1..65535, got {port!r}")
+        elif not rest:
+            raise ValueError(f"{endpoint!r}: no address after {scheme}://")
+        return endpoint
+
+    @model_validator(mode="after")
+    def _distinct(self) -> PublisherConfig:
+        if self.pub == self.cmd:
+            raise FieldError("cmd", f"{self.cmd!r} is also the pub endpoint: each socket needs its own")
+        return self
+
+    @model_validator(mode="after")
+    def _remote_needs_keys(self) -> PublisherConfig:
+        if not _is_local(self.cmd) and self.cmd_curve is None:
+            raise ValueError(f"cmd {self.cmd!r} is not loopback: a command socket reachable from the network "
+                             "needs cmd_curve keys (fluidsense keys makes them)")
+        return self
+
+
+class RecordingConfig(StrictModel):
+    """What the daemon writes to disk (docs/recording.md): every sample block and event,
+    and the config, in MCAP files named by their start time in ``dir``."""
+
+    enabled: bool = Field(True, description="the daemon records (fluidsense run --no-record turns it off)")
+    dir: str = Field("runs", min_length=1, description="directory of the recordings, relative to the "
+                     "daemon's working directory; created if missing")
+    flush_s: Real = Field(1.0, gt=0, le=10, description="sample time between flushes: a killed daemon "
+                           "loses at most this much")
+    fsync: bool = Field(True, description="also force each flush to storage (power loss), off the sample loop")
+    compression: Literal["zstd", "lz4", "none"] = "zstd"
+    max_file_mb: Real = Field(1024.0, gt=0, le=1_000_000, description="start a new file, between cycles, "
+                               "once a file is this large")
+    max_file_s: Real = Field(3600.0, gt=0, le=7 * 86400, description="start a new file, between cycles, "
+                              "once a file covers this much sample time (the writer's index of a file stays "
+                              "in memory until the file is closed: ~1 KB per flush)")
+    min_free_mb: Real = Field(1024.0, ge=0, le=1_000_000, description="stop recording (and say so) when the "
+                               "disk has less free space than this")
+
+
+# The sample loop's pacing (CellConfig._paced): a block at most every 5 ms (200 loop
+# iterations a second, each handling a block, feeding the sinks and publishing) leaves
+# the event loop time to serve commands and signals; at least NO_DATA_BLOCKS blocks per
+# no_data_s lets a block arrive a few periods late before the wait for it is a fault.
+MIN_BLOCK_PERIOD_S = 0.005
+NO_DATA_BLOCKS = 5
+MIN_WINDOW_SAMPLES = 5
+
+
+class CellConfig(StrictModel):
+    """A whole cell: which driver, which actuator profile, where to publish."""
+
+    driver: DriverConfig
+    profile: Profile
+    publisher: PublisherConfig = PublisherConfig()
+    supervision: Supervision = Supervision()
+    recording: RecordingConfig = RecordingConfig()
+    loop: LoopConfig = LoopConfig()
+    log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
+
+    @model_validator(mode="after")
+    def _paced(self) -> CellConfig:
+        """The sample loop handles one block per iteration and yields to the event loop
+        (commands, publisher, signals) only between blocks. A block every ``block_size /
+        rate_hz`` seconds must leave it time to do so: below MIN_BLOCK_PERIOD_S (20 kHz in
+        blocks of 1 was accepted once) the loop never catches up and starves everything
+        else. It must also come well inside ``supervision.no_data_s``, or every wait for a
+        block is a ``no_data`` fault (10000 samples at 1 kHz: a block every 10 s)."""
+        rate, block = getattr(self.driver, "rate_hz", None), getattr(self.driver, "block_size", None)
+        if rate is None or block is None:
+            return self
+        period = block / rate
+        longest = self.supervision.no_data_s / NO_DATA_BLOCKS
+        if period < MIN_BLOCK_PERIOD_S:
+            raise FieldError("driver.block_size", f"block_size {block} at {rate:g} Hz is a block every "
+                             f"{period * 1e3:.3g} ms: at least {MIN_BLOCK_PERIOD_S * 1e3:g} ms per block "
+                             f"(block_size >= {math.ceil(MIN_BLOCK_PERIOD_S * rate)}) leaves the loop time to yield")
+        if period > longest:
+            raise FieldError("driver.block_size", f"block_size {block} at {rate:g} Hz is a block every {period:.3g} s: "
+                             f"at most {longest:.3g} s (supervision.no_data_s / {NO_DATA_BLOCKS}), or waiting for "
+                             "a block is a no_data fault")
+        seq = self.profile.sequence
+        spans = [(f"profile.sequence.windows.{i}", w.end_s - w.start_s) for i, w in enumerate(seq.windows)]
+        spans += [("profile.sequence.flow_window", seq.flow_window.end_s - seq.flow_window.start_s)] \
+            if seq.flow_window is not None else []
+        spans.append(("profile.sequence.offset_s", seq.offset_s))
+        for field, span in spans:
+            if span * rate < MIN_WINDOW_SAMPLES:
+                raise FieldError(field, f"{span:g} s holds {span * rate:.3g} samples at {rate:g} Hz: a mean over "
+                                 f"fewer than {MIN_WINDOW_SAMPLES} samples is mostly sensor noise")
+        return self
+
+    @model_validator(mode="after")
+    def _wired_to_the_profile(self) -> CellConfig:
+        wiring = getattr(self.driver, "wiring", None)
+        if wiring is None:
+            return self
+        hw = self.profile.hardware
+        problems = wiring.check_against(list(hw.circuit.safe_valves), hw.channels,
+                                        regulated=hw.circuit.kind in ("tank", "regulated"))
+        if hw.circuit.kind == "flow":
+            problems.append("a flow-controlled circuit cannot be driven through control-box I/O (no mass flow "
+                            "controller interface): use a tank or regulated circuit")
+        if problems:
+            raise ValueError("driver.wiring: " + "; ".join(problems))
+        return self
+
+
+# ---------------------------------------------------------------------- loading
+def load_profile(path: str | Path) -> Profile:
+    return load_model(Profile, path)
+
+
+def _check_files(cfg: CellConfig, path: Path) -> None:
+    """What must exist on disk when a cell config is loaded from a file (a recorded config
+    is validated without these: its files belong to another machine and time)."""
+    if cfg.driver.kind == "replay":  # relative to the working directory (docs/recording.md)
+        referenced_file(cfg.driver.file, path, "driver.file")
+    if not cfg.recording.enabled:
+        return
+    try:
+        st = os.stat(cfg.recording.dir)
+    except FileNotFoundError:
+        return  # the recorder creates it
+    except OSError as exc:  # a name too long, a path through a file
+        raise ConfigError(f"{path}: recording.dir: {exc.strerror or exc}") from exc
+    if not stat.S_ISDIR(st.st_mode):
+        raise ConfigError(f"{path}: recording.dir: {one_line(cfg.recording.dir)} exists and is not a directory")
+
+
+def load_cell_config(path: str | Path, overrides: dict[str, Any] | None = None) -> CellConfig:
+    """Load a cell config. ``overrides`` replace top-level sections' keys, e.g.
+    ``{"driver": {"clock": "virtual"}}`` (used by the demo and tests)."""
+    path = Path(path)
+    data = read_yaml(path)
+    if not isinstance(data, dict):
+        validate(CellConfig, data, path)  # says what the file holds instead of a mapping
+    profile = data.get("profile")
+    if isinstance(profile, str):
+        data = {**data, "profile": load_profile(referenced_file(path.parent / profile, path, "profile").resolve())}
+    elif isinstance(profile, dict):
+        data = {**data, "profile": validate(Profile, profile, path, prefix="profile.")}
+    for section, values in (overrides or {}).items():
+        current = data.get(section, {})
+        if isinstance(current, BaseModel):
+            current = current.model_dump()
+        if current is None or isinstance(current, dict):  # else the validation says what is wrong with it
+            data = {**data, section: {**(current or {}), **values}}
+    cfg = validate(CellConfig, data, path)
+    _check_files(cfg, path)
+    return cfg

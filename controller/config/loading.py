@@ -1,0 +1,116 @@
+"""Reading configuration files: YAML in, validated models out, every problem one line
+``FILE: field.path: reason`` (``FILE:LINE:COLUMN: ...`` when the problem has a place in
+the file) raised as one ConfigError.
+
+The files are untrusted: drivers/files.py opens them (regular files only, a size cap),
+controller/yamlfile.py builds the document (depth, aliases, duplicate keys, non-finite
+numbers, NUL), and the models check types (strict numbers), ranges and consistency.
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+from pydantic import BaseModel, ValidationError
+
+from common.errors import ConfigError
+from common.files import YAML_MAX_BYTES, check_name, decode_utf8, describe, one_line, read_bounded
+from common.models import FieldError
+from controller.config import yamlfile
+
+M = TypeVar("M", bound=BaseModel)
+
+
+def _field_path(loc: tuple, data: Any) -> str:
+    """Dotted field path of an error location, without the union tags pydantic inserts
+    (``driver.sim.rate_hz`` -> ``driver.rate_hz``): the path the user wrote."""
+    parts, node = [], data
+    for item in loc:
+        if isinstance(node, dict) and item not in node and item in (node.get("kind"), node.get("task")):
+            continue  # the tag of a discriminated union, not a key in the file
+        if isinstance(item, str) and item.startswith("function-"):
+            continue
+        parts.append(str(item))
+        if isinstance(node, dict):
+            node = node.get(item)
+        elif isinstance(node, list) and isinstance(item, int) and 0 <= item < len(node):
+            node = node[item]
+        else:
+            node = None
+    return ".".join(parts)
+
+
+def format_errors(path: str | Path, exc: ValidationError, data: Any, prefix: str = "") -> str:
+    lines = []
+    for err in exc.errors():
+        loc = _field_path(err["loc"], data)
+        msg = err["msg"].removeprefix("Value error, ")
+        cause = (err.get("ctx") or {}).get("error")
+        if isinstance(cause, FieldError):  # a model's check about one of its fields
+            loc, msg = f"{loc}.{cause.field}" if loc else cause.field, cause.reason
+        loc = f"{prefix}{loc}" if loc else (prefix.rstrip(".") or "(top level)")
+        if err["type"] == "extra_forbidden":
+            msg = "unknown field (not allowed here)"
+        elif err["type"] == "missing":
+            msg = "required field is missing"
+        lines.append(f"{path}: {one_line(loc)}: {one_line(msg)}")
+    return "\n".join(lines)
+
+
+def read_yaml(path: str | Path) -> Any:
+    """The document in a YAML file (None for an empty one)."""
+    path = check_name(path)
+    text = decode_utf8(read_bounded(path, YAML_MAX_BYTES, "a YAML file"), path)
+    try:
+        return yamlfile.parse(text)
+    except yamlfile.YamlRefused as exc:
+        raise ConfigError(f"{path}:{exc.mark.line + 1}:{exc.mark.column + 1}: {one_line(exc.field)}: "
+                          f"{one_line(exc.reason)}") from exc
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f":{mark.line + 1}:{mark.column + 1}" if mark else ""
+        reason = getattr(exc, "problem", None) or str(exc)
+        raise ConfigError(f"{path}{where}: YAML syntax: {one_line(reason)}") from exc
+    except ValueError as exc:  # an explicitly tagged value that cannot be built: !!int abc
+        raise ConfigError(f"{path}: YAML value: {one_line(str(exc))}") from exc
+
+
+def validate(model: type[M], data: Any, path: str | Path, prefix: str = "") -> M:
+    """Validate ``data`` read from ``path``; errors become ConfigError naming file and field."""
+    where = prefix.rstrip(".") or "(top level)"
+    if data is None and not prefix:
+        raise ConfigError(f"{path}: {where}: the file is empty")
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: {where}: expected a mapping, got {type(data).__name__}")
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(format_errors(path, exc, data, prefix)) from exc
+    except RecursionError as exc:  # a structure the YAML loader would have refused, built in code
+        raise ConfigError(f"{path}: {where}: nested too deeply") from exc
+
+
+def load_model(model: type[M], path: str | Path) -> M:
+    return validate(model, read_yaml(path), path)
+
+
+def referenced_file(path: str | Path, by: str | Path, field: str) -> Path:
+    """A file named by a field of another file must be a regular file that exists: the
+    error names the file and field that name it."""
+    text = os.fspath(path)
+    if "\0" in text:
+        raise ConfigError(f"{by}: {field}: the file name contains a NUL byte")
+    try:
+        st = os.stat(text)
+    except OSError as exc:
+        raise ConfigError(f"{by}: {field}: {one_line(text)}: {exc.strerror or exc}") from exc
+    if not stat.S_ISREG(st.st_mode):
+        raise ConfigError(f"{by}: {field}: {one_line(text)} is not a regular file ({describe(st.st_mode)})")
+    return Path(text)
+
+
+__all__ = ["format_errors", "load_model", "one_line", "read_yaml", "referenced_file", "validate"]

@@ -1,0 +1,196 @@
+"""An actuator profile: its hardware, its safe envelope, its cycle and its calibration
+protocol (config/profiles/*.yaml)."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field, model_validator
+
+from common.hardware import Actuator, Circuit, FlowSensor, GripperActuator, Hardware, Sensor, TankCircuit
+from common.models import FieldError, Integer, Real, StrictModel
+from common.scenes import Scene
+from common.units import KPA
+
+
+class Window(StrictModel):
+    """A measurement window, in seconds after the actuation valve opens."""
+
+    name: str = Field(min_length=1, max_length=40)
+    start_s: Real = Field(ge=0)
+    end_s: Real = Field(gt=0)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Window:
+        if not self.end_s > self.start_s:
+            raise ValueError(f"end_s ({self.end_s}) must be after start_s ({self.start_s})")
+        return self
+
+
+class FlowProfile(StrictModel):
+    """Flow-control programme (paper, Methods "Flow control with pressure measurement"):
+    ramp from 0 to ``flow_slpm`` in ``ramp_s``, hold ``hold_s``, then zero."""
+
+    flow_slpm: Real = Field(0.3, gt=0, le=100)
+    ramp_s: Real = Field(5.0, ge=0, le=600)
+    hold_s: Real = Field(4.0, ge=0, le=600)
+
+
+class SequenceConfig(StrictModel):
+    """One actuation cycle: CHARGE -> ISOLATE -> ACTUATE -> HOLD -> VENT.
+
+    Methods (paper, Methods "Distance sensing"): ``tank`` charges a tank to P0 and measures
+    the pressure the actuator settles at (method 1; with a free-air reference it also gives
+    the pressure-time features of method 4); ``pressure_flow`` holds the actuator at a
+    regulated P0 and integrates the flow into it (method 2); ``flow_control`` feeds a flow
+    profile and measures the pressure (method 3). A zero-length ISOLATE is skipped.
+    """
+
+    method: Literal["tank", "pressure_flow", "flow_control"] = "tank"
+    p0_kpa: Real = Field(63.0, ge=-100, le=1000,
+                          description="tank charge pressure (tank) or regulated pressure (pressure_flow)")
+    charge_s: Real = Field(10.0, gt=0, le=600)
+    isolate_s: Real = Field(10.0, ge=0, le=600)
+    actuate_s: Real = Field(20.0, gt=0, le=3600)
+    vent_s: Real = Field(10.0, gt=0, le=600)
+    offset_s: Real = Field(1.0, gt=0, le=60, description="sensor offset: mean of this long before opening")
+    windows: list[Window] = Field(default_factory=lambda: [Window(name="eq", start_s=4.0, end_s=5.0)],
+                                  min_length=1, max_length=16)
+    flow_window: Window | None = Field(
+        None, description="integrate the flow into the actuator over this window (pressure_flow: V_eq)")
+    flow_profile: FlowProfile | None = Field(None, description="flow_control: the flow programme")
+    isolate_actuator_at_s: Real | None = Field(
+        None, gt=0, description="close the actuation valve this long after opening and hold the actuator "
+        "isolated until VENT (needs a circuit with a separate vent valve)")
+    contact_threshold_kpa: Real = Field(0.5, gt=0, le=100, description="dP level for t_c by threshold")
+    onset_kpa: Real = Field(0.15, gt=0, le=100, description="dP level taken as the first rise (t_c at onset): "
+                             "about five times the noise of a smoothed dP")
+    smoothing_samples: Integer = Field(21, ge=3, le=1001, description="local quadratic regression span")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> SequenceConfig:
+        if self.offset_s > self.charge_s + self.isolate_s:
+            raise ValueError(f"offset_s ({self.offset_s}) must fit before the valve opens "
+                             f"(charge_s + isolate_s = {self.charge_s + self.isolate_s})")
+        for w in [*self.windows, *([self.flow_window] if self.flow_window else [])]:
+            if w.end_s > self.actuate_s:
+                raise ValueError(f"window {w.name!r} ends at {w.end_s} s, after the valve closes "
+                                 f"(actuate_s = {self.actuate_s})")
+        names = [w.name for w in self.windows]
+        if len(set(names)) != len(names):
+            raise ValueError(f"window names must be unique, got {names}")
+        if self.method == "flow_control" and self.flow_profile is None:
+            raise ValueError("method flow_control needs a flow_profile")
+        if self.method == "pressure_flow" and self.flow_window is None:
+            raise ValueError("method pressure_flow needs a flow_window to integrate over")
+        if self.method == "tank" and self.isolate_s == 0:
+            raise ValueError("method tank needs isolate_s > 0 (the tank must be isolated before opening)")
+        if self.isolate_actuator_at_s is not None and self.isolate_actuator_at_s >= self.actuate_s:
+            raise ValueError("isolate_actuator_at_s must come before the end of actuate_s")
+        return self
+
+    @property
+    def p0_pa(self) -> float:
+        return self.p0_kpa * KPA
+
+
+class Limits(StrictModel):
+    """Pressure envelope of the actuator (gauge). Nothing may command beyond it."""
+
+    max_kpa: Real = Field(gt=-100, le=1000)
+    min_kpa: Real = Field(ge=-101, le=1000)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Limits:
+        if not self.min_kpa < self.max_kpa:
+            raise ValueError(f"min_kpa ({self.min_kpa}) must be below max_kpa ({self.max_kpa})")
+        return self
+
+    @property
+    def max_pa(self) -> float:
+        return self.max_kpa * KPA
+
+    @property
+    def min_pa(self) -> float:
+        return self.min_kpa * KPA
+
+
+class CalibrationPlan(StrictModel):
+    """How this profile is calibrated by default (the paper's protocol for it)."""
+
+    scene: Scene = Field(description="scene whose target field is varied")
+    target: str = Field(min_length=1, description="the scene field that is the sensing target")
+    values: list[Real] = Field(min_length=2, max_length=200)
+    cycles: Integer = Field(8, ge=1, le=1000)
+    drop_first: Integer = Field(1, ge=0, le=100)
+    feature: Literal["p_eq", "v_eq", "dp_eq", "dp_max", "t_c_slope", "t_c_threshold", "t_c2"] = "p_eq"
+    fit: Literal["linear", "poly2", "poly3"] = "linear"
+
+    @model_validator(mode="after")
+    def _target_exists(self) -> CalibrationPlan:
+        if self.target not in type(self.scene).model_fields:
+            raise ValueError(f"target {self.target!r} is not a field of scene {self.scene.kind!r}")
+        if self.drop_first >= self.cycles:
+            raise ValueError(f"drop_first ({self.drop_first}) leaves no cycle of {self.cycles}")
+        return self
+
+
+class Profile(StrictModel):
+    """One actuator or gripper: its hardware, its safe envelope and its cycle."""
+
+    name: str = Field(min_length=1, max_length=80)
+    description: str = ""
+    circuit: Circuit = TankCircuit()
+    actuator: Actuator = GripperActuator()
+    sensor: Sensor = Sensor()
+    tank_sensor: Sensor = Sensor(offset_kpa=0.0)
+    flow_sensor: FlowSensor = FlowSensor()
+    limits: Limits = Limits(max_kpa=90.0, min_kpa=-5.0)
+    sequence: SequenceConfig = SequenceConfig()
+    calibration: CalibrationPlan | None = None
+
+    @model_validator(mode="after")
+    def _consistent(self) -> Profile:
+        seq, circuit = self.sequence, self.circuit
+        p0 = seq.p0_kpa
+        if seq.method != "flow_control":
+            lo, hi, margin = self.limits.min_kpa, self.limits.max_kpa, self.p0_margin_kpa
+            if not lo <= p0 <= hi:
+                raise FieldError("sequence.p0_kpa", f"{p0} is outside limits [{lo}, {hi}] kPa")
+            if not lo + margin <= p0 <= hi - margin:
+                raise FieldError("sequence.p0_kpa", f"{p0} is within {margin:.2f} kPa of limits [{lo}, {hi}] kPa: "
+                                 "the readings around P0 would cross the limit and fault the cycle (sensor offset, "
+                                 "noise and regulator repeatability); lower P0 or widen the limits")
+        needs = {"tank": "tank", "pressure_flow": "regulated", "flow_control": "flow"}[seq.method]
+        if circuit.kind != needs:
+            raise ValueError(f"sequence.method {seq.method!r} needs circuit.kind {needs!r}, got {circuit.kind!r}")
+        if seq.flow_window is not None and not circuit.flow_sensor:
+            raise ValueError("sequence.flow_window needs a circuit with flow_sensor: true")
+        if seq.isolate_actuator_at_s is not None and not getattr(circuit, "vent_valve", False):
+            raise ValueError("sequence.isolate_actuator_at_s needs circuit.vent_valve: true")
+        return self
+
+    @property
+    def p0_margin_kpa(self) -> float:
+        """How far inside the limits P0 must stay. The supervisor compares every raw reading
+        of every pressure channel with the limits; the tank sensor reads P0 for the whole
+        charge (charge_s + isolate_s: 2e4 samples per cycle at 1 kHz with the defaults),
+        and the actuator sensor gets there with the regulated methods. A reading is P0 +
+        the regulator's error for this charge (sd ``regulator_repeatability_kpa``, once
+        per cycle) + the sensor's offset + noise (sd ``noise_sd_kpa``, every sample) +
+        up to one quantum. The margin takes 4 sd of the regulator (beyond it: 3e-5 of
+        cycles) and 6 sd of the noise (2e4 samples x 1e-9 each: 2e-5 of cycles), plus the
+        largest |offset| and quantum. With the default sensors that is about 1.1 kPa. On
+        the simulated gripper at P0 = 63 kPa (offset 0 on the tank sensor) a limit 0.25 kPa
+        above P0 faulted 26 of 40 cycles, 0.5 kPa 1 of 400, 0.75 kPa none of 400. Real
+        regulators may overshoot a step: give their datasheet's repeatability (or more)
+        in the circuit so the margin covers it."""
+        sensors = [self.sensor, *([self.tank_sensor] if self.circuit.has_tank_sensor else [])]
+        regulator_sd = getattr(self.circuit, "regulator_repeatability_kpa", 0.0)
+        return (max(abs(s.offset_kpa) for s in sensors) + max(s.quantum_kpa for s in sensors)
+                + 4.0 * regulator_sd + 6.0 * max(s.noise_sd_kpa for s in sensors))
+
+    @property
+    def hardware(self) -> Hardware:
+        return Hardware(circuit=self.circuit, actuator=self.actuator, sensor=self.sensor,
+                        tank_sensor=self.tank_sensor, flow_sensor=self.flow_sensor)

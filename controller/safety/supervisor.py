@@ -1,0 +1,136 @@
+"""Safety supervisor: checks every block before the sequencer sees it (docs/safety.md).
+
+A finding is a ``Fault``; the controller answers any fault with the safe state (actuator
+vented, tank isolated, arm stopped), publishes it and latches it until ``reset``.
+
+Checks, per block: a pressure channel reading NaN, on its sensor's rail (out of range),
+frozen (stuck: not one changed reading for ``stuck_s``), beyond the profile's limits
+(positive and vacuum); a leak while the actuator is held (a sustained decay towards
+atmosphere after the measurement windows: three consecutive half-second slopes beyond
+``leak_kpa_per_s`` and beyond three standard errors of each slope, so that neither a
+single step such as an object slipping nor a noisy sensor is a leak); the arm
+protective-stopped. The controller adds no data, link loss and loop overrun, which are
+about blocks not arriving rather than their content.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from common.faults import Fault, FaultKind
+from common.samples import SampleBlock
+from common.units import KPA
+from controller.config import Profile, Supervision
+
+
+def _slope(t: np.ndarray, p: np.ndarray) -> tuple[float, float]:
+    """Least-squares slope and its standard error."""
+    tc = t - t.mean()
+    sxx = float(tc @ tc)
+    slope = float(tc @ (p - p.mean())) / sxx
+    resid = p - p.mean() - slope * tc
+    return slope, float(np.sqrt((resid @ resid) / (len(t) - 2) / sxx))
+
+
+class Supervisor:
+    def __init__(self, profile: Profile, cfg: Supervision | None = None):
+        self.cfg = cfg or Supervision()
+        self.max_pa = profile.limits.max_pa
+        self.min_pa = profile.limits.min_pa
+        # a reading on a sensor's rail means it is saturated: the true value is unknown
+        self.rails = {
+            "p_act": (profile.sensor.range_kpa[0] * KPA, profile.sensor.range_kpa[1] * KPA),
+            "p_tank": (profile.tank_sensor.range_kpa[0] * KPA, profile.tank_sensor.range_kpa[1] * KPA),
+        }
+        # a sensor declared noise-free and unquantised cannot be told from a stuck one
+        self.stuck_check = {
+            "p_act": profile.sensor.noise_sd_kpa > 0 or profile.sensor.quantum_kpa > 0,
+            "p_tank": profile.tank_sensor.noise_sd_kpa > 0 or profile.tank_sensor.quantum_kpa > 0,
+        }
+        self.vacuum = profile.sequence.p0_kpa < 0
+        self._last: dict[str, tuple[float, float]] = {}  # channel -> (value, since when unchanged)
+        self._hold: deque[tuple[float, float]] = deque()  # (t, p_act) while held after the windows
+        self._hold_t0: float | None = None
+
+    def check(self, block: SampleBlock, holding: bool = False, arm_stopped: bool = False) -> Fault | None:
+        """``holding``: the actuator is inflated and its windows are done (equilibrium)."""
+        if arm_stopped:
+            return Fault(FaultKind.PROTECTIVE_STOP, None, block.t_end, "the arm is protective-stopped")
+        for j, ch in enumerate(block.channels):
+            if not ch.startswith("p_"):
+                continue
+            fault = self._check_channel(ch, block.t, block.values[:, j])
+            if fault is not None:
+                return fault
+        if "p_act" in block.channels:
+            return self._check_leak(block, holding)
+        return None
+
+    def _check_channel(self, ch: str, t: np.ndarray, v: np.ndarray) -> Fault | None:
+        bad = ~np.isfinite(v)
+        if bad.any():
+            k = int(np.argmax(bad))
+            return Fault(FaultKind.SENSOR_NAN, ch, float(t[k]), f"{ch} reads NaN")
+        lo, hi = self.rails.get(ch, (-np.inf, np.inf))
+        rail = (v <= lo) | (v >= hi)
+        if rail.any():
+            k = int(np.argmax(rail))
+            return Fault(FaultKind.SENSOR_RANGE, ch, float(t[k]), f"{ch} at its range limit ({v[k] / KPA:.2f} kPa)")
+        over = v > self.max_pa
+        if over.any():
+            k = int(np.argmax(over))
+            return Fault(FaultKind.OVER_PRESSURE, ch, float(t[k]),
+                         f"{ch} {v[k] / KPA:.2f} kPa above the limit {self.max_pa / KPA:.2f} kPa")
+        under = v < self.min_pa
+        if under.any():
+            k = int(np.argmax(under))
+            return Fault(FaultKind.UNDER_PRESSURE, ch, float(t[k]),
+                         f"{ch} {v[k] / KPA:.2f} kPa below the limit {self.min_pa / KPA:.2f} kPa")
+        if self.stuck_check.get(ch, True):
+            return self._check_stuck(ch, t, v)
+        return None
+
+    def _check_stuck(self, ch: str, t: np.ndarray, v: np.ndarray) -> Fault | None:
+        value, since = self._last.get(ch, (np.nan, float(t[0])))
+        changed = np.nonzero(v != np.concatenate([[value], v[:-1]]))[0]
+        if len(changed):
+            since = float(t[changed[-1]])
+        self._last[ch] = (float(v[-1]), since)
+        if t[-1] - since >= self.cfg.stuck_s:
+            return Fault(FaultKind.SENSOR_STUCK, ch, since + self.cfg.stuck_s,
+                         f"{ch} has read {v[-1] / KPA:.3f} kPa for {t[-1] - since:.2f} s")
+        return None
+
+    def _check_leak(self, block: SampleBlock, holding: bool) -> Fault | None:
+        if not holding:
+            self._hold.clear()
+            self._hold_t0 = None
+            return None
+        p = block.channel("p_act")
+        if self._hold_t0 is None:
+            self._hold_t0 = float(block.t[0])
+        # keep 1.5 s, in block means (enough for three half-second slopes)
+        self._hold.append((float(block.t.mean()), float(p.mean())))
+        while self._hold and self._hold[-1][0] - self._hold[0][0] > 1.5:
+            self._hold.popleft()
+        if self._hold[-1][0] - self._hold_t0 < 1.5:
+            return None
+        tt, pp = np.array(self._hold).T
+        sign = 1.0 if self.vacuum else -1.0  # towards atmosphere
+        slopes, limits = [], []
+        for k in range(3):
+            sel = (tt >= tt[-1] - 1.5 + 0.5 * k) & (tt < tt[-1] - 1.0 + 0.5 * k + 1e-9)
+            if sel.sum() < 4:
+                return None
+            slope, se = _slope(tt[sel], pp[sel])
+            slopes.append(slope * sign / KPA)
+            # a slope within noise of zero is no evidence of a leak, however steep the
+            # noise makes it look: the limit rises to three standard errors
+            limits.append(max(self.cfg.leak_kpa_per_s, 3.0 * se / KPA))
+        if all(r > lim for r, lim in zip(slopes, limits)):
+            rate, limit = min(slopes), max(limits)
+            return Fault(FaultKind.LEAK, "p_act", float(block.t_end),
+                         f"held pressure falls {rate:.2f} kPa/s towards atmosphere (limit {limit:.2f} kPa/s)")
+        return None

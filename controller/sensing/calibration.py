@@ -1,0 +1,216 @@
+"""Calibration curves: fit a feature against a known target, invert it with an interval.
+
+The curve is fitted as the paper draws it, feature against target (P_eq against h), by
+least squares (numpy's polynomial fit), one point per cycle. Sensing inverts it: the
+estimate is the target whose predicted feature equals the measurement, and the 95 %
+interval is the classical inverse-prediction interval: the residual sd of the fit (which
+holds per-cycle noise and cycle-to-cycle variation) plus the uncertainty of the curve
+itself, divided by the local slope.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import Field, JsonValue, model_validator
+from scipy import optimize, stats
+
+from common.errors import ConfigError, FluidsenseError
+from common.files import MB, check_name, decode_utf8, nested_within, read_bounded
+from common.models import FieldError, Integer, Real, StrictModel
+from common.names import FEATURES, FIT_DEGREE, NEEDS_REFERENCE  # noqa: F401 - their home is light
+from controller.config.loading import validate
+
+FORMAT = "fluidsense-calibration/1"
+
+
+
+class CalibrationError(FluidsenseError, ValueError):
+    """A calibration cannot be fitted or inverted."""
+
+
+def feature_value(result, feature: str) -> float | None:
+    """The named feature of a cycle result, in its edge unit (None if not available)."""
+    attr, _, scale = FEATURES[feature]
+    v = getattr(result, attr)
+    return None if v is None or not math.isfinite(v) else v * scale
+
+
+@dataclass
+class Estimate:
+    estimate: float
+    interval95: tuple[float, float]
+    unit: str
+    feature: str
+    measured: float
+    extrapolated: bool
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["interval95"] = list(self.interval95)
+        return d
+
+
+@dataclass
+class Calibration:
+    """A fitted calibration with its metadata; saved as JSON."""
+
+    profile: str
+    method: str
+    feature: str
+    feature_unit: str
+    scene: dict[str, Any]
+    target: str
+    target_unit: str
+    fit: str
+    coeffs: list[float]  # highest power first (numpy.polyfit)
+    x: list[float]  # target of every calibration cycle
+    y: list[float]  # feature of every calibration cycle
+    window: dict[str, Any] = field(default_factory=dict)
+    date: str = ""
+    seed: int | None = None
+    cycles: int = 0
+    drop_first: int = 0
+    residual_sd: float = 0.0
+    r2: float = 0.0
+    format: str = FORMAT
+
+    # ------------------------------------------------------------------ fit
+    @classmethod
+    def fit_points(cls, x, y, fit: str = "linear", **meta) -> Calibration:
+        x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+        deg = FIT_DEGREE[fit]
+        if len(np.unique(x)) <= deg:
+            raise CalibrationError(f"a {fit} fit needs at least {deg + 1} distinct targets, got {len(np.unique(x))}")
+        if len(x) <= deg + 1:
+            raise CalibrationError(f"a {fit} fit needs more than {deg + 1} points to estimate its residual")
+        coeffs = np.polyfit(x, y, deg)
+        resid = y - np.polyval(coeffs, x)
+        dof = len(x) - (deg + 1)
+        sd = float(np.sqrt(np.sum(resid**2) / dof))
+        ss_tot = float(np.sum((y - y.mean()) ** 2))
+        r2 = 1.0 - float(np.sum(resid**2)) / ss_tot if ss_tot > 0 else 0.0
+        return cls(fit=fit, coeffs=[float(c) for c in coeffs], x=x.tolist(), y=y.tolist(), residual_sd=sd,
+                   r2=r2, date=meta.pop("date", _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")),
+                   **meta)
+
+    @property
+    def slope(self) -> float:
+        """Mean feature change per unit of target over the calibrated range."""
+        lo, hi = min(self.x), max(self.x)
+        return float((np.polyval(self.coeffs, hi) - np.polyval(self.coeffs, lo)) / (hi - lo))
+
+    def predict(self, x) -> np.ndarray:
+        return np.polyval(self.coeffs, x)
+
+    # -------------------------------------------------------------- invert
+    def invert(self, measured: float, n_measurements: int = 1) -> Estimate:
+        """Target for a measured feature, with its 95 % interval."""
+        lo, hi = min(self.x), max(self.x)
+        span = hi - lo
+        a, b = lo - 0.5 * span, hi + 0.5 * span  # search a little beyond the calibrated range
+        grid = np.linspace(a, b, 2001)
+        g = self.predict(grid) - measured
+        crossings = np.nonzero(np.sign(g[:-1]) != np.sign(g[1:]))[0]
+        if len(crossings) == 0:
+            raise CalibrationError(
+                f"measured {self.feature} {measured:.4g} {self.feature_unit} is outside what the calibration "
+                f"predicts for {self.target} in [{a:.3g}, {b:.3g}] {self.target_unit}")
+        mid = 0.5 * (lo + hi)
+        k = min(crossings, key=lambda i: abs(grid[i] - mid))  # prefer the root nearest the range
+        est = float(optimize.brentq(lambda v: float(self.predict(v)) - measured, grid[k], grid[k + 1]))
+        slope = float(np.polyval(np.polyder(self.coeffs), est))
+        if slope == 0:
+            raise CalibrationError(f"the calibration is flat at {self.target} = {est:.3g}: no resolution there")
+        x = np.asarray(self.x)
+        n = len(x)
+        deg = FIT_DEGREE[self.fit]
+        t = stats.t.ppf(0.975, n - (deg + 1))
+        sxx = float(np.sum((x - x.mean()) ** 2))
+        lever = 1.0 / n + (est - x.mean()) ** 2 / sxx if sxx > 0 else 1.0 / n
+        half = t * self.residual_sd * math.sqrt(1.0 / max(n_measurements, 1) + lever) / abs(slope)
+        return Estimate(est, (est - half, est + half), self.target_unit, self.feature, measured,
+                        extrapolated=not lo <= est <= hi)
+
+    # --------------------------------------------------------------- files
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
+
+    @classmethod
+    def load(cls, path: str | Path) -> Calibration:
+        """A calibration file, checked as untrusted input: a regular file of at most
+        ``MAX_FILE_BYTES``, UTF-8 JSON without NaN or infinity, every field of the right
+        type, the curve consistent with its points. Errors: ``FILE: field: reason``."""
+        path = check_name(path)
+        text = decode_utf8(read_bounded(path, MAX_FILE_BYTES, "a calibration file"), path)
+        try:
+            data = json.loads(text, parse_constant=_refuse_constant)
+        except json.JSONDecodeError as exc:
+            raise ConfigError(f"{path}:{exc.lineno}:{exc.colno}: not a calibration file: JSON: {exc.msg}") from exc
+        except ValueError as exc:  # NaN, Infinity
+            raise ConfigError(f"{path}: not a calibration file: {exc}") from exc
+        except RecursionError as exc:
+            raise ConfigError(f"{path}: not a calibration file: JSON nested too deeply") from exc
+        if not nested_within(data, MAX_DEPTH):
+            raise ConfigError(f"{path}: not a calibration file: JSON nested more than {MAX_DEPTH} levels deep")
+        if not isinstance(data, dict) or data.get("format") != FORMAT:
+            raise ConfigError(f"{path}: format: not a calibration file (format is not {FORMAT!r})")
+        return cls(**validate(CalibrationFile, data, path).model_dump())
+
+
+def _refuse_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a number a calibration can hold")
+
+
+# The largest calibration the profile's plan allows (200 targets x 1000 cycles, two
+# numbers a point) is about 10 MB of indented JSON; the shipped protocols write a few KB.
+MAX_FILE_BYTES = 16 * MB
+MAX_POINTS = 200 * 1000
+MAX_DEPTH = 16  # the scene and window objects are flat
+JsonObject = Annotated[dict[str, JsonValue], Field(max_length=100)]
+
+
+class CalibrationFile(StrictModel):
+    """What a calibration file must hold (what ``Calibration.save`` writes)."""
+
+    format: Literal["fluidsense-calibration/1"]
+    profile: str = Field(min_length=1, max_length=80, pattern=r"^[^\x00-\x1f]+$",
+                         description="the profile's name (sense looks it up in config/profiles/)")
+    method: str = Field(max_length=40)
+    feature: Literal[tuple(FEATURES)]  # type: ignore[valid-type]
+    feature_unit: str = Field(max_length=20)
+    scene: JsonObject
+    target: str = Field(min_length=1, max_length=80)
+    target_unit: str = Field(max_length=20)
+    fit: Literal[tuple(FIT_DEGREE)]  # type: ignore[valid-type]
+    coeffs: list[Real] = Field(min_length=2, max_length=4)
+    x: list[Real] = Field(max_length=MAX_POINTS)
+    y: list[Real] = Field(max_length=MAX_POINTS)
+    window: JsonObject = Field(default_factory=dict)
+    date: str = Field("", max_length=64)
+    seed: Integer | None = None
+    cycles: Integer = Field(0, ge=0)
+    drop_first: Integer = Field(0, ge=0)
+    residual_sd: Real = Field(0.0, ge=0)
+    r2: Real = 0.0
+
+    @model_validator(mode="after")
+    def _consistent(self) -> CalibrationFile:
+        deg = FIT_DEGREE[self.fit]
+        if len(self.coeffs) != deg + 1:
+            raise FieldError("coeffs", f"a {self.fit} fit has {deg + 1} coefficients, got {len(self.coeffs)}")
+        if len(self.x) != len(self.y):
+            raise FieldError("y", f"{len(self.y)} features for {len(self.x)} targets")
+        if len(set(self.x)) <= deg or len(self.x) <= deg + 1:
+            raise FieldError("x", f"a {self.fit} fit needs more than {deg + 1} points over at least {deg + 1} "
+                             f"distinct targets, got {len(self.x)} over {len(set(self.x))}")
+        return self

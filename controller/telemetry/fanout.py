@@ -1,0 +1,151 @@
+"""Telemetry: one fan-out of the controller's events to the publisher and the sinks (the
+recording, a test's probe, a monitor).
+
+Every event goes to both; two go to the sinks only, which a recording needs to replay a
+cycle exactly: ``cycle_start`` and ``command``. Pressure samples are published in
+batches. Nothing here raises into the sample loop: a publisher or sink that fails is
+reported to ``on_failure`` (the safety latch defers it as an internal fault, latched
+after the block), a sink that reports a failure it knows (a full disk stops a recording)
+is dropped and control goes on.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from common.errors import FluidsenseError
+from common.samples import SampleBlock
+from common.units import KPA, SLPM
+
+from ..config import PublisherConfig
+from .publisher import NullPublisher, Publisher
+
+log = logging.getLogger(__name__)
+
+_EDGE_SCALE = {"kPa": KPA, "SLPM": SLPM}
+
+
+def edge_unit(channel: str) -> str:
+    """Unit of a channel at the published edge: pressures in kPa, flows in SLPM."""
+    return "SLPM" if channel.startswith("flow") else "kPa"
+
+
+class Sink:
+    """Something that keeps what the controller sees. Every method is called from the
+    sample loop and must return quickly (a slow one queues its work elsewhere)."""
+
+    def on_block(self, block: SampleBlock) -> None: ...
+
+    def on_event(self, topic: str, t_s: float, payload: dict[str, Any]) -> None: ...
+
+    def flush(self, t_s: float) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class Telemetry:
+    def __init__(self, publisher: Publisher | NullPublisher, cfg: PublisherConfig, *, now: Callable[[], float],
+                 rate_hz: Callable[[], float], clock_origin: Callable[[], float | None],
+                 on_failure: Callable[[str], None]):
+        """``rate_hz`` and ``clock_origin``: the source's, asked when needed (a replayed
+        recording knows its rate only once it is open)."""
+        self.pub, self.cfg = publisher, cfg
+        self._now, self._rate_hz, self._origin, self._on_failure = now, rate_hz, clock_origin, on_failure
+        self.sinks: list[Sink] = []
+        self._batch: list[SampleBlock] = []
+        self._batch_start: float | None = None
+        self._next_heartbeat = 0.0
+        self._started = time.monotonic()
+
+    # ------------------------------------------------------------------ events
+    def emit(self, topic: str, payload: dict[str, Any]) -> None:
+        """Publish an event and hand it to every sink."""
+        try:
+            self.pub.send(topic, self._now(), payload)
+        except Exception as exc:  # noqa: BLE001
+            log.exception("publishing %s failed", topic)
+            self._on_failure(f"publishing {topic!r} failed: {type(exc).__name__}: {exc}")
+        self.record(topic, payload)
+
+    def record(self, topic: str, payload: dict[str, Any]) -> None:
+        """Hand an event to the sinks only."""
+        for sink in list(self.sinks):
+            try:
+                sink.on_event(topic, self._now(), payload)
+            except Exception as exc:  # noqa: BLE001 - dropped, and maybe a fault
+                self._drop(sink, exc)
+
+    def on_block(self, block: SampleBlock) -> None:
+        self._batch_pressure(block)
+        for sink in list(self.sinks):
+            try:
+                sink.on_block(block)
+            except Exception as exc:  # noqa: BLE001
+                self._drop(sink, exc)
+
+    def _drop(self, sink: Sink, exc: Exception) -> None:
+        """A sink that reports a failure it knows is dropped and control goes on; anything
+        else it raises is a bug: dropped, and a fault."""
+        self.sinks.remove(sink)
+        if isinstance(exc, FluidsenseError):
+            log.error("sink %s dropped: %s", type(sink).__name__, exc)
+            return
+        log.error("sink %s failed and was dropped: %s", type(sink).__name__, exc, exc_info=exc)
+        self._on_failure(f"sink {type(sink).__name__} failed: {type(exc).__name__}: {exc}")
+
+    # ------------------------------------------------------------------ heartbeat
+    def heartbeat_due(self) -> bool:
+        return self._now() >= self._next_heartbeat
+
+    def heartbeat(self, fields: dict[str, Any], proc_s) -> None:
+        """``fields``: the controller's state; ``proc_s``: block handling times (s), cleared."""
+        period = self.cfg.heartbeat_s
+        self._next_heartbeat = (np.floor(self._now() / period) + 1) * period
+        proc = np.array(proc_s) * 1e6 if proc_s else np.zeros(1)
+        self.emit("heartbeat", {**fields, "block_proc_us": {
+            "p50": float(np.percentile(proc, 50)), "p99": float(np.percentile(proc, 99)), "max": float(proc.max())},
+            "pub_dropped": self.pub.dropped, "uptime_s": time.monotonic() - self._started})
+        proc_s.clear()
+
+    # ------------------------------------------------------------------ pressure
+    def _batch_pressure(self, block: SampleBlock) -> None:
+        if self._batch_start is None:
+            self._batch_start = float(block.t[0])
+        self._batch.append(block)
+        # n samples cover n sample periods: a batch as long as one block is one block.
+        # Half a period of slack: a polled source stamps each read when it happens, and a
+        # first sample a few ns later than the last one must not hold the batch for a
+        # second block (measured: the oldest sample 20 ms old instead of 10 on Modbus)
+        period = 1.0 / self._rate_hz()
+        covered = self._now() + period - self._batch_start
+        if covered + 0.5 * period >= self.cfg.pressure_batch_s:
+            self.flush_pressure()
+
+    def flush_pressure(self) -> None:
+        if not self._batch:
+            return
+        t = np.concatenate([b.t for b in self._batch])
+        channels = self._batch[0].channels
+        v = np.vstack([b.values for b in self._batch]) / np.array([_EDGE_SCALE[edge_unit(c)] for c in channels])
+        origin = self._origin()
+        self.pub.send("pressure", self._now(), {
+            "t0_s": float(t[0]), "rate_hz": self._rate_hz(), "n": len(t),
+            "clock_origin_s": origin, "sent_s": None if origin is None else time.monotonic(),
+            "channels": list(channels), "units": [edge_unit(c) for c in channels],
+            "times_s": t.tolist(), "values": np.round(v, 5).T.tolist()})
+        self._batch, self._batch_start = [], None
+
+    def close(self) -> None:
+        """The last pressure batch out; every sink flushed and closed."""
+        self.flush_pressure()
+        for sink in self.sinks:
+            try:
+                sink.flush(self._now())
+                sink.close()
+            except Exception as exc:  # noqa: BLE001 - closing the others matters more
+                log.error("closing sink %s: %s", type(sink).__name__, exc)

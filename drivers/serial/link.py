@@ -24,7 +24,6 @@ import random
 import select
 import threading
 import time
-from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -37,6 +36,7 @@ from common.samples import SampleBlock
 from . import protocol as p
 from .clock import Timeline
 from .config import SerialDriverConfig
+from .session import DamageWindow, check_fit
 
 log = logging.getLogger(__name__)
 
@@ -82,8 +82,7 @@ class SerialLink:
         self._ks: list[int] = []
         self._rows: list[tuple[int, ...]] = []
         self._late: list[int] = []
-        self._damage: deque[tuple[float, int]] = deque()
-        self._damage_told = -1e9
+        self._damage = DamageWindow(cfg.damaged_limit)
         self._thread: threading.Thread | None = None
         self._wake: tuple[int, int] | None = None
 
@@ -145,7 +144,7 @@ class SerialLink:
         info = self.info
         if info is None:
             raise DriverError(f"{self.name}: HELLO acknowledged without INFO")
-        self._check_info(info)
+        check_fit(self.cfg, info)
         session = random.choice([s for s in range(1, 256) if s != previous_session])
         self.session = session
         self.timeline.new_session()
@@ -159,25 +158,6 @@ class SerialLink:
         log.info("%s: session %d started on %s (%s reset, %d-bit ADC)", self.name, session, info.board,
                  info.reset_cause, info.adc_bits)
         return info
-
-    def _check_info(self, info: p.Info) -> None:
-        w, c = self.cfg.wiring, self.cfg
-        problems = []
-        if info.version != p.PROTO_VERSION:
-            problems.append(f"it speaks protocol {info.version}, this driver {p.PROTO_VERSION}: flash firmware/")
-        if info.adc_bits != c.adc.bits:
-            problems.append(f"its ADC has {info.adc_bits} bits, driver.adc.bits says {c.adc.bits}")
-        if max(s.adc for s in w.sensors.values()) >= info.n_adc:
-            problems.append(f"it has analog inputs 0-{info.n_adc - 1}")
-        if max(v.output for v in w.valves.values()) >= info.n_outputs:
-            problems.append(f"it has digital outputs 0-{info.n_outputs - 1}")
-        if w.regulator is not None and w.regulator.analog_output >= info.n_aout:
-            problems.append(f"it has {info.n_aout} analog outputs")
-        if c.rate_hz > info.max_rate_hz:
-            problems.append(f"it samples at most {info.max_rate_hz} Hz, driver.rate_hz is {c.rate_hz}")
-        if problems:
-            raise ConfigError(f"driver: the device on {c.port} ({info.board}) does not fit this config: "
-                              + "; ".join(problems))
 
     async def command(self, kind: int, args: bytes = b"", tries: int | None = None,
                       timeout_s: float | None = None) -> p.Ack:
@@ -394,12 +374,8 @@ class SerialLink:
         self._post(self.queue.put_nowait, block)
 
     def _damaged(self, n: int, arrival: float) -> None:
-        self._damage.append((arrival, n))
-        while self._damage[0][0] < arrival - 1.0:
-            self._damage.popleft()
-        total = sum(c for _, c in self._damage)
-        if total > self.cfg.damaged_limit and arrival - self._damage_told > 10.0:
-            self._damage_told = arrival
+        total = self._damage.add(n, arrival)
+        if total is not None:
             self._post(self._fail, DriverError(
                 f"{self.name}: {total} frames lost or corrupt within one second (limit {self.cfg.damaged_limit}): "
                 "check the cable, its shield and ground, and the baud rate"))

@@ -25,5 +25,6 @@ static inline void fs_put_u32(uint8_t *p, uint32_t v) {
     p[0] = (uint8_t)v; p[1] = (uint8_t)(v >> 8); p[2] = (uint8_t)(v >> 16); p[3] = (uint8_t)(v >> 24);
 }
 static inline uint16_t fs_get_u16(const uint8_t *p) { return (uint16_t)(p[0] | ((uint16_t)p[1] << 8)); }
+static inline uint32_t fs_get_u32(const uint8_t *p) { return fs_get_u16(p) | (uint32_t)fs_get_u16(p + 2) << 16; }
 
 #endif

@@ -89,13 +89,6 @@ static void to_plant(uint8_t kind, uint32_t tick, uint32_t extra, uint64_t t_ns,
         stats.plant_dropped++;
 }
 
-static uint64_t get_u64(const uint8_t *p) {
-    uint64_t v = 0;
-    for (int i = 7; i >= 0; i--)
-        v = (v << 8) | p[i];
-    return v;
-}
-
 static void board_reset(void);
 
 static void from_plant(void) {
@@ -118,7 +111,7 @@ static void from_plant(void) {
         if (r[0] == REC_ADC) {
             for (int i = 0; i < FS_MAX_CH; i++)
                 analog[i] = fs_get_u16(r + 16 + 2 * i);
-            analog_ns = get_u64(r + 8);
+            analog_ns = (uint64_t)fs_get_u32(r + 8) | (uint64_t)fs_get_u32(r + 12) << 32;
         } else if (r[0] == REC_DO_RESET) {
             board_reset();
         }

@@ -1,6 +1,6 @@
 """Driver selection: a pydantic discriminated union on ``kind`` (``sim``, ``ur``,
-``modbus``, ``serial``, ``replay``); the chosen backend's module is imported only when it is built, so a cell
-that does not ask for the simulated plant (or for ur_rtde, or pymodbus) never imports it."""
+``modbus``, ``serial``, ``nidaqmx``, ``replay``); the chosen backend's module is imported only when it is
+built, so a cell that does not ask for the simulated plant (or for ur_rtde, pymodbus, nidaqmx) never imports it."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from common.models import Integer, Real, StrictModel
 from common.scenes import EmptyScene, Scene
 
 from .base import Backend
+from .daqmx.config import NiDaqDriverConfig
 from .io import BLOCK_SIZE
 from .modbus.config import ModbusDriverConfig
 from .serial.config import SerialDriverConfig
@@ -50,7 +51,8 @@ class ReplayDriverConfig(StrictModel):
     file: str = Field(min_length=1, description="the recording (.mcap)")
 
 
-AnyDriverConfig = SimDriverConfig | UrDriverConfig | ModbusDriverConfig | SerialDriverConfig | ReplayDriverConfig
+AnyDriverConfig = (SimDriverConfig | UrDriverConfig | ModbusDriverConfig | SerialDriverConfig | NiDaqDriverConfig
+                   | ReplayDriverConfig)
 DriverConfig = Annotated[AnyDriverConfig, Field(discriminator="kind")]
 
 _BACKEND_MODULES = {
@@ -58,6 +60,7 @@ _BACKEND_MODULES = {
     "ur": "drivers.ur.backend",
     "modbus": "drivers.modbus.backend",
     "serial": "drivers.serial.backend",
+    "nidaqmx": "drivers.daqmx.backend",
     "replay": "drivers.replay",
 }
 

@@ -51,7 +51,8 @@ def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("--source", choices=["sim", "modbus", "serial"], default="sim")
     p.add_argument("--reader", choices=["thread", "loop"], default=None,
                    help="serial: the driver's reader (default: the config's, thread)")
-    p.add_argument("--rate-hz", type=float, default=1000.0)
+    p.add_argument("--rate-hz", type=float, default=None,
+                   help="default 1000; modbus: 500 (an e-Series box refreshes its registers no faster)")
     p.add_argument("--load", nargs="?", const=-1, type=int, default=0,
                    help="competing CPU load: N busy processes (default: one per CPU)")
     p.add_argument("--late-us", type=float, default=50.0, help="a sample this late is late (default 50 us)")
@@ -113,7 +114,7 @@ def _cell_config(tmp: Path, source: str, rate: float, record: bool = True, reade
         cell = yaml.safe_load(modbus.read_text())
         # daemon and sampler only: the arm's ur_rtde worker (and its own 500 Hz RTDE
         # stream) is not part of the sampling path being measured
-        data["driver"] = {**cell["driver"], "arm": None}
+        data["driver"] = {**cell["driver"], "arm": None, "rate_hz": rate}
         data["profile"] = str((modbus.parent / cell["profile"]).resolve()) if isinstance(cell["profile"], str) \
             else cell["profile"]
     path = tmp / "cell.yaml"
@@ -288,7 +289,8 @@ def _pcts(x: np.ndarray, p999: bool = False) -> dict[str, float]:
 
 
 def run(args: argparse.Namespace) -> int:
-    res = run_bench(args.seconds, args.source, args.rate_hz, args.load, args.late_us, args.record, args.reader)
+    rate = args.rate_hz or (500.0 if args.source == "modbus" else 1000.0)
+    res = run_bench(args.seconds, args.source, rate, args.load, args.late_us, args.record, args.reader)
     if args.json:
         print(json.dumps(res, indent=1))
         return 0

@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test install clean lint-imports report speed-accuracy stability timing faults fuzz busy soak
+.PHONY: demo test install clean lint-imports report speed-accuracy stability timing faults fuzz busy soak firmware firmware-host
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -18,8 +18,19 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/fluidsense demo
 
-test: $(STAMP)
+# the serial driver's tests run the firmware's host board (gcc only); the AVR image is
+# built by `make firmware`, when avr-gcc is there
+test: $(STAMP) firmware-host
+	@command -v avr-gcc >/dev/null || echo "make test: avr-gcc not found: the AVR image is not built (make firmware builds it; apt-get install gcc-avr avr-libc)"
 	$(BIN)/python -m pytest -n 2 --dist loadfile
+
+# The serial streamer's firmware (firmware/README.md): the AVR image (size reported; needs
+# gcc-avr and avr-libc) and the host board that runs behind a pty in the tests.
+firmware:
+	$(MAKE) -C firmware all
+
+firmware-host:
+	$(MAKE) -C firmware host
 
 # Regenerates docs/reproduction (the paper's numbers beside ours; a few minutes).
 report: $(STAMP)
@@ -40,6 +51,7 @@ timing: $(STAMP)
 	$(BIN)/fluidsense bench sim --json > docs/performance/sim.json
 	$(BIN)/fluidsense bench timing --source sim --seconds $(TIMING_S) --json > docs/performance/timing-sim.json
 	$(BIN)/fluidsense bench timing --source modbus --seconds $(TIMING_S) --json > docs/performance/timing-modbus.json
+	$(BIN)/fluidsense bench timing --source serial --seconds $(TIMING_S) --json > docs/performance/timing-serial.json
 	$(BIN)/fluidsense bench sampler --seconds 60 --json > docs/performance/sampler.json
 
 # Fault-injection figures of docs/safety.md: in-process faults, then what only the box can
@@ -68,4 +80,4 @@ lint-imports: $(STAMP)
 	$(BIN)/lint-imports
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache
+	rm -rf $(VENV) build *.egg-info .pytest_cache firmware/build

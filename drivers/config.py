@@ -1,6 +1,6 @@
 """Driver selection: a pydantic discriminated union on ``kind`` (``sim``, ``ur``,
-``modbus``); the chosen backend's module is imported only when it is built, so a cell
-that does not ask for the simulated plant (or for ur_rtde, or pymodbus) never imports it."""
+``modbus``, ``serial``, ``nidaqmx``, ``replay``); the chosen backend's module is imported only when it is
+built, so a cell that does not ask for the simulated plant (or for ur_rtde, pymodbus, nidaqmx) never imports it."""
 
 from __future__ import annotations
 
@@ -14,8 +14,10 @@ from common.models import Integer, Real, StrictModel
 from common.scenes import EmptyScene, Scene
 
 from .backend import Backend
+from .daqmx.config import NiDaqDriverConfig
 from .io import BLOCK_SIZE
 from .modbus.config import ModbusDriverConfig
+from .serial.config import SerialDriverConfig
 from .ur.config import UrDriverConfig
 
 
@@ -49,13 +51,16 @@ class ReplayDriverConfig(StrictModel):
     file: str = Field(min_length=1, description="the recording (.mcap)")
 
 
-AnyDriverConfig = SimDriverConfig | UrDriverConfig | ModbusDriverConfig | ReplayDriverConfig
+AnyDriverConfig = (SimDriverConfig | UrDriverConfig | ModbusDriverConfig | SerialDriverConfig | NiDaqDriverConfig
+                   | ReplayDriverConfig)
 DriverConfig = Annotated[AnyDriverConfig, Field(discriminator="kind")]
 
 _BACKEND_MODULES = {
     "sim": "drivers.sim",
     "ur": "drivers.ur.backend",
     "modbus": "drivers.modbus.backend",
+    "serial": "drivers.serial.backend",
+    "nidaqmx": "drivers.daqmx.backend",
     "replay": "drivers.replay",
 }
 

@@ -16,6 +16,21 @@ BLOCK_SIZE = ("samples per delivered block. The block period block_size / rate_h
               "(else waiting for a block is a no_data fault); the cell config checks both")
 
 
+#: the control rate per UR controller generation: the box refreshes its I/O (RTDE outputs and
+#: the Modbus server's registers) no faster, so a faster poll reads each value again
+CONTROLLER_HZ = {"e-series": 500.0, "cb3": 125.0}
+
+
+def check_controller_rate(rate_hz: float, controller: str, path: str) -> float:
+    """``rate_hz`` when the generation's ``path`` (what carries the samples) delivers it."""
+    limit = CONTROLLER_HZ.get(controller)
+    if limit is not None and rate_hz > limit:
+        raise ValueError(f"{rate_hz:g} Hz: UR control-box analog inputs come through {path} at {limit:g} Hz at most on "
+                         f"{controller} controllers (the box's control rate; a faster poll reads each value again "
+                         "and stamps it as new); for 1 kHz use kind serial or nidaqmx (docs/drivers.md)")
+    return rate_hz
+
+
 class Reconnect(StrictModel):
     """After a lost link the source tries again, waiting ``first_s``, then twice as long
     each time up to ``max_s``. The cell stays in FAULT until an operator resets it."""

@@ -34,3 +34,22 @@ def test_sim_source_accounts_for_every_slot_and_cleans_up(tmp_path):
     assert res["recording"] is True and res["recorded_mb"] > 0  # the daemon recorded, as in production
     assert not list(tmp_path.glob("fluidsense-timing-*"))  # config, sockets and recording removed
 
+
+
+def test_serial_source_accounts_for_every_slot_and_reports_the_link(tmp_path):
+    """The daemon on the serial driver against the firmware's host board (fluidsense
+    simserial): samples are stamped from device ticks (on the grid: the host board
+    evaluates its inputs at the tick), every slot missing at the subscriber is one the
+    board skipped or a frame the link lost, and both sides' counts are reported."""
+    env = {**os.environ, "TMPDIR": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "bench", "timing", "--source", "serial",
+                          "--seconds", "2", "--json"], cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    res = json.loads(out.stdout)
+    assert res["source"] == "serial" and res["reader"] == "thread" and res["samples"] >= 1500
+    assert res["duplicated"] == 0 and res["lateness_us"]["max"] < 1e-3
+    link, board = res["link"], res["board"]
+    assert link["connections"] == 1 and link["resets"] == 0 and link["device"]["board"] == "host"
+    assert res["lost"] <= board["skipped"] + link["lost_frames"]  # every missing slot has its cause counted
+    assert board["ticks"] >= res["samples"] and 0 < res["device_cpu_percent"]
+    assert not list(tmp_path.glob("fluidsense-timing-*"))  # config, pty link and sockets removed

@@ -14,7 +14,8 @@ from common.models import StrictModel
 from controller.config import validate
 
 MODULES = ["common.hardware", "common.scenes", "common.world", "drivers.config", "drivers.sampler.config",
-           "drivers.io", "common.wiring", "drivers.ur.config", "drivers.modbus.config",
+           "drivers.io", "common.wiring", "drivers.ur.config", "drivers.modbus.config", "drivers.serial.config",
+           "drivers.daqmx.config",
            "controller.config", "controller.commands.server", "controller.sensing.calibration", "tasks.config"]
 for m in MODULES:
     importlib.import_module(m)
@@ -56,6 +57,21 @@ EXAMPLES = {
     "ModbusDriverConfig": {"host": "10.0.0.2", "wiring": {
         "valves": {"actuate": {"output": 1}},
         "sensors": {"p_act": {"analog_input": 0, "transfer": {"kind": "linear", "range_kpa": [0, 600]}}}}},
+    "SerialValveWiring": {"output": 1},
+    "SerialSensorWiring": {"adc": 0, "transfer": {"kind": "ratiometric", "range_kpa": [-34.5, 34.5]}},
+    "SerialWiring": {"valves": {"actuate": {"output": 1}},
+                     "sensors": {"p_act": {"adc": 0, "transfer": {"kind": "ratiometric", "range_kpa": [-34.5, 34.5]}}}},
+    "SerialDriverConfig": {"port": "/dev/ttyACM0", "wiring": {
+        "valves": {"actuate": {"output": 1}},
+        "sensors": {"p_act": {"adc": 0, "transfer": {"kind": "ratiometric", "range_kpa": [-34.5, 34.5]}}}}},
+    "DaqValveWiring": {"line": 1},
+    "DaqRegulatorWiring": {"analog_output": 0},
+    "DaqSensorWiring": {"ai": 0, "transfer": {"kind": "ratiometric", "range_kpa": [-34.5, 34.5]}},
+    "DaqWiring": {"valves": {"actuate": {"line": 1}},
+                  "sensors": {"p_act": {"ai": 0, "transfer": {"kind": "ratiometric", "range_kpa": [-34.5, 34.5]}}}},
+    "NiDaqDriverConfig": {"device": "Dev1", "wiring": {
+        "valves": {"actuate": {"line": 1}},
+        "sensors": {"p_act": {"ai": 0, "transfer": {"kind": "ratiometric", "range_kpa": [-34.5, 34.5]}}}}},
     "SortingTask": {"task": "sorting", "cell": "c.yaml", "slots": {"a": [0, 0, 0, 0, 0, 0], "b": [0, 0, 0, 0, 0, 0]},
                     "input_slots": ["a"], "sorted_slots": ["b"]},
     "PickingTask": {"task": "picking", "cell": "c.yaml", "slots": {"a": [0, 0, 0, 0, 0, 0], "b": [0, 0, 0, 0, 0, 0]},

@@ -110,6 +110,28 @@ def test_a_ur_config_asking_1khz_is_refused_with_the_rtde_limit(tmp_path):
         load_cell_config(write_cell(tmp_path, data))
 
 
+def test_a_modbus_config_asking_more_than_the_boxs_refresh_is_refused(tmp_path):
+    """A UR box refreshes its Modbus registers at its control rate: a faster poll would read
+    each value again and stamp it as a new sample. A Modbus I/O module states its own."""
+    data = _cell_data("modbus")
+    data["driver"]["rate_hz"] = 1000
+    path = write_cell(tmp_path, data)
+    with pytest.raises(ConfigError) as err:
+        load_cell_config(path)
+    assert str(err.value).startswith(f"{path}: driver.rate_hz: 1000 Hz: ") and "\n" not in str(err.value)
+    assert "through its Modbus server at 500 Hz at most on e-series" in str(err.value)
+    data["driver"].update(rate_hz=200, controller="cb3")
+    with pytest.raises(ConfigError, match="125 Hz at most on cb3"):
+        load_cell_config(write_cell(tmp_path, data))
+    data["driver"].update(rate_hz=125)
+    assert load_cell_config(write_cell(tmp_path, data)).driver.rate_hz == 125
+    data["driver"].update(rate_hz=1000, controller="io-module")
+    assert load_cell_config(write_cell(tmp_path, data)).driver.rate_hz == 1000
+    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "run", "--config", str(path)], cwd=REPO,
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and f"{path}: driver.rate_hz: 1000 Hz" in out.stderr and "Traceback" not in out.stderr
+
+
 def test_wiring_that_does_not_match_the_profile_is_refused(tmp_path):
     data = _cell_data("modbus")
     del data["driver"]["wiring"]["valves"]["supply"]

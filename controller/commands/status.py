@@ -25,6 +25,8 @@ def status_of(ctrl: Controller) -> dict[str, Any]:
         "task": ctrl.commands.task, "commands": None if ctrl.command_stats is None else ctrl.command_stats(),
         "publisher": ctrl.telemetry.pub.stats,
         "sinks": [sink.stats for sink in ctrl.telemetry.sinks if hasattr(sink, "stats")],
+        # a source that keeps link counts (the serial driver: frames lost and corrupt, resets, clock drift)
+        "source_link": getattr(ctrl.backend.source, "link_stats", lambda: None)(),
     }
 
 

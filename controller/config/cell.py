@@ -206,7 +206,7 @@ class CellConfig(StrictModel):
             problems.append("a flow-controlled circuit cannot be driven through control-box I/O (no mass flow "
                             "controller interface): use a tank or regulated circuit")
         if problems:
-            raise ValueError("driver.wiring: " + "; ".join(problems))
+            raise FieldError("driver.wiring", "; ".join(problems))
         return self
 
 

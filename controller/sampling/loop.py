@@ -163,7 +163,10 @@ class SampleLoop:
         """Real time only: how far the loop is behind its samples, against its best."""
         if self.virtual:
             return None
-        lag = asyncio.get_running_loop().time() - block.t_end
+        # against the host clock through the source's origin: a device whose clock drifts
+        # (a serial device's crystal) moves its origin, which is not the loop falling behind
+        origin = self.backend.source.clock_origin_s
+        lag = asyncio.get_running_loop().time() - block.t_end - (origin or 0.0)
         if self._wall_lag0 is None or lag < self._wall_lag0:
             self._wall_lag0 = lag
             return None

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from common.models import Host, Integer, Port, Real, StrictModel
 from common.wiring import AnalogScale, Wiring
-from drivers.io import BLOCK_SIZE, BoxWatchdogConfig, Reconnect, SamplerOptions, UrArmConfig
+from drivers.io import BLOCK_SIZE, BoxWatchdogConfig, Reconnect, SamplerOptions, UrArmConfig, check_controller_rate
 
 Register = Annotated[Integer, Field(ge=0, le=65535)]
 
@@ -49,7 +49,12 @@ class ModbusDriverConfig(StrictModel):
     port: Port = 502
     device_id: Integer = Field(1, ge=0, le=255, description="Modbus unit / slave id")
     timeout_s: Real = Field(0.5, gt=0, le=10, description="one request's answer")
-    rate_hz: Real = Field(1000.0, ge=1, le=5000)
+    controller: Literal["e-series", "cb3", "io-module"] = Field(
+        "e-series", description="what serves the registers: a UR control box of that generation refreshes them at "
+        "its control rate (500 Hz e-Series, 125 Hz CB3), and rate_hz may not exceed it; io-module: a Modbus I/O "
+        "module that converts at least as fast as rate_hz (check its data sheet)")
+    rate_hz: Real = Field(500.0, ge=1, le=5000, description="analog input polls per second (at most the "
+                          "controller's rate)")
     block_size: Integer = Field(10, ge=1, le=10_000, description=BLOCK_SIZE)
     registers: RegisterMap = RegisterMap()
     wiring: Wiring
@@ -62,3 +67,8 @@ class ModbusDriverConfig(StrictModel):
         "watchdog, e.g. a Modbus I/O module that cannot run one; docs/safety.md says what that leaves)")
     sim_control_port: Port | None = Field(
         None, description="simulated cells only (fluidsense simcell): its control port; absent on a real cell")
+
+    @field_validator("rate_hz")
+    @classmethod
+    def _box_rate(cls, rate_hz: float, info: ValidationInfo) -> float:
+        return check_controller_rate(rate_hz, info.data.get("controller", "e-series"), "its Modbus server")

@@ -9,10 +9,11 @@ from pydantic import Field, ValidationInfo, field_validator
 
 from common.models import Host, Integer, Port, Real, StrictModel
 from common.wiring import AnalogScale, Wiring
-from drivers.io import BLOCK_SIZE, BoxWatchdogConfig, Reconnect, SamplerOptions, UrArmConfig
+from drivers.io import (BLOCK_SIZE, CONTROLLER_HZ, BoxWatchdogConfig, Reconnect, SamplerOptions, UrArmConfig,
+                        check_controller_rate)
 
-#: highest RTDE output rate per controller generation (UR's RTDE guide)
-RTDE_MAX_HZ = {"e-series": 500.0, "cb3": 125.0}
+#: highest RTDE output rate per controller generation (UR's RTDE guide): the control rate
+RTDE_MAX_HZ = CONTROLLER_HZ
 
 
 class UrDriverConfig(StrictModel):
@@ -45,10 +46,4 @@ class UrDriverConfig(StrictModel):
     @field_validator("rate_hz")
     @classmethod
     def _rtde_rate(cls, rate_hz: float, info: ValidationInfo) -> float:
-        controller = info.data.get("controller", "e-series")
-        limit = RTDE_MAX_HZ[controller]
-        if rate_hz > limit:
-            raise ValueError(
-                f"{rate_hz:g} Hz: UR control-box analog inputs come through RTDE at {limit:g} Hz at most on "
-                f"{controller} controllers; for 1 kHz use a DAQ or a Modbus I/O module (kind: modbus)")
-        return rate_hz
+        return check_controller_rate(rate_hz, info.data.get("controller", "e-series"), "RTDE")

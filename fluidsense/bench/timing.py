@@ -1,14 +1,21 @@
 """``fluidsense bench timing``: the daemon at 1 kHz, measured from another process.
 
 Starts ``fluidsense run`` (real time) on the simulated cell (``--source sim``: hardware-
-timed, exact timestamps) or on a polled Modbus analog input served by the emulated UR
-control box (``--source modbus``: the sampler process polls it), attaches a ZeroMQ
-subscriber in this process and reports, for the samples it received:
+timed, exact timestamps), on a polled Modbus analog input served by the emulated UR
+control box (``--source modbus``: the sampler process polls it), or on the serial driver
+against the firmware's host board behind a pty, fed by the simulated cell (``--source
+serial``: ``fluidsense simserial``; hardware-timed by the board's timer, each sample
+stamped from its device tick), attaches a ZeroMQ subscriber in this process and
+reports, for the samples it received:
 - lost and duplicated samples (every slot of the grid accounted for),
 - lateness of each sample's timestamp against its slot (0 for a hardware-timed source),
 - end-to-end latency from a sample's timestamp to its arrival here (CLOCK_MONOTONIC is
   shared by the processes of a machine): the newest sample of each published block,
-- CPU used by the daemon and its sampler process.
+- CPU used by the daemon and its sampler process (and, for serial, by the simulated
+  device: the board process and the plant, which a real device does not take);
+- for serial, the link's counts from the daemon (frames lost and corrupt, retries,
+  clock offset and drift) and the board's (its timer's wake-up lateness, ticks whose
+  plant inputs came late, frames it dropped).
 Blocks are published as they come (``pressure_batch_s`` = one block). The daemon records
 as it does in production (MCAP, flushed every second), into the benchmark's temporary
 directory, which is removed at the end; ``--no-record`` measures without it.
@@ -41,8 +48,11 @@ DESCRIPTION = __doc__
 
 def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seconds", type=float, default=60.0, help="measurement length (default 60)")
-    p.add_argument("--source", choices=["sim", "modbus"], default="sim")
-    p.add_argument("--rate-hz", type=float, default=1000.0)
+    p.add_argument("--source", choices=["sim", "modbus", "serial"], default="sim")
+    p.add_argument("--reader", choices=["thread", "loop"], default=None,
+                   help="serial: the driver's reader (default: the config's, thread)")
+    p.add_argument("--rate-hz", type=float, default=None,
+                   help="default 1000; modbus: 500 (an e-Series box refreshes its registers no faster)")
     p.add_argument("--load", nargs="?", const=-1, type=int, default=0,
                    help="competing CPU load: N busy processes (default: one per CPU)")
     p.add_argument("--late-us", type=float, default=50.0, help="a sample this late is late (default 50 us)")
@@ -77,7 +87,7 @@ def _cpu_s(pid: int) -> float:
     return total
 
 
-def _cell_config(tmp: Path, source: str, rate: float, record: bool = True) -> Path:
+def _cell_config(tmp: Path, source: str, rate: float, record: bool = True, reader: str | None = None) -> Path:
     from ..app import REPO_ROOT
 
     block = 10
@@ -89,6 +99,14 @@ def _cell_config(tmp: Path, source: str, rate: float, record: bool = True) -> Pa
     }
     if source == "sim":
         data["driver"] = {"kind": "sim", "clock": "realtime", "rate_hz": rate, "block_size": block, "seed": 1}
+    elif source == "serial":
+        cell = yaml.safe_load((REPO_ROOT / "config" / "cell-serial-sim.yaml").read_text())
+        driver = {**cell["driver"], "port": str(tmp / "device.tty"), "rate_hz": int(rate)}
+        driver.pop("sim_control_port", None)
+        if reader is not None:
+            driver["reader"] = reader
+        data["driver"] = driver
+        data["profile"] = str(REPO_ROOT / "config" / cell["profile"])
     else:
         modbus = REPO_ROOT / "config" / "cell-modbus-sim.yaml"
         if not modbus.exists():
@@ -96,7 +114,7 @@ def _cell_config(tmp: Path, source: str, rate: float, record: bool = True) -> Pa
         cell = yaml.safe_load(modbus.read_text())
         # daemon and sampler only: the arm's ur_rtde worker (and its own 500 Hz RTDE
         # stream) is not part of the sampling path being measured
-        data["driver"] = {**cell["driver"], "arm": None}
+        data["driver"] = {**cell["driver"], "arm": None, "rate_hz": rate}
         data["profile"] = str((modbus.parent / cell["profile"]).resolve()) if isinstance(cell["profile"], str) \
             else cell["profile"]
     path = tmp / "cell.yaml"
@@ -105,10 +123,14 @@ def _cell_config(tmp: Path, source: str, rate: float, record: bool = True) -> Pa
 
 
 def run_bench(seconds: float = 60.0, source: str = "sim", rate: float = 1000.0, load: int = 0,
-              late_us: float = 50.0, record: bool = True) -> dict[str, Any]:
+              late_us: float = 50.0, record: bool = True, reader: str | None = None) -> dict[str, Any]:
     tmp = Path(tempfile.mkdtemp(prefix="fluidsense-timing-"))
     try:
-        return _measure(tmp, _cell_config(tmp, source, rate, record), seconds, source, rate, load, late_us, record)
+        cfg = _cell_config(tmp, source, rate, record, reader)
+        res = _measure(tmp, cfg, seconds, source, rate, load, late_us, record)
+        if source == "serial":
+            res["reader"] = yaml.safe_load(cfg.read_text())["driver"].get("reader", "thread")
+        return res
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
@@ -116,7 +138,15 @@ def run_bench(seconds: float = 60.0, source: str = "sim", rate: float = 1000.0, 
 def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, load: int, late_us: float,
              record: bool) -> dict[str, Any]:
     extra: list[subprocess.Popen] = []
-    rtt = None
+    rtt = device = None
+    if source == "serial":
+        device = subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "simserial", "--config", str(cfg)],
+                                  stdin=subprocess.DEVNULL, stdout=subprocess.PIPE)
+        extra.append(device)
+        ready = select.select([device.stdout], [], [], 60)[0] and device.stdout.readline().decode()
+        if not ready or not ready.startswith("ready"):
+            device.kill()
+            raise RuntimeError(f"fluidsense simserial did not start (said {ready!r})")
     if source == "modbus":
         box = subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "simcell", "--config", str(cfg)],
                                stdout=subprocess.PIPE)
@@ -145,6 +175,7 @@ def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, loa
             pr.start()
             burners.append(pr)
         cpu0, wall0 = _cpu_s(daemon.pid), time.monotonic()
+        dev_cpu0 = _cpu_s(device.pid) if device is not None else 0.0
         times, newest_age, oldest_age, in_daemon = [], [], [], []
         while time.monotonic() < stop_at:
             if not sub.poll(1000):
@@ -161,6 +192,8 @@ def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, loa
             in_daemon.append(msg["sent_s"] - (origin + t[-1]))
             oldest_age.append(arrival - (origin + t[0]))
         cpu = (_cpu_s(daemon.pid) - cpu0) / (time.monotonic() - wall0)
+        dev_cpu = (_cpu_s(device.pid) - dev_cpu0) / (time.monotonic() - wall0) if device is not None else None
+        link = _status(ctx, tmp).get("source_link") if source == "serial" else None
     finally:
         for pr in burners:
             pr.join(5)
@@ -169,9 +202,13 @@ def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, loa
             daemon.wait(30)
         except subprocess.TimeoutExpired:
             daemon.kill()
+        board = None
         for p in extra:
             p.terminate()
-            p.wait(30)
+            out, _ = p.communicate(timeout=30)
+            if p is device:
+                stats = [line[6:] for line in (out or b"").decode().splitlines() if line.startswith("stats ")]
+                board = json.loads(stats[-1]).get("board") if stats else None
         sub.close()
         ctx.term()
     recorded = sum(f.stat().st_size for f in (tmp / "runs").glob("*.mcap"))
@@ -199,7 +236,20 @@ def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, loa
         "cpu_percent": 100.0 * cpu,
         "recording": record, "recorded_mb": recorded / 2**20,
         "modbus_read_us": rtt,
+        **({"device_cpu_percent": 100.0 * dev_cpu, "link": link, "board": board} if source == "serial" else {}),
     }
+
+
+def _status(ctx: zmq.Context, tmp: Path) -> dict[str, Any]:
+    """The daemon's status (its link counts), asked on its command socket."""
+    req = ctx.socket(zmq.REQ)
+    req.setsockopt(zmq.LINGER, 0)
+    req.connect(f"ipc://{tmp}/cmd")
+    try:
+        req.send(json.dumps({"cmd": "status"}).encode())
+        return json.loads(req.recv()) if req.poll(10_000) else {}
+    finally:
+        req.close()
 
 
 def _modbus_read_times(cfg: Path, n: int = 5000) -> dict[str, float]:
@@ -239,7 +289,8 @@ def _pcts(x: np.ndarray, p999: bool = False) -> dict[str, float]:
 
 
 def run(args: argparse.Namespace) -> int:
-    res = run_bench(args.seconds, args.source, args.rate_hz, args.load, args.late_us, args.record)
+    rate = args.rate_hz or (500.0 if args.source == "modbus" else 1000.0)
+    res = run_bench(args.seconds, args.source, rate, args.load, args.late_us, args.record, args.reader)
     if args.json:
         print(json.dumps(res, indent=1))
         return 0
@@ -249,4 +300,13 @@ def run(args: argparse.Namespace) -> int:
           f"{100 * res['late_fraction']:.3f} % late; lateness p50/p99/p99.9/max {lat['p50']:.1f}/{lat['p99']:.1f}/"
           f"{lat['p999']:.1f}/{lat['max']:.1f} us; latency to subscriber p50/p99/max {e2e['p50']:.2f}/"
           f"{e2e['p99']:.2f}/{e2e['max']:.2f} ms; CPU {res['cpu_percent']:.1f} % of one core")
+    if res["source"] == "serial":
+        link, board = res["link"] or {}, res["board"] or {}
+        wake = board.get("wake_late_us", {})
+        print(f"serial ({res['reader']} reader): {link.get('frames')} frames, {link.get('lost_frames')} lost, "
+              f"{link.get('corrupt_frames')} corrupt, {link.get('retries')} command retries, {link.get('resets')} "
+              f"resets, clock drift {link.get('drift_ppm', 0.0):.1f} ppm; board: {board.get('ticks')} ticks, "
+              f"{board.get('stale')} with late plant inputs, {board.get('skipped')} skipped, {board.get('tx_dropped')} "
+              f"frames dropped, timer wake-up lateness p50/p99/max {wake.get('p50')}/{wake.get('p99')}/"
+              f"{wake.get('max')} us; simulated device CPU {res['device_cpu_percent']:.1f} %")
     return 0

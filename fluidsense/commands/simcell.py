@@ -50,7 +50,7 @@ def main(args: argparse.Namespace) -> int:
     logging.getLogger("pymodbus").setLevel(logging.WARNING)
     modbus_port = args.modbus_port or (driver.port if driver.kind == "modbus" else 5020)
     box = ControlBoxConfig(host=driver.host, modbus_port=modbus_port, analog=driver.analog,
-                           rtde_max_hz=RTDE_MAX_HZ[getattr(driver, "controller", "e-series")])
+                           rtde_max_hz=RTDE_MAX_HZ.get(getattr(driver, "controller", "e-series"), RTDE_MAX_HZ["e-series"]))
     sim = SimDriverConfig(clock="realtime", rate_hz=1000.0, block_size=1, seed=args.seed,
                           **({"scene": s} if (s := scene_from_args(args)) is not None else {}))
     model = PlantModel(cfg.profile.hardware, driver.wiring, sim)

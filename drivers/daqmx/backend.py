@@ -1,0 +1,296 @@
+"""Build the NI-DAQmx backend: one hardware-timed analog input task read in blocks, one
+static digital output task for the valves, one static analog output task for the
+regulator (docs/drivers.md).
+
+Sample time is the device's sample clock: sample k is at k / rate_hz, exactly, because
+the input buffer never drops a sample silently (DAQmx's "do not overwrite unread
+samples": a buffer the loop lets fill stops the acquisition with an error, and that
+error is a driver fault here). The host clock only aligns sample time with other
+processes (``clock_origin_s``). Every DAQmx call that can wait runs on a thread of its
+own, never in the event loop: the read waits for a block by design, and a USB device's
+on-demand write takes a round trip.
+
+The tasks come from ``task_factory`` (``nidaqmx.Task`` on a real machine): the tests put
+a stand-in there, because NI's driver library cannot run where they run.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import numpy as np
+
+from common.errors import ConfigError, DeviceTimeoutError, DriverError, LinkLostError
+from common.hardware import Hardware, RegulatedCircuit, TankCircuit
+from common.samples import SampleBlock
+
+from ..backend import Backend
+from ..base import Regulator, SampleSource, ValveBank
+from .config import DaqRegulatorWiring, NiDaqDriverConfig
+
+log = logging.getLogger(__name__)
+
+TaskFactory = Callable[[str], Any]
+
+
+class BufferOverflowError(DriverError):
+    """The input buffer filled before the loop read it: samples were lost."""
+
+
+def _daqmx():
+    try:
+        import nidaqmx  # noqa: PLC0415 - only a cell that asks for this driver needs NI's package
+    except ImportError as exc:
+        raise ConfigError("driver.kind: nidaqmx needs NI's Python package: pip install 'fluidsense[nidaqmx]' (and "
+                          "the NI-DAQmx runtime from NI)") from exc
+    return nidaqmx
+
+
+def translate(exc: Exception, what: str) -> Exception:
+    """A DAQmx error as one of ours, by its code (nidaqmx.error_codes.DAQmxErrors)."""
+    from nidaqmx.error_codes import DAQmxErrors as E  # noqa: PLC0415, N817
+    from nidaqmx.errors import DaqNotFoundError  # noqa: PLC0415
+
+    code = getattr(exc, "error_code", None)
+    text = f"{what}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+    if isinstance(exc, DaqNotFoundError):
+        return ConfigError(f"driver: {text} (install the NI-DAQmx runtime)")
+    if code in (E.SAMPLES_NO_LONGER_AVAILABLE, E.ACQ_STOPPED_TO_PREVENT_INPUT_BUFFER_OVERWRITE,
+                E.ACQ_STOPPED_TO_PREVENT_INPUT_BUFFER_OVERWRITE_ONE_DATA_XFER_MECH):
+        return BufferOverflowError(f"{what}: the input buffer overflowed: samples were lost (the loop fell more "
+                                   "than driver.buffer_s behind); acquisition restarts")
+    if code == E.SAMPLES_NOT_YET_AVAILABLE:
+        return DeviceTimeoutError(text)
+    if code == E.DEVICE_REMOVED:
+        return LinkLostError(f"{text} (unplugged?)")
+    if code in (E.INVALID_DEVICE_ID, E.PHYSICAL_CHAN_DOES_NOT_EXIST):
+        return ConfigError(f"driver: {text}")
+    return DriverError(text)
+
+
+class _Worker:
+    """One thread for one task's blocking calls, in order."""
+
+    def __init__(self, name: str):
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix=name)
+
+    async def run(self, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+        return await asyncio.get_running_loop().run_in_executor(self._pool, lambda: fn(*args, **kwargs))
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=False)
+
+
+class DaqSource(SampleSource):
+    def __init__(self, cfg: NiDaqDriverConfig, hw: Hardware, task_factory: TaskFactory):
+        super().__init__(f"nidaqmx {cfg.device}")
+        self.cfg, self.rate_hz, self.channels = cfg, float(cfg.rate_hz), hw.channels
+        self._factory = task_factory
+        affine = [cfg.wiring.sensors[c].transfer.affine() for c in self.channels]
+        self._gain = np.array([g for g, _ in affine])
+        self._offset = np.array([o for _, o in affine])
+        self.buffer = int(round(cfg.buffer_s * cfg.rate_hz))
+        self._task: Any = None
+        self._worker = _Worker("daqmx-ai")
+        self._k = 0  # sample time of the next sample, in samples
+        self._k_start = 0  # the current acquisition's first sample
+        self._origin: float | None = None
+        self._seq = 0
+        self._restart = False
+        self._missed_pending = 0  # slots between two acquisitions, reported with the next block
+        self.overflows = 0
+
+    @property
+    def clock_origin_s(self) -> float | None:
+        return self._origin
+
+    async def _setup(self) -> None:
+        await self._worker.run(self._start_task)
+        self._origin = time.monotonic()
+
+    def _start_task(self) -> None:
+        from nidaqmx.constants import AcquisitionType, OverwriteMode, TerminalConfiguration  # noqa: PLC0415
+
+        terminals = {"default": TerminalConfiguration.DEFAULT, "rse": TerminalConfiguration.RSE,
+                     "nrse": TerminalConfiguration.NRSE, "differential": TerminalConfiguration.DIFF,
+                     "pseudo_differential": TerminalConfiguration.PSEUDO_DIFF}
+        task = self._factory(f"fluidsense-ai-{self.cfg.device}")
+        try:
+            for name in self.channels:
+                s = self.cfg.wiring.sensors[name]
+                lo, hi = s.limits()
+                add = task.ai_channels.add_ai_voltage_chan if s.transfer.domain == "voltage" \
+                    else task.ai_channels.add_ai_current_chan
+                add(self.cfg.physical("ai", s.ai), name_to_assign_to_channel=name,
+                    terminal_config=terminals[s.terminal], min_val=lo, max_val=hi)
+            task.timing.cfg_samp_clk_timing(self.rate_hz, source=self.cfg.clock_source,
+                                            sample_mode=AcquisitionType.CONTINUOUS, samps_per_chan=self.buffer)
+            task.in_stream.input_buf_size = self.buffer
+            # an unread sample is never overwritten: a full buffer is an error we see
+            task.in_stream.over_write = OverwriteMode.DO_NOT_OVERWRITE_UNREAD_SAMPLES
+            task.start()
+        except Exception as exc:
+            task.close()
+            raise translate(exc, self.name) from exc
+        self._task = task
+
+    async def _stop(self) -> None:
+        task, self._task = self._task, None
+        if task is not None:
+            await self._worker.run(_close, task)
+        self._worker.close()
+
+    def _read(self) -> tuple[np.ndarray, float]:
+        try:
+            data = self._task.read(number_of_samples_per_channel=self.cfg.block_size,
+                                   timeout=self.cfg.read_timeout_s)
+        except Exception as exc:
+            raise translate(exc, self.name) from exc
+        # one channel reads as a flat list, several as one list per channel
+        return np.asarray(data, dtype=float).reshape(len(self.channels), -1).T, time.monotonic()
+
+    async def _read_block(self) -> SampleBlock:
+        if self._restart:
+            await self._restart_task()
+        try:
+            signal, arrival = await self._worker.run(self._read)
+        except (BufferOverflowError, LinkLostError) as exc:
+            self.overflows += isinstance(exc, BufferOverflowError)
+            self._restart = True
+            raise
+        n = len(signal)
+        k = self._k + np.arange(n)
+        self._k += n
+        t = k / self.rate_hz
+        # the least delayed block bounds the origin best (a block arrives after its last sample)
+        self._origin = min(self._origin, arrival - t[-1])
+        missed, self._missed_pending = self._missed_pending, 0
+        self._seq += 1
+        return SampleBlock(self._seq, t, (signal - self._offset) / self._gain, self.channels, missed=missed)
+
+    async def _restart_task(self) -> None:
+        """A new acquisition after an overflow or a lost device. Its first sample comes at
+        the host time it starts: the slots in between are reported missed."""
+        old, self._task = self._task, None
+        if old is not None:
+            await self._worker.run(_close, old)
+        await self._worker.run(self._start_task)
+        self._restart = False
+        k = max(self._k, int(np.ceil((time.monotonic() - self._origin) * self.rate_hz)))
+        self._missed_pending = k - self._k
+        self._k = k
+        log.warning("%s: acquisition restarted at sample %d (%d slots missed)", self.name, k, self._missed_pending)
+
+
+def _close(task: Any) -> None:
+    try:
+        task.stop()
+    finally:
+        task.close()
+
+
+class DaqValves(ValveBank):
+    def __init__(self, cfg: NiDaqDriverConfig, safe: dict[str, bool], task_factory: TaskFactory):
+        super().__init__(f"nidaqmx {cfg.device} lines", safe)
+        self.cfg, self._factory = cfg, task_factory
+        self.wiring = {v: cfg.wiring.valves[v] for v in self.names}
+        self.reports_outputs = cfg.do_read_back
+        self._levels = {v: w.level(safe[v]) for v, w in self.wiring.items()}
+        self._task: Any = None
+        self._worker = _Worker("daqmx-do")
+
+    async def _setup(self) -> None:
+        await self._worker.run(self._open)
+
+    def _open(self) -> None:
+        from nidaqmx.constants import LineGrouping  # noqa: PLC0415
+
+        task = self._factory(f"fluidsense-do-{self.cfg.device}")
+        try:
+            for valve, w in self.wiring.items():
+                task.do_channels.add_do_chan(self.cfg.physical("line", w.line, w.port), name_to_assign_to_lines=valve,
+                                             line_grouping=LineGrouping.CHAN_PER_LINE)
+            self._task = task
+            self._write_levels()  # the safe positions before anything else
+        except Exception as exc:
+            task.close()
+            self._task = None
+            raise translate(exc, self.name) from exc
+
+    def _write_levels(self) -> None:
+        levels = list(self._levels.values())
+        self._task.write(levels if len(levels) > 1 else levels[0])
+
+    async def _set(self, valve: str, open: bool, t: float) -> None:
+        self._levels[valve] = self.wiring[valve].level(open)
+        try:
+            await self._worker.run(self._write_levels)
+        except Exception as exc:
+            raise translate(exc, self.name) from exc
+
+    async def _read_positions(self) -> dict[str, bool] | None:
+        if not self.cfg.do_read_back:
+            return None
+        try:
+            got = await self._worker.run(self._task.read)
+        except Exception as exc:
+            raise translate(exc, self.name) from exc
+        levels = got if isinstance(got, list) else [got]
+        return {v: bool(level) == w.open_when_energised for (v, w), level in zip(self.wiring.items(), levels)}
+
+    async def _stop(self) -> None:
+        if self._task is not None:
+            await self._worker.run(self._task.close)  # the lines keep their last (safe) level
+            self._task = None
+        self._worker.close()
+
+
+class DaqRegulator(Regulator):
+    def __init__(self, cfg: NiDaqDriverConfig, wiring: DaqRegulatorWiring, task_factory: TaskFactory):
+        super().__init__(f"nidaqmx {cfg.device} ao{wiring.analog_output}")
+        self.cfg, self.wiring, self._factory = cfg, wiring, task_factory
+        self._task: Any = None
+        self._worker = _Worker("daqmx-ao")
+
+    async def _setup(self) -> None:
+        await self._worker.run(self._open)
+
+    def _open(self) -> None:
+        w = self.wiring
+        task = self._factory(f"fluidsense-ao-{self.cfg.device}")
+        lo, hi = sorted(w.signal)
+        scale = 1.0 if w.input == "voltage" else 1e-3
+        add = task.ao_channels.add_ao_voltage_chan if w.input == "voltage" else task.ao_channels.add_ao_current_chan
+        try:
+            add(self.cfg.physical("ao", w.analog_output), name_to_assign_to_channel="regulator",
+                min_val=lo * scale, max_val=hi * scale)
+            task.write(w.to_signal(0.0))
+        except Exception as exc:
+            task.close()
+            raise translate(exc, self.name) from exc
+        self._task = task
+
+    async def _set_setpoint(self, pressure_pa: float, t: float) -> None:
+        try:
+            await self._worker.run(self._task.write, self.wiring.to_signal(pressure_pa))
+        except Exception as exc:
+            raise translate(exc, self.name) from exc
+
+    async def _stop(self) -> None:
+        if self._task is not None:
+            await self._worker.run(self._task.close)
+            self._task = None
+        self._worker.close()
+
+
+def build(cfg: NiDaqDriverConfig, hw: Hardware, task_factory: TaskFactory | None = None) -> Backend:
+    factory = task_factory or _daqmx().Task
+    valves = DaqValves(cfg, hw.circuit.safe_valves, factory)
+    regulated = isinstance(hw.circuit, (TankCircuit, RegulatedCircuit)) and cfg.wiring.regulator is not None
+    regulator = DaqRegulator(cfg, cfg.wiring.regulator, factory) if regulated else None
+    return Backend(name="nidaqmx", source=DaqSource(cfg, hw, factory), valves=valves, regulator=regulator)

@@ -1,0 +1,28 @@
+/* The host board's side channel to the simulated plant (drivers/serial/simdevice.py):
+ * fixed 32-byte little-endian records, board -> plant on stdout, plant -> board on
+ * stdin. Not part of the serial protocol: a real board has pins instead. */
+#ifndef PLANT_LINK_H
+#define PLANT_LINK_H
+
+#include <stdint.h>
+
+#define PLANT_REC 32
+
+/* board -> plant: u8 kind, u8 outputs, u8 flags, u8 session, u16 aout[2], u32 tick,
+ * u32 extra, u64 t_ns, u64 next_ns (CLOCK_MONOTONIC) */
+enum {
+    REC_TICK = 1,    /* tick `tick` at t_ns; the plant answers with the inputs at next_ns */
+    REC_OUTPUTS = 2, /* the outputs changed at t_ns */
+    REC_VENT = 3,    /* the heartbeat watchdog vented at tick; extra: the last heartbeat's tick */
+    REC_RESET = 4,   /* the board restarted (power-on state) at t_ns */
+};
+/* board flag bit beside the core's FS_F_* flags */
+#define REC_STREAMING 0x80
+
+/* plant -> board: u8 kind, u8 n, u16 pad, u32 pad, u64 for_ns, u16 counts[8] */
+enum {
+    REC_ADC = 1,       /* the analog inputs (ADC counts) at for_ns */
+    REC_DO_RESET = 2,  /* reset the board as a brown-out or a reset button would */
+};
+
+#endif

@@ -1,0 +1,248 @@
+"""The NI-DAQmx driver (``driver: {kind: nidaqmx}``).
+
+Mocked: only ``nidaqmx.Task`` (tests/daqmx_fake.py), because NI's driver library cannot
+be installed here. The config validation, the channel and scale mapping, the read loop,
+the error translation and the output tasks are the driver's real code, calling a
+stand-in whose every method is bound against the real nidaqmx signatures. A test against
+a real device is marked ``hardware``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from nidaqmx.constants import AcquisitionType, LineGrouping, OverwriteMode, TerminalConfiguration
+from nidaqmx.error_codes import DAQmxErrors
+from nidaqmx.errors import DaqNotFoundError
+
+from common.errors import ConfigError, DeviceTimeoutError, LinkLostError, SafetyError
+from controller.config import load_cell_config
+from drivers.daqmx.backend import BufferOverflowError, build
+
+from .conftest import CONFIG, REPO
+from .daqmx_fake import FakeRig, daq_error
+
+EXAMPLE = CONFIG / "cell-nidaqmx.yaml"
+
+
+def _config(tmp_path: Path, **driver) -> Path:
+    data = yaml.safe_load(EXAMPLE.read_text())
+    data["driver"].update(driver)
+    data["profile"] = str(CONFIG / "profiles" / "sorting-gripper.yaml")
+    path = tmp_path / "cell-nidaqmx.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def _backend(tmp_path: Path, **driver):
+    cfg = load_cell_config(_config(tmp_path, **driver))
+    rig = FakeRig()
+    return build(cfg.driver, cfg.profile.hardware, task_factory=rig), rig, cfg
+
+
+def _signals(cfg, pressures_pa: np.ndarray) -> list[tuple[float, ...]]:
+    """What the sensors put on the inputs for these pressures (rows: samples, columns: the
+    profile's channels)."""
+    sensors = [cfg.driver.wiring.sensors[c] for c in cfg.profile.hardware.channels]
+    return [tuple(s.transfer.to_signal(p) for s, p in zip(sensors, row)) for row in pressures_pa]
+
+
+# ------------------------------------------------------------------ config
+@pytest.mark.parametrize("driver, field, reason", [
+    ({"wiring": {"valves": {"supply": {"line": 0}, "actuate": {"line": 0}},
+                 "sensors": {"p_act": {"ai": 0, "transfer": {"kind": "linear", "range_kpa": [0, 100]}},
+                             "p_tank": {"ai": 1, "transfer": {"kind": "linear", "range_kpa": [0, 900]}}},
+                 "regulator": {"analog_output": 0}}}, "driver.wiring", "two valves on one digital line"),
+    ({"buffer_s": 0.1, "rate_hz": 100, "block_size": 5}, "driver", "at least four blocks"),
+    ({"device": "Dev1; rm"}, "driver.device", "pattern"),
+    ({"wiring": {"valves": {"supply": {"line": 0}, "actuate": {"line": 1}},
+                 "sensors": {"p_act": {"ai": 0, "transfer": {"kind": "linear", "range_kpa": [0, 100]}}},
+                 "regulator": {"analog_output": 0}}}, "driver.wiring", "channels ['p_tank'] have no analog input"),
+])
+def test_a_config_the_driver_cannot_use_is_refused_at_load(tmp_path, driver, field, reason):
+    with pytest.raises(ConfigError) as err:
+        load_cell_config(_config(tmp_path, **driver))
+    text = str(err.value)
+    assert text.startswith(f"{tmp_path / 'cell-nidaqmx.yaml'}: {field}"), text
+    assert reason in text and "\n" not in text
+
+
+def test_the_cli_refuses_a_bad_nidaqmx_config_with_one_line_and_exit_2(tmp_path):
+    path = _config(tmp_path, rate_hz=0)
+    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "run", "--config", str(path)], cwd=REPO,
+                         capture_output=True, text=True, timeout=60, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    assert out.returncode == 2, out.stderr
+    assert f"{path}: driver.rate_hz:" in out.stderr and "Traceback" not in out.stderr
+
+
+# ------------------------------------------------------------------ set-up
+def test_channels_scales_and_timing_reach_the_tasks_as_configured(tmp_path):
+    backend, rig, cfg = _backend(tmp_path)
+
+    async def body():
+        async with backend:
+            return rig.task("ai"), rig.task("do"), rig.task("ao")
+
+    ai, do, ao = asyncio.run(body())
+    chans = ai.channels("ai_voltage")
+    assert [c["physical_channel"] for c in chans] == ["Dev1/ai0", "Dev1/ai1"]
+    assert [c["name_to_assign_to_channel"] for c in chans] == ["p_act", "p_tank"]
+    assert all(c["terminal_config"] is TerminalConfiguration.RSE for c in chans)
+    assert [(c["min_val"], c["max_val"]) for c in chans] == [(0.0, 5.0), (0.0, 5.1)]  # 0 to each sensor's supply
+    (_, timing), = [c for c in ai.calls if c[0] == "cfg_samp_clk_timing"]
+    assert timing["rate"] == 1000 and timing["sample_mode"] is AcquisitionType.CONTINUOUS
+    assert timing["samps_per_chan"] == 2000 and timing["source"] == ""
+    assert ai.in_stream.set == {"input_buf_size": 2000,
+                                "over_write": OverwriteMode.DO_NOT_OVERWRITE_UNREAD_SAMPLES}
+    assert [(c["lines"], c["name_to_assign_to_lines"], c["line_grouping"]) for c in do.channels("do")] == [
+        ("Dev1/port0/line0", "supply", LineGrouping.CHAN_PER_LINE),
+        ("Dev1/port0/line1", "actuate", LineGrouping.CHAN_PER_LINE)]
+    # the safe positions first: the tank isolated (the normally-open supply valve energised),
+    # the actuator vented (the 3/2 valve de-energised); the regulator at 0 kPa
+    assert do.written[0] == [True, False]
+    (ao_chan,) = ao.channels("ao_voltage")
+    assert ao_chan["physical_channel"] == "Dev1/ao0" and (ao_chan["min_val"], ao_chan["max_val"]) == (0.0, 10.0)
+    assert ao.written == [0.0]
+    assert all(t.closed for t in rig.tasks)  # stopped with the backend
+
+
+def test_a_current_loop_sensor_gets_a_current_channel_in_amps(tmp_path):
+    wiring = yaml.safe_load(EXAMPLE.read_text())["driver"]["wiring"]
+    wiring["sensors"]["p_tank"] = {"ai": 3, "terminal": "differential",
+                                   "transfer": {"kind": "linear", "output": "current", "range_kpa": [0, 1000]}}
+    backend, rig, _ = _backend(tmp_path, wiring=wiring)
+
+    async def body():
+        async with backend:
+            return rig.task("ai")
+
+    (chan,) = asyncio.run(body()).channels("ai_current")
+    assert chan["physical_channel"] == "Dev1/ai3" and chan["terminal_config"] is TerminalConfiguration.DIFF
+    assert (chan["min_val"], chan["max_val"]) == pytest.approx((0.004, 0.020))
+
+
+# ------------------------------------------------------------------ the read loop
+def test_blocks_carry_device_clock_time_and_pressures_through_each_transfer(tmp_path):
+    backend, rig, cfg = _backend(tmp_path)
+    rng = np.random.default_rng(3)
+    truth = np.column_stack([rng.uniform(-30e3, 30e3, 35), rng.uniform(0, 800e3, 35)])
+
+    async def body():
+        async with backend:
+            rig.task("ai").acquire(_signals(cfg, truth))
+            blocks = [await backend.source.read_block() for _ in range(3)]
+            with pytest.raises(DeviceTimeoutError):  # 5 samples left: a block is not complete
+                await backend.source.read_block()
+            return blocks, rig.task("ai").calls
+
+    blocks, calls = asyncio.run(body())
+    t = np.concatenate([b.t for b in blocks])
+    np.testing.assert_allclose(t, np.arange(30) / 1000.0)
+    np.testing.assert_allclose(np.vstack([b.values for b in blocks]), truth[:30], rtol=1e-9, atol=1e-6)
+    assert [b.seq for b in blocks] == [1, 2, 3] and all(b.missed == 0 for b in blocks)
+    assert blocks[0].channels == ("p_act", "p_tank")
+
+
+def test_a_full_buffer_is_a_driver_fault_and_the_next_block_reports_the_slots_lost(tmp_path):
+    backend, rig, cfg = _backend(tmp_path, buffer_s=0.1)  # 100 samples
+    row = _signals(cfg, np.array([[1e3, 2e3]]))[0]
+
+    async def body():
+        async with backend:
+            first = rig.task("ai")
+            first.acquire([row] * 10)
+            before = await backend.source.read_block()
+            first.acquire([row] * 101)  # one more than the buffer holds, unread
+            with pytest.raises(BufferOverflowError, match="overflowed: samples were lost"):
+                await backend.source.read_block()
+            # the next read starts a new acquisition; the first read finds nothing yet
+            with pytest.raises(DeviceTimeoutError):
+                await backend.source.read_block()
+            second = rig.task("ai")
+            second.acquire([row] * 10)
+            after = await backend.source.read_block()
+            assert second is not first and first.closed and second.started and not second.closed
+            return before, after
+
+    before, after = asyncio.run(body())
+    assert backend.source.overflows == 1
+    # sample time goes on: the new acquisition's first sample sits after every slot reported missed
+    k_first = round(after.t[0] * 1000)
+    assert k_first == round(before.t[-1] * 1000) + 1 + after.missed
+    assert after.missed >= 0
+
+
+def test_daqmx_errors_become_the_faults_they_mean(tmp_path):
+    backend, rig, _ = _backend(tmp_path)
+
+    async def body():
+        async with backend:
+            rig.fail_on["read"] = daq_error(DAQmxErrors.DEVICE_REMOVED, "Device has been removed.")
+            with pytest.raises(LinkLostError, match="unplugged"):
+                await backend.source.read_block()
+            rig.fail_on["write"] = daq_error(DAQmxErrors.DEVICE_REMOVED)
+            with pytest.raises(LinkLostError):
+                await backend.valves.set("actuate", True, 0.0)
+
+    asyncio.run(body())
+    backend, rig, _ = _backend(tmp_path)
+    rig.fail_on["add_ai_voltage_chan"] = daq_error(DAQmxErrors.INVALID_DEVICE_ID, "Device identifier is invalid.")
+    with pytest.raises(ConfigError, match="driver: nidaqmx Dev1: Device identifier is invalid"):
+        asyncio.run(backend.source.setup())
+    assert rig.task("ai").closed  # a task that failed to set up is not left open
+    backend, rig, _ = _backend(tmp_path)
+    rig.fail_on["start"] = DaqNotFoundError("Could not find an installation of NI-DAQmx.", -1)
+    with pytest.raises(ConfigError, match="install the NI-DAQmx runtime"):
+        asyncio.run(backend.source.setup())
+
+
+# ------------------------------------------------------------------ outputs
+def test_valves_and_regulator_write_levels_and_volts_and_read_back(tmp_path):
+    backend, rig, _ = _backend(tmp_path)
+
+    async def body():
+        async with backend:
+            do, ao = rig.task("do"), rig.task("ao")
+            await backend.valves.set("actuate", True, 0.0)
+            await backend.valves.set("supply", True, 0.0)
+            assert do.written[-2:] == [[True, True], [False, True]]
+            assert await backend.valves.read_back() == {"supply": True, "actuate": True}
+            rig.line_levels = [True, True]  # a line held otherwise than written (a stuck relay)
+            assert await backend.valves.disagreement() == {"supply": False}
+            backend.regulator.set_limits(0.0, 500e3)
+            await backend.regulator.set_setpoint(450e3, 0.0)
+            with pytest.raises(SafetyError):
+                await backend.regulator.set_setpoint(600e3, 0.0)
+            return ao.written
+
+    written = asyncio.run(body())
+    assert written == [0.0, pytest.approx(5.0)]  # 450 of 900 kPa on 0-10 V; the refused one never written
+
+
+@pytest.mark.hardware
+def test_a_real_daq_samples_at_its_rate():
+    """On a real NI DAQ: FLUIDSENSE_NIDAQMX_CONFIG names a cell config with driver kind
+    nidaqmx. Samples come at the configured rate with no slot missed."""
+    path = os.environ.get("FLUIDSENSE_NIDAQMX_CONFIG")
+    if not path:
+        pytest.skip("set FLUIDSENSE_NIDAQMX_CONFIG to a cell config with driver kind nidaqmx")
+    cfg = load_cell_config(path)
+
+    async def body():
+        backend = build(cfg.driver, cfg.profile.hardware)
+        async with backend:
+            blocks = [await backend.source.read_block() for _ in range(100)]
+            await backend.safe_state(blocks[-1].t[-1])
+        return blocks
+
+    blocks = asyncio.run(asyncio.wait_for(body(), 60))
+    t = np.concatenate([b.t for b in blocks])
+    assert sum(b.missed for b in blocks) == 0
+    np.testing.assert_allclose(np.diff(t), 1.0 / cfg.driver.rate_hz)

@@ -1,0 +1,298 @@
+"""The serial driver over a real pty against the firmware's host board (the C protocol code,
+built here by make), fed by the simulated cell: frames round-trip, damaged bytes cost
+only their frames, a reset device and a silent link latch their faults, the firmware
+vents by itself when the daemon dies, and a sorting-style cycle reads sensible pressures.
+
+Timing is never asserted on the wall clock: slots are counted from the device's ticks,
+the vent is measured in device ticks, and waits are for events (frames, messages, the
+board's own report), each with a generous bound against hangs."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import select
+import signal
+import socket
+
+import numpy as np
+import pytest
+
+from controller.config import load_cell_config
+from drivers.config import build_backend
+from common.errors import DriverError, LinkLostError
+
+from .conftest import Daemon, profile_controller
+from .serial_helpers import Proxy, SimSerialProcess, serial_config
+
+pytestmark = pytest.mark.timeout(300)
+
+
+@pytest.fixture
+def simserial():
+    made: list[SimSerialProcess] = []
+
+    def start(config, *extra: str) -> SimSerialProcess:
+        sim = SimSerialProcess(config, *extra)
+        made.append(sim)
+        return sim
+
+    yield start
+    for sim in made:
+        code, _ = sim.stop()
+        assert code == 0, sim.final_stderr
+        assert "Traceback" not in sim.final_stderr, sim.final_stderr
+
+
+async def _read(backend, n: int) -> list:
+    """n blocks, kicking the device's watchdog as the controller's loop does."""
+    blocks = []
+    for i in range(n):
+        blocks.append(await backend.source.read_block())
+        if i % 10 == 0:
+            await backend.watchdog.kick()
+    return blocks
+
+
+def _slots(blocks) -> np.ndarray:
+    return np.round(np.concatenate([b.t for b in blocks]) * 1000).astype(int)
+
+
+@pytest.mark.parametrize("reader", ["thread", "loop"])
+def test_frames_round_trip(tmp_path, simserial, reader):
+    config = serial_config(tmp_path, driver={"reader": reader})
+    sim = simserial(config)
+    cell = load_cell_config(config)
+
+    async def main():
+        backend = build_backend(cell.driver, cell.profile.hardware)
+        await backend.setup()
+        try:
+            # the connection began with the safe outputs, read back from the device's frames
+            assert backend.valves.reported == {"supply": False, "actuate": False}
+            assert sim.control(cmd="state")["outputs"] == 0b01  # supply energised (normally open), actuate off
+            blocks = await _read(backend, 30)
+            slots = _slots(blocks)
+            assert np.array_equal(np.diff(slots), np.ones(len(slots) - 1))  # every tick, once, in order
+            t = np.concatenate([b.t for b in blocks])
+            assert np.array_equal(t, slots / 1000.0)  # on the device's grid (the host board samples on time)
+            assert sum(b.missed for b in blocks[1:]) == 0 and blocks[0].missed == slots[0]  # only before the first
+            assert all(b.channels == ("p_act", "p_tank") and b.values.shape == (10, 2) for b in blocks)
+
+            await backend.regulator.set_setpoint(50e3, 0.0)
+            await backend.valves.set("supply", True, 0.0)
+            assert await backend.valves.read_back() == {"supply": True, "actuate": False}
+            state = sim.control(cmd="state")
+            assert state["valves"] == {"supply": True, "actuate": False}  # the plant's valve followed the pin
+            blocks = await _read(backend, 100)  # one second: the 0.4 l tank charges (time constant ~0.1 s)
+            truth = sim.control(cmd="state")["pressures_kpa"]
+            p_tank = blocks[-1].channel("p_tank") / 1e3
+            assert abs(p_tank.mean() - 50.0) < 1.0  # the regulator's command came through (its own error ~0.1)
+            assert abs(p_tank.mean() - truth["p_tank"]) < 0.5  # 10-bit counts of a settled tank: the plant's truth
+            stats = backend.source.link_stats()
+            assert stats["lost_frames"] == 0 and stats["corrupt_frames"] == 0 and stats["retries"] == 0
+            assert stats["device"]["board"] == "host" and stats["device"]["adc_bits"] == 10
+        finally:
+            await backend.stop()
+        state = sim.control(cmd="state")  # STOP at the end left the device safe and quiet
+        assert state["outputs"] == 0b01 and not state["streaming"] and not state["armed"]
+
+    asyncio.run(main())
+
+
+def _proxied(tmp_path, simserial, **driver):
+    """The board on device.tty, the driver on link.tty through the damaging proxy."""
+    sim = simserial(serial_config(tmp_path, port=tmp_path / "device.tty"))
+    config = serial_config(tmp_path, port=tmp_path / "link.tty", driver=driver)
+    return sim, Proxy(sim.port, tmp_path / "link.tty"), load_cell_config(config)
+
+
+def test_corrupt_and_dropped_bytes_cost_only_their_frames(tmp_path, simserial):
+    sim, proxy, cell = _proxied(tmp_path, simserial)
+
+    async def main():
+        backend = build_backend(cell.driver, cell.profile.hardware)
+        await backend.setup()
+        try:
+            blocks = await _read(backend, 20)
+            proxy.damage(corrupt=5, drop=5)
+            while proxy.pending():
+                blocks += await _read(backend, 1)
+            blocks += await _read(backend, 20)
+            assert sorted(proxy.damaged) == ["corrupt"] * 5 + ["drop"] * 5
+            stats = backend.source.link_stats()
+            assert stats["corrupt_frames"] == 10 and stats["lost_frames"] == 10  # each seen, each counted once
+            slots = _slots(blocks)
+            assert len(np.unique(slots)) == len(slots)  # nothing twice
+            assert slots[-1] - slots[0] + 1 - len(slots) == 10  # exactly the ten damaged frames' samples are gone
+            assert sum(b.missed for b in blocks[1:]) == 10  # and reported as missed, not filled in
+        finally:
+            await backend.stop()
+
+    try:
+        asyncio.run(main())
+    finally:
+        proxy.close()
+
+
+def test_damage_beyond_the_bound_is_a_driver_error_and_the_stream_goes_on(tmp_path, simserial):
+    sim, proxy, cell = _proxied(tmp_path, simserial, damaged_limit=20)
+
+    async def main():
+        backend = build_backend(cell.driver, cell.profile.hardware)
+        await backend.setup()
+        try:
+            await _read(backend, 5)
+            proxy.damage(corrupt=40)
+            with pytest.raises(DriverError) as err:
+                await _read(backend, 200)
+            assert not isinstance(err.value, LinkLostError) and "frames lost or corrupt" in str(err.value)
+            blocks = await _read(backend, 10)  # the same connection carries on
+            assert backend.source.link_stats()["connections"] == 1 and len(blocks) == 10
+        finally:
+            await backend.stop()
+
+    try:
+        asyncio.run(main())
+    finally:
+        proxy.close()
+
+
+def _wait_vented_log(d: Daemon) -> None:
+    """After a fault: the daemon reports the device's read-back safe positions (the
+    reconnection confirmed them), so that a reset is accepted."""
+    while True:
+        _, msg = d.next_message("log", timeout_s=60)
+        if msg.get("vented") is True:
+            return
+
+
+def test_a_device_reset_latches_a_driver_fault_and_the_daemon_reconnects(tmp_path, simserial):
+    config = serial_config(tmp_path)
+    sim = simserial(config)
+    d = Daemon(config)
+    try:
+        d.wait_welcome()
+        sim.control(cmd="reset")  # as a brown-out: the board restarts with outputs low, ticks from 0
+        _, fault = d.next_message("fault")
+        assert fault["kind"] == "driver" and "reset" in fault["detail"]
+        _wait_vented_log(d)
+        assert d.request({"cmd": "reset"})["ok"]
+        status = d.request({"cmd": "status"})
+        link = status["source_link"]
+        assert status["fault"] is None and link["resets"] == 1 and link["connections"] == 2
+        assert status["valves"] == {"supply": False, "actuate": False}
+    finally:
+        assert d.close() == 0
+
+
+def test_a_silent_link_latches_link_lost_and_the_daemon_reconnects(tmp_path, simserial):
+    sim = simserial(serial_config(tmp_path, port=tmp_path / "device.tty"))
+    proxy = Proxy(sim.port, tmp_path / "link.tty")
+    d = Daemon(serial_config(tmp_path, port=tmp_path / "link.tty"))
+    try:
+        d.wait_welcome()
+        proxy.hold(True)  # the cable goes quiet; the port stays open
+        _, fault = d.next_message("fault")
+        assert fault["kind"] == "link_lost" and "no valid frame" in fault["detail"]
+        assert fault["vented"] == "unknown"
+        proxy.hold(False)
+        _wait_vented_log(d)
+        assert d.request({"cmd": "reset"})["ok"]
+        assert d.request({"cmd": "status"})["source_link"]["connections"] == 2
+    finally:
+        assert d.close() == 0
+        proxy.close()
+
+
+def test_the_firmware_vents_when_the_daemon_dies(tmp_path, simserial):
+    config = serial_config(tmp_path)
+    sim = simserial(config)
+    d = Daemon(config, new_session=True)
+    try:
+        d.wait_welcome()
+        assert d.request({"cmd": "cycle"})["ok"]
+        while d.next_message("state")[1]["to"] != "actuate":
+            pass
+        assert sim.control(cmd="state")["valves"]["actuate"] is True  # inflating
+        os.killpg(d.proc.pid, signal.SIGKILL)  # the daemon and its helpers: no STOP, no heartbeat
+        d.proc.wait(30)
+        # the board says when its watchdog fires (stderr): wait for that event
+        said = b""
+        fd = sim.proc.stderr.fileno()  # unbuffered: select must see every byte not yet read
+        while b"vented at tick" not in said:
+            assert select.select([fd], [], [], 30)[0], f"the board never vented: {said!r}"
+            said += os.read(fd, 65536)
+        state = sim.control(cmd="state")
+        (vent,) = state["vents"]
+        # 0.5 s at 1 kHz: the watchdog fires on the first tick more than 500 ticks after the last heartbeat
+        assert vent["tick"] - vent["last_heartbeat_tick"] == 501
+        assert state["outputs"] == 0b01 and state["valves"] == {"supply": False, "actuate": False}
+        assert state["vented"] and state["streaming"]
+        for _ in range(400):  # the actuator empties through the 3/2 valve's vent port
+            if sim.control(cmd="state")["pressures_kpa"]["p_act"] < 1.0:
+                break
+            select.select([], [], [], 0.05)  # poll interval of a wait bounded at 20 s; nothing is timed
+        else:
+            raise AssertionError(f"the actuator did not vent: {sim.control(cmd='state')}")
+    finally:
+        d.close()
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_sorting_cycles_through_the_serial_driver_read_sensible_pressures(tmp_path, simserial):
+    """Free air, then 40 and 100 mm cylinders, through daemon -> pty -> firmware -> plant:
+    each P_eq within 0.4 kPa of the same cycle on the in-process simulated cell (10-bit
+    ADC: 0.084 kPa per count for p_act, plus the regulator's cycle-to-cycle spread), bigger
+    objects higher, and not one sample missed."""
+    config = serial_config(tmp_path, control_port=_free_port())
+    simserial(config)
+    d = Daemon(config)
+    scenes = [{"kind": "none"}, {"kind": "cylinder", "diameter_mm": 40}, {"kind": "cylinder", "diameter_mm": 100}]
+    got = []
+    try:
+        d.wait_welcome()
+        d.next_message("heartbeat")  # the first block is in: the slots before it (the safe-state check) are behind us
+        for scene in scenes:
+            assert d.request({"cmd": "scene", "scene": scene})["ok"]
+            assert d.request({"cmd": "cycle"})["ok"]
+            _, result = d.next_message("cycle", timeout_s=60)
+            assert result["ok"] and result["missed"] == 0, (result, d.request({"cmd": "status"}))
+            got.append(result["p_eq_kpa"])
+        assert d.request({"cmd": "status"})["source_link"]["lost_frames"] == 0
+    finally:
+        assert d.close() == 0
+
+    async def body(ctrl):
+        from pydantic import TypeAdapter
+
+        from common.scenes import Scene
+
+        out = []
+        for scene in scenes:
+            await ctrl.scene.place(TypeAdapter(Scene).validate_python(scene))
+            out.append((await ctrl.run_cycle()).p_eq / 1e3)
+        return out
+
+    expected = profile_controller("sorting-gripper-quick", body)
+    assert got[0] < got[1] < got[2]
+    assert np.allclose(got, expected, atol=0.4), (got, expected)
+
+
+def test_a_device_that_does_not_fit_the_config_stops_the_daemon_with_exit_2(tmp_path, simserial):
+    """The device says what it is at every connection (INFO): a config that expects a 12-bit
+    ADC on a 10-bit device is a bad setting, not a link to retry for ever."""
+    sim = simserial(serial_config(tmp_path))
+    d = Daemon(serial_config(tmp_path, port=sim.port, driver={"adc": {"bits": 12, "reference_v": 5.0}}))
+    try:
+        assert d.proc.wait(60) == 2
+        err = d.proc.stderr.read().decode()
+        assert "does not fit this config" in err and "ADC has 10 bits" in err
+        assert "Traceback" not in err
+    finally:
+        d.close()

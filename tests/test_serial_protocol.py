@@ -1,0 +1,108 @@
+"""The serial streamer's protocol without a device: the firmware core's own unit tests (C,
+built and run here), the host side's framing against the same definitions, the clock
+alignment, and the config's refusals."""
+
+from __future__ import annotations
+
+import struct
+import subprocess
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from common.errors import ConfigError
+from drivers.serial import protocol as p
+from drivers.serial.clock import Timeline
+
+from .conftest import CONFIG, REPO
+from .serial_helpers import serial_config
+
+
+def test_the_firmware_core_passes_its_unit_tests():
+    """CRC, COBS (every length), commands and acks, retries, sample frames, dropped frames,
+    the heartbeat watchdog's exact timeout, ARM, STOP: firmware/tests/test_core.c."""
+    out = subprocess.run(["make", "-s", "-C", str(REPO / "firmware"), "test-core"], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stdout + out.stderr
+    last = out.stdout.strip().splitlines()[-1]
+    passed, failed = (int(w) for w in last.replace(",", "").split()[::2])
+    assert failed == 0 and passed >= 20, out.stdout
+
+
+def test_crc_is_ccitt_false():
+    assert p.crc16(b"123456789") == 0x29B1  # the catalogue's check value for CRC-16/CCITT-FALSE
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.binary(max_size=p.MAX_FRAME))
+def test_cobs_round_trips_without_zero_bytes(data):
+    enc = p.cobs_encode(data)
+    assert b"\x00" not in enc and len(enc) == len(data) + 1
+    assert p.cobs_decode(enc) == data
+
+
+def test_a_damaged_frame_costs_itself_only():
+    frames = [p.frame(struct.pack("<BBHIBBBHH2H", p.SAMPLE, 9, seq, seq, 0, p.F_ARMED, 0, 0, 0, 100, 200))
+              for seq in range(5)]
+    damaged = bytearray(frames[1])
+    damaged[5] ^= 0x55
+    cut = frames[3][:4] + frames[3][5:]
+    splitter = p.Splitter()
+    stream = frames[0] + bytes(damaged) + frames[2] + cut + frames[4]
+    got = [p.parse(x) for i in range(0, len(stream), 7) for x in splitter.feed(stream[i:i + 7])]  # any chunking
+    assert [f.seq for f in got] == [0, 2, 4] and splitter.corrupt == 2
+    assert got[1].counts == (100, 200) and got[1].session == 9
+
+
+def test_garbage_without_delimiters_is_dropped_and_the_stream_recovers():
+    splitter = p.Splitter()
+    assert splitter.feed(b"\x07" * 1000) == [] and splitter.corrupt == 1
+    good = p.frame(struct.pack("<BBHBHBIBB", p.ACK, 1, 3, p.HEARTBEAT, 77, p.OK, 5, 0, 0))
+    (payload,) = splitter.feed(b"\x00" + good)
+    ack = p.parse(payload)
+    assert isinstance(ack, p.Ack) and ack.command_seq == 77 and ack.tick == 5
+
+
+def test_timeline_keeps_sample_time_on_the_device_grid_and_follows_a_drifting_clock():
+    """The device's clock runs 200 ppm slow against the host's: sample times stay k / rate,
+    the origin moves with the drift (measured), so origin + t stays the host time of the
+    sample; a new session's ticks restart at 0 and land after the last slot."""
+    tl = Timeline(1000.0)
+    rng = np.random.default_rng(1)
+    host0 = 100.0
+    for k in range(0, 20_000):
+        arrival = host0 + k / 1000.0 * (1 + 200e-6) + 0.0005 + rng.exponential(0.0003)
+        assert tl.slot(k, arrival) == k
+    assert tl.drift_ppm == pytest.approx(200.0, abs=5.0)
+    sample_host_time = host0 + 19.999 * (1 + 200e-6) + 0.0005
+    assert tl.origin + 19.999 == pytest.approx(sample_host_time, abs=50e-6)
+    tl.new_session()
+    k = tl.slot(0, host0 + 25.0)  # five seconds later, the device restarted its ticks
+    assert k == pytest.approx(25_000 - 4, abs=3)  # 25 s of host time, less the drift
+    assert tl.slot(1, host0 + 25.001) == k + 1
+
+
+def test_config_refusals(tmp_path):
+    from controller.config import load_cell_config
+
+    def refused(driver: dict) -> str:
+        with pytest.raises(ConfigError) as err:
+            load_cell_config(serial_config(tmp_path, driver=driver))
+        return str(err.value)
+
+    cell = load_cell_config(CONFIG / "cell-serial-sim.yaml")
+    wiring = cell.driver.wiring.model_dump()
+    two = {**wiring, "sensors": {"p_act": {"adc": 0, "transfer": wiring["sensors"]["p_act"]["transfer"]},
+                                 "p_tank": {"adc": 0, "transfer": wiring["sensors"]["p_tank"]["transfer"]}}}
+    assert "two sensors on one analog input" in refused({"wiring": two})
+    current = {**wiring, "sensors": {**wiring["sensors"], "p_tank": {"adc": 1, "transfer": {
+        "kind": "linear", "output": "current", "range_kpa": [0, 500]}}}}
+    assert "shunt" in refused({"wiring": current})
+    assert "driver.wiring.valves.supply.output" in refused(
+        {"wiring": {**wiring, "valves": {**wiring["valves"], "supply": {"output": 8}}}})
+    missing = {**wiring, "valves": {"actuate": wiring["valves"]["actuate"]}}
+    assert "not wired" in refused({"wiring": missing})
+    assert "driver.rate_hz" in refused({"rate_hz": 1000.0})  # strict integer
+    assert "driver.bogus" in refused({"bogus": 1})

@@ -23,7 +23,7 @@ def status_of(ctrl: Controller) -> dict[str, Any]:
         "samples": ctrl.loop.samples, "missed": ctrl.loop.missed,
         "last_cycle": ctrl.cycles.results[-1].to_dict() if ctrl.cycles.results else None,
         "task": ctrl.commands.task, "commands": None if ctrl.command_stats is None else ctrl.command_stats(),
-        "publisher": ctrl.telemetry.pub.stats,
+        "publisher": ctrl.telemetry.pub.stats, **ctrl.commands.gripper.status(),
     }
 
 

@@ -19,4 +19,4 @@ FEATURES: dict[str, tuple[str, str, float]] = {
 NEEDS_REFERENCE = {"dp_eq", "dp_max", "t_c_slope", "t_c_threshold", "t_c2", "t_c_onset"}
 
 #: the command socket's requests (controller/commands/server.py)
-COMMANDS = ("status", "cycle", "abort", "reset", "scene", "task", "shutdown")
+COMMANDS = ("status", "cycle", "grip", "release", "measure", "abort", "reset", "scene", "task", "shutdown")

@@ -42,6 +42,7 @@ EXAMPLES = {
     "StatusCmd": {"cmd": "status"}, "CycleCmd": {"cmd": "cycle"}, "AbortCmd": {"cmd": "abort"},
     "ResetCmd": {"cmd": "reset"}, "SceneCmd": {"cmd": "scene", "scene": {"kind": "none"}},
     "TaskCmd": {"cmd": "task", "file": "x.yaml"}, "ShutdownCmd": {"cmd": "shutdown"},
+    "GripCmd": {"cmd": "grip"}, "ReleaseCmd": {"cmd": "release"}, "MeasureCmd": {"cmd": "measure"},
     "RipenessObject": {"name": "o", "diameter_mm": 55},
     "CalibrationFile": {"format": "fluidsense-calibration/1", "profile": "p", "method": "tank", "feature": "p_eq",
                         "feature_unit": "kPa", "scene": {"kind": "plate"}, "target": "height_mm", "target_unit": "mm",

@@ -29,7 +29,33 @@ def check(topic: str, msg: dict) -> None:
 
 
 def test_the_document_has_a_schema_per_topic():
-    assert set(SCHEMAS) == {"heartbeat", "state", "cycle", "pressure", "fault", "task", "log"}
+    assert set(SCHEMAS) == {"heartbeat", "state", "cycle", "pressure", "fault", "task", "log", "contact", "grasp",
+                            "slip", "released"}
+    assert all(schema.get("additionalProperties") is False for schema in SCHEMAS.values())
+
+
+def test_every_message_of_a_sorting_task_is_documented(tmp_path, daemon_factory):
+    """A full sorting task through the daemon: every message validates against its schema
+    (no undocumented field), per-topic counters have no gap, every message has its UTC time."""
+    from .conftest import CONFIG
+
+    d = daemon_factory(sim_config(tmp_path, profile=str(CONFIG / "profiles" / "sorting-gripper.yaml")))
+    d.wait_welcome()
+    assert d.request({"cmd": "task", "file": "sorting.yaml"})["started"]
+    seen: dict[str, list] = {}
+    while True:
+        topic, msg = d.next_message(timeout_s=120)
+        check(topic, msg)
+        seen.setdefault(topic, []).append(msg)
+        if topic == "task" and msg["event"] in ("finished", "failed", "aborted"):
+            break
+    assert msg["event"] == "finished" and msg["summary"]["success"]
+    assert {"heartbeat", "state", "cycle", "pressure", "task"} <= set(seen)
+    for msgs in seen.values():
+        counts = [m["topic_seq"] for m in msgs]
+        assert counts == list(range(counts[0], counts[0] + len(counts)))
+    utc = [m["utc_s"] for msgs in seen.values() for m in sorted(msgs, key=lambda m: m["seq"])]
+    assert min(utc) > 1.6e9
 
 
 def collect_until_cycle(d, seen: dict) -> dict:

@@ -17,7 +17,9 @@ from typing import TYPE_CHECKING, Any
 from common.errors import CommandError, FluidsenseError, NotSupportedError, SequenceError
 from common.faults import Fault, FaultKind
 
-from .server import AbortCmd, CycleCmd, ResetCmd, SceneCmd, ShutdownCmd, StatusCmd, TaskCmd
+from .gripper import Gripper
+from .server import (AbortCmd, CycleCmd, GripCmd, MeasureCmd, ReleaseCmd, ResetCmd, SceneCmd, ShutdownCmd,
+                     StatusCmd, TaskCmd)
 
 if TYPE_CHECKING:  # the controller wires this part; the type is only for reading
     from ..service import Controller
@@ -36,6 +38,8 @@ class Dispatcher:
         self.task_runner: TaskRunner | None = None
         self._job: asyncio.Task | None = None
         self._job_name: str | None = None
+        self.gripper = Gripper(ctrl)
+        ctrl.telemetry.sinks.append(self.gripper)  # it watches every block of a grip
 
     async def handle(self, cmd: Any) -> dict[str, Any]:
         try:
@@ -62,6 +66,12 @@ class Dispatcher:
             fut = await ctrl.start_cycle(p0_kpa=cmd.p0_kpa, label=cmd.label, store_reference=cmd.store_reference)
             fut.add_done_callback(lambda f: f.exception() if not f.cancelled() else None)
             return {"cycle_id": ctrl.cycles.sequencer.cycle_id}
+        if isinstance(cmd, GripCmd):
+            return await self.gripper.grip(cmd.p0_kpa, cmd.timeout_s, cmd.label)
+        if isinstance(cmd, ReleaseCmd):
+            return await self.gripper.release()
+        if isinstance(cmd, MeasureCmd):
+            return await self.gripper.measure(cmd.p0_kpa, cmd.label, cmd.store_reference)
         if isinstance(cmd, AbortCmd):
             stopped_task = self.cancel_task()
             return {"aborted": await ctrl.abort(cmd.reason) or stopped_task}
@@ -72,6 +82,7 @@ class Dispatcher:
             return {"state": ctrl.cycles.sequencer.state.value}
         if isinstance(cmd, SceneCmd):
             await ctrl.scene.place(cmd.scene)
+            await self.gripper.after_scene()
             return {"scene": cmd.scene.model_dump()}
         if isinstance(cmd, ShutdownCmd):
             self.shutdown.set()
@@ -89,6 +100,8 @@ class Dispatcher:
             raise NotSupportedError("this daemon runs no tasks")
         if self._job is not None and not self._job.done():
             raise SequenceError(f"busy: task {self._job_name} is running")
+        if self.gripper.holding:
+            raise SequenceError(f"holding (cycle {self.gripper.cycle_id}): send release before a task")
         if ctrl.cycles.busy:
             raise SequenceError(f"busy: cycle {ctrl.cycles.sequencer.cycle_id} is in "
                                 f"{ctrl.cycles.sequencer.state.value}")

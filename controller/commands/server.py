@@ -51,6 +51,27 @@ class CycleCmd(StrictModel):
     store_reference: bool = False
 
 
+class GripCmd(StrictModel):
+    """Close and stay holding; ``timeout_s``: sample time to the grasp before the grip is
+    given up (vented)."""
+
+    cmd: Literal["grip"]
+    p0_kpa: float | None = Field(None, ge=-101, le=1000)
+    timeout_s: float | None = Field(None, gt=0, le=3600)
+    label: str | None = Field(None, max_length=80)
+
+
+class ReleaseCmd(StrictModel):
+    cmd: Literal["release"]
+
+
+class MeasureCmd(StrictModel):
+    cmd: Literal["measure"]
+    p0_kpa: float | None = Field(None, ge=-101, le=1000)
+    label: str | None = Field(None, max_length=80)
+    store_reference: bool = False
+
+
 class AbortCmd(StrictModel):
     cmd: Literal["abort"]
     reason: str = Field("operator", max_length=200)
@@ -75,7 +96,8 @@ class ShutdownCmd(StrictModel):
     cmd: Literal["shutdown"]
 
 
-Request = Annotated[StatusCmd | CycleCmd | AbortCmd | ResetCmd | SceneCmd | TaskCmd | ShutdownCmd,
+Request = Annotated[StatusCmd | CycleCmd | GripCmd | ReleaseCmd | MeasureCmd | AbortCmd | ResetCmd | SceneCmd
+                    | TaskCmd | ShutdownCmd,
                     Field(discriminator="cmd")]
 _ADAPTER = TypeAdapter(Request)
 

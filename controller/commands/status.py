@@ -23,7 +23,7 @@ def status_of(ctrl: Controller) -> dict[str, Any]:
         "samples": ctrl.loop.samples, "missed": ctrl.loop.missed,
         "last_cycle": ctrl.cycles.results[-1].to_dict() if ctrl.cycles.results else None,
         "task": ctrl.commands.task, "commands": None if ctrl.command_stats is None else ctrl.command_stats(),
-        "publisher": ctrl.telemetry.pub.stats,
+        "publisher": ctrl.telemetry.pub.stats, **ctrl.commands.gripper.status(),
         "sinks": [sink.stats for sink in ctrl.telemetry.sinks if hasattr(sink, "stats")],
         # a source that keeps link counts (the serial driver: frames lost and corrupt, resets, clock drift)
         "source_link": getattr(ctrl.backend.source, "link_stats", lambda: None)(),

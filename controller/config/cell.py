@@ -20,6 +20,7 @@ from common.models import FieldError, Integer, Real, StrictModel
 from drivers.config import DriverConfig
 
 from .curve import ALLOW_ANY, count_public_keys, read_secret_key
+from .gripper import GripperConfig, check_calibrations, resolve_calibrations
 from .loading import load_model, read_yaml, referenced_file, validate
 from .profile import Profile
 
@@ -160,6 +161,7 @@ class CellConfig(StrictModel):
     supervision: Supervision = Supervision()
     recording: RecordingConfig = RecordingConfig()
     loop: LoopConfig = LoopConfig()
+    gripper: GripperConfig = GripperConfig()
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
 
     @model_validator(mode="after")
@@ -250,6 +252,7 @@ def load_cell_config(path: str | Path, overrides: dict[str, Any] | None = None) 
             current = current.model_dump()
         if current is None or isinstance(current, dict):  # else the validation says what is wrong with it
             data = {**data, section: {**(current or {}), **values}}
-    cfg = validate(CellConfig, data, path)
+    cfg = validate(CellConfig, resolve_calibrations(data, path), path)
     _check_files(cfg, path)
+    check_calibrations(cfg.gripper, cfg.profile.name, path)
     return cfg

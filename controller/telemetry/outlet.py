@@ -44,7 +44,7 @@ import zmq
 
 log = logging.getLogger("controller.telemetry.outlet")
 
-TOPICS = ("pressure", "state", "cycle", "heartbeat", "fault", "task", "log")
+TOPICS = ("pressure", "state", "cycle", "heartbeat", "fault", "task", "log", "contact", "grasp", "slip", "released")
 WELCOME = b"hello"
 KNOWN = tuple(t.encode() for t in TOPICS) + (WELCOME,)
 STOP = [b"stop"]  # never a published message: those are two frames

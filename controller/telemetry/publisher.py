@@ -2,7 +2,9 @@
 
 Every message is two frames: the topic (ASCII) and a JSON object that always carries
 ``schema`` (the schema version), ``topic``, ``seq`` (one counter over all topics, so a
-subscriber sees gaps) and ``t_s`` (sample time of the newest sample when it was sent).
+subscriber to everything sees gaps), ``topic_seq`` (one counter per topic, so a subscriber
+to some topics sees its gaps), ``t_s`` (sample time of the newest sample when it was
+sent) and ``utc_s`` (wall-clock UTC when it was sent, to line messages up with other logs).
 A slow subscriber never blocks the controller: PUB drops at its high-water mark.
 
 The public XPUB socket lives in an outlet process (controller/telemetry/outlet.py): subscriptions
@@ -73,8 +75,10 @@ def _clean(obj: Any) -> Any:
     return obj
 
 
-def encode(topic: str, seq: int, t_s: float, payload: dict[str, Any]) -> list[bytes]:
-    msg = {"schema": SCHEMA_VERSION, "topic": topic, "seq": seq, "t_s": t_s, **payload}
+def encode(topic: str, seq: int, t_s: float, payload: dict[str, Any], topic_seq: int = 0,
+           utc_s: float | None = None) -> list[bytes]:
+    msg = {"schema": SCHEMA_VERSION, "topic": topic, "seq": seq, "topic_seq": topic_seq or seq, "t_s": t_s,
+           "utc_s": time.time() if utc_s is None else utc_s, **payload}
     return [topic.encode("ascii"), json.dumps(_clean(msg), default=_default, allow_nan=False).encode()]
 
 
@@ -97,6 +101,7 @@ class Publisher:
         when it cannot be."""
         self.endpoint = endpoint
         self.seq = 0
+        self.topic_seq: dict[str, int] = {}
         self.dropped = 0  # messages that never reached the outlet
         self.restarts = 0
         self._hwm = hwm
@@ -186,8 +191,9 @@ class Publisher:
 
     def send(self, topic: str, t_s: float, payload: dict[str, Any]) -> None:
         self.seq += 1
+        self.topic_seq[topic] = self.topic_seq.get(topic, 0) + 1
         try:
-            self._push.send_multipart(encode(topic, self.seq, t_s, payload), flags=zmq.NOBLOCK)
+            self._push.send_multipart(encode(topic, self.seq, t_s, payload, self.topic_seq[topic]), flags=zmq.NOBLOCK)
         except zmq.Again:
             self.dropped += 1
         self._check_outlet()

@@ -1,0 +1,104 @@
+"""What the gripper watches in the samples of a grip, block by block (pure: arrays in,
+findings out, in sample time and Pa).
+
+ContactWatch: the first contact during actuation, live. The actuator pressure (offset
+removed, as the cycle's analysis does) is compared with the free-air reference at the
+same time after opening; contact is a block whose mean dP is beyond the profile's contact
+threshold, at the first sample of that block beyond it. The cycle's own analysis gives
+the precise t_c afterwards (in ``grasp``); this one is for reacting while it happens.
+
+SlipWatch: while held, an abrupt fall of the pressure towards atmosphere (the object
+moved out of the grip and the fingers closed further). A fall of ``drop_pa`` within
+``within_s`` is a slip (a leak is a slow decay, which the supervisor faults on); it is
+reported once the pressure has settled again, with the settled level, so that a size can
+be estimated from it and one slip is one report.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from controller.cycles import features as F
+from controller.cycles.analysis import Reference
+
+
+class ContactWatch:
+    def __init__(self, reference: Reference | None, threshold_pa: float, sign: float, offset_s: float,
+                 until_s: float):
+        """``sign``: +1 when contact pushes the pressure up (inflation), -1 for vacuum;
+        ``until_s``: stop looking this long after opening (the last measurement window)."""
+        self.reference, self.threshold, self.sign = reference, threshold_pa, sign
+        self.offset_s, self.until_s = offset_s, until_s
+        self._before: deque[tuple[np.ndarray, np.ndarray]] = deque()
+        self.offset: float | None = None
+        self.t_c: float | None = None
+        self.done = reference is None
+
+    def feed(self, t: np.ndarray, p: np.ndarray, t_open: float | None) -> float | None:
+        """The block's samples; returns t_c (s after opening) the first time contact shows."""
+        if self.done:
+            return None
+        if t_open is None or t[-1] < t_open:
+            self._before.append((t, p))
+            while len(self._before) > 1 and self._before[1][0][0] < t[-1] - self.offset_s - 0.05:
+                self._before.popleft()
+            return None
+        if self.offset is None:
+            self._before.append((t, p))
+            tb = np.concatenate([b[0] for b in self._before])
+            pb = np.concatenate([b[1] for b in self._before])
+            self._before.clear()
+            try:
+                self.offset = F.sensor_offset(tb, pb, t_open, self.offset_s)
+            except ValueError:  # no samples before opening: nothing to measure against
+                self.done = True
+                return None
+        ref = self.reference
+        t_rel = t - t_open
+        keep = (t_rel >= 0) & (t_rel <= min(self.until_s, float(ref.t_rel[-1])))
+        if t_rel[0] > self.until_s:
+            self.done = True
+            return None
+        if not keep.any():
+            return None
+        dp = self.sign * (p[keep] - self.offset - np.interp(t_rel[keep], ref.t_rel, ref.p))
+        if float(np.mean(dp)) <= self.threshold:
+            return None
+        self.t_c = float(t_rel[keep][int(np.argmax(dp > self.threshold))])
+        self.done = True
+        return self.t_c
+
+
+class SlipWatch:
+    def __init__(self, drop_pa: float, within_s: float, sign: float, level_pa: float):
+        """``level_pa``: the held pressure when the grip settled (raw, as the samples read)."""
+        self.drop, self.within, self.sign = drop_pa, within_s, sign
+        self.level = sign * level_pa  # oriented: contact pushes it up
+        self._hist: deque[tuple[float, float]] = deque()  # (t, oriented block mean)
+        self._fall: tuple[float, float] | None = None  # (detected at, level before)
+
+    def feed(self, t: float, p: float) -> dict[str, float] | None:
+        """A block's mean time and pressure (Pa); a settled slip as ``{at_s, drop_pa,
+        level_pa}`` (level: the raw pressure it settled at)."""
+        self._hist.append((t, self.sign * p))
+        while self._hist and self._hist[-1][0] - self._hist[0][0] > self.within:
+            self._hist.popleft()
+        span = self._hist[-1][0] - self._hist[0][0]
+        values = np.array([v for _, v in self._hist])
+        recent = float(values[-3:].mean())  # a few blocks: a level, not a noisy sample
+        steady = float(values.max() - values.min()) < self.drop / 3
+        if self._fall is None:
+            if len(values) >= 3 and self.level - recent > self.drop:
+                self._fall = (self._hist[-3][0] if len(values) >= 3 else t, self.level)
+                self._hist = deque(list(self._hist)[-1:])
+            elif span >= 0.9 * self.within and steady:  # follow slow drift (a leak is the supervisor's)
+                self.level = float(values.mean())
+            return None
+        if not (span >= 0.5 * self.within and steady) and t - self._fall[0] < 10 * self.within:
+            return None
+        at, before = self._fall
+        self.level, self._fall = recent, None
+        self._hist.clear()
+        return {"at_s": at, "drop_pa": before - recent, "level_pa": self.sign * recent}

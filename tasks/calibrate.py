@@ -20,9 +20,9 @@ from controller.sensing.calibration import (
     NEEDS_REFERENCE,
     Calibration,
     CalibrationError,
-    Estimate,
     feature_value,
 )
+from controller.sensing.estimate import Estimate, si_unit
 from controller.service import Controller
 
 from .journal import CycleJournal
@@ -112,21 +112,38 @@ async def calibrate(ctrl: Controller, scene: Any, target: str, values: Sequence[
 @dataclass
 class Sensing:
     estimate: Estimate
-    values: list[float]
-    truth: float | None
+    values: list[float]  # the feature of every cycle, edge units
+    truth: float | None  # the scene's target (simulated cell), edge units
+    target_unit: str = ""
+    feature_unit: str = ""
 
     def to_dict(self) -> dict[str, Any]:
-        d = self.estimate.to_dict()
-        d["cycles"] = len(self.values)
-        d["measurements"] = self.values
-        d["truth"] = self.truth
-        d["error"] = None if self.truth is None else d["estimate"] - self.truth
-        return d
+        """Edge units. ``status`` says whether there is a value: ``ok``, ``no_object``
+        (nothing there) or ``out_of_range`` (``bound`` is the nearest calibrated one)."""
+        e = self.estimate
+        _, factor = si_unit(self.target_unit)
+
+        def edge(v: float | None) -> float | None:
+            return None if v is None else v / factor
+
+        ok = e.status == "ok"
+        return {
+            "quantity": e.quantity, "status": e.status, "object": e.status != "no_object",
+            "estimate": edge(e.value), "interval": [edge(e.lo), edge(e.hi)], "coverage": e.coverage,
+            "interval95": [edge(e.lo), edge(e.hi)] if ok and e.coverage == 0.95 else None,
+            "bound": edge(e.bound), "unit": self.target_unit, "detail": e.detail, "feature": e.feature,
+            "measured": None if not self.values else sum(self.values) / len(self.values),
+            "feature_unit": self.feature_unit, "extrapolated": e.status == "out_of_range",
+            "cycles": len(self.values), "measurements": self.values, "truth": self.truth,
+            "error": None if self.truth is None or not ok else edge(e.value) - self.truth,
+            "covered": None if self.truth is None or not ok else edge(e.lo) <= self.truth <= edge(e.hi),
+        }
 
 
 async def sense(ctrl: Controller, cal: Calibration, scene: Any | None = None, cycles: int = 1,
                 place: Place | None = None) -> Sensing:
-    """Measure ``cycles`` cycles (averaged) and invert the calibration."""
+    """Measure ``cycles`` cycles (averaged) and say what the calibration makes of them:
+    a value with its interval, no object, or out of range."""
     place = place or ctrl.scene.place
     if ctrl.profile.name != cal.profile:
         raise CalibrationError(f"calibration is for profile {cal.profile!r}, the cell runs {ctrl.profile.name!r}")
@@ -134,7 +151,8 @@ async def sense(ctrl: Controller, cal: Calibration, scene: Any | None = None, cy
         await ensure_reference(ctrl, place)
     if scene is not None:
         await place(scene)
-    values = []
+    values: list[float] = []
+    missing = 0
     for _ in range(cycles):
         try:
             res = await ctrl.run_cycle(label="sense")
@@ -147,10 +165,23 @@ async def sense(ctrl: Controller, cal: Calibration, scene: Any | None = None, cy
                              partial["fault"]) from exc
         y = feature_value(res, cal.feature)
         if y is None:
-            raise CalibrationError(f"cycle {res.cycle_id} gave no {cal.feature} (no contact detected?)")
-        values.append(y)
-    est = cal.invert(sum(values) / len(values), n_measurements=len(values))
-    truth = None
-    if scene is not None and hasattr(scene, cal.target):
-        truth = getattr(scene, cal.target)
-    return Sensing(est, values, truth)
+            missing += 1  # no contact: this cycle says "nothing there"
+        else:
+            values.append(y)
+    scale = FEATURES[cal.feature][2]
+    if missing > len(values):  # most cycles saw nothing
+        est = cal.estimate(None, n_measurements=cycles)
+    else:
+        est = cal.estimate(sum(values) / len(values) / scale, n_measurements=len(values))
+    truth = await _truth(ctrl, scene, cal.target)
+    return Sensing(est, values, truth, cal.target_unit, cal.feature_unit)
+
+
+async def _truth(ctrl: Controller, scene: Any | None, target: str) -> float | None:
+    """The target's true value from the scene's geometry (simulated cell), not from any
+    measurement."""
+    if scene is not None and hasattr(scene, target):
+        return float(getattr(scene, target))
+    truth = await ctrl.scene.truth() if ctrl.scene.available else None
+    value = None if truth is None else truth.get(target)
+    return float(value) if isinstance(value, (int, float)) else None

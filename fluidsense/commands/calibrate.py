@@ -234,12 +234,26 @@ def cmd_sense(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(res, indent=2))
         return 0
-    lo, hi = res["interval95"]
-    line = (f"{cal.target} = {res['estimate']:.2f} {res['unit']}  (95 % interval {lo:.2f} .. {hi:.2f}; "
-            f"{cal.feature} {res['measured']:.4g} {cal.feature_unit} over {res['cycles']} cycle(s))")
-    if res["truth"] is not None:
-        line += f"; true {res['truth']:g}, error {res['error']:+.2f}"
-    if res["extrapolated"]:
-        line += "  [outside the calibrated range]"
-    print(line)
+    print(sensing_words(res, cal))
     return 0
+
+
+def sensing_words(res: dict, cal) -> str:
+    """The sensing result in words: a value with its interval, no object, or out of range."""
+    unit, feat = res["unit"], f"{cal.feature} over {res['cycles']} cycle(s)"
+    if res["status"] == "no_object":
+        line = f"no object ({res['detail']}; {feat})"
+    elif res["status"] == "out_of_range":
+        side = "above" if res["interval"][0] is not None else "below"
+        line = (f"{cal.target}: out of the calibrated range, {side} {res['bound']:g} {unit} "
+                f"({res['detail']}; {feat})")
+    else:
+        lo, hi = res["interval"]
+        line = (f"{cal.target} = {res['estimate']:.2f} {unit}  ({100 * res['coverage']:g} % interval "
+                f"{lo:.2f} .. {hi:.2f}; {cal.feature} {res['measured']:.4g} {cal.feature_unit} over "
+                f"{res['cycles']} cycle(s))")
+    if res["truth"] is not None:
+        line += f"; true {res['truth']:g}"
+        if res["error"] is not None:
+            line += f", error {res['error']:+.2f}"
+    return line

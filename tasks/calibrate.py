@@ -57,31 +57,33 @@ class CalibrationRun:
 async def calibrate(ctrl: Controller, scene: Any, target: str, values: Sequence[float], *, feature: str = "p_eq",
                     fit: str = "linear", cycles: int = 8, drop_first: int = 1, place: Place | None = None,
                     progress: Callable[[int], None] | None = None, seed: int | None = None,
-                    journal: CycleJournal | None = None) -> CalibrationRun:
+                    journal: CycleJournal | None = None, free_cycles: int = 0) -> CalibrationRun:
     """Run ``cycles`` cycles per target value (dropping the first ``drop_first``, as the
-    paper does) and fit ``feature`` against the target. Each finished cycle goes into
-    ``journal`` as it completes; cycles already in it (``--resume``) are not run again. A
-    run that cannot finish raises JobStopped with what it had done."""
+    paper does) and fit ``feature`` against the target; first ``free_cycles`` with nothing
+    there (the free reading that tells "no object" apart; same drop). Each finished cycle
+    goes into ``journal`` as it completes; cycles already in it (``--resume``) are not run
+    again. A run that cannot finish raises JobStopped with what it had done."""
     if feature not in FEATURES:
         raise CalibrationError(f"unknown feature {feature!r}; known: {', '.join(FEATURES)}")
     place = place or ctrl.scene.place
     unit = TARGETS.get(scene.kind, (target, ""))[1]
     entries: list[dict[str, Any]] = list(journal.entries) if journal is not None else []
-    total = len(values) * cycles
+    total = len(values) * cycles + free_cycles
     try:
         if feature in NEEDS_REFERENCE:
             await ensure_reference(ctrl, place)
-        for value in values:
+        plan: list[tuple[float | None, int]] = [(None, free_cycles)] if free_cycles else []
+        for value, n in [*plan, *((v, cycles) for v in values)]:
             done = sum(1 for e in entries if e["value"] == value)
-            if done >= cycles:
+            if done >= n:
                 continue
-            await place(scene_with(scene, target, value))
-            for k in range(done, cycles):
-                res = await ctrl.run_cycle(label=f"{target}={value:g}")
+            await place(EmptyScene() if value is None else scene_with(scene, target, value))
+            label = "free" if value is None else f"{target}={value:g}"
+            for k in range(done, n):
+                res = await ctrl.run_cycle(label=label)
                 if not res.ok:
-                    raise FluidsenseError(f"calibration cycle {res.cycle_id} at {target}={value:g} ended: "
-                                          f"{res.aborted}")
-                entry = {"value": float(value), "k": k, "cycle_id": res.cycle_id,
+                    raise FluidsenseError(f"calibration cycle {res.cycle_id} ({label}) ended: {res.aborted}")
+                entry = {"value": None if value is None else float(value), "k": k, "cycle_id": res.cycle_id,
                          "y": feature_value(res, feature)}
                 entries.append(entry)
                 if journal is not None:
@@ -98,6 +100,8 @@ async def calibrate(ctrl: Controller, scene: Any, target: str, values: Sequence[
         raise JobStopped(stopped_message("calibration", ctrl, exc, f"{len(entries)} of {total} cycles") + kept,
                          partial, partial["fault"]) from exc
     used = [e for e in entries if e["k"] >= drop_first]
+    free_y = [e["y"] for e in used if e["value"] is None and e["y"] is not None]
+    used = [e for e in used if e["value"] is not None]
     skipped = [{"cycle_id": e["cycle_id"], target: e["value"]} for e in used if e["y"] is None]
     points = [(e["value"], e["y"]) for e in used if e["y"] is not None]
     seq = ctrl.profile.sequence
@@ -105,7 +109,7 @@ async def calibrate(ctrl: Controller, scene: Any, target: str, values: Sequence[
     cal = Calibration.fit_points(
         [x for x, _ in points], [y for _, y in points], fit, profile=ctrl.profile.name, method=seq.method,
         feature=feature, feature_unit=FEATURES[feature][1], scene=scene.model_dump(), target=target,
-        target_unit=unit, window=window, seed=seed, cycles=cycles, drop_first=drop_first)
+        target_unit=unit, window=window, seed=seed, cycles=cycles, drop_first=drop_first, free_y=free_y)
     return CalibrationRun(cal, skipped)
 
 

@@ -169,7 +169,9 @@ def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("--case", choices=list(CASES), action="append", help="one case (repeatable; default all)")
     p.add_argument("--sessions", type=int, default=20, help="fresh cells (seeds) per case (default 20)")
     p.add_argument("--per-session", type=int, default=5, help="held-out targets per session (default 5)")
-    p.add_argument("--cal-seed", type=int, default=CAL_SEED)
+    p.add_argument("--cal-seed", type=int, default=CAL_SEED, help=f"the calibration's cell (default {CAL_SEED})")
+    p.add_argument("--first-seed", type=int, default=FIRST_SEED,
+                   help=f"held-out sessions use seeds from this one up (default {FIRST_SEED})")
     p.add_argument("--json", action="store_true")
 
 
@@ -177,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
     out = []
     for case in args.case or list(CASES):
         t0 = time.monotonic()
-        s = study(case, args.sessions, args.per_session, cal_seed=args.cal_seed).summary()
+        s = study(case, args.sessions, args.per_session, cal_seed=args.cal_seed, first_seed=args.first_seed).summary()
         s["wall_s"] = round(time.monotonic() - t0, 1)
         out.append(s)
         if not args.json:

@@ -28,6 +28,8 @@ class Perturbations(StrictModel):
         0.0, ge=-30, le=30, description="the isolated tank's gas warms by this much before the valve opens "
         "(supply air at another temperature than the room)")
     regulator_bias_kpa: Real = Field(0.0, ge=-50, le=50, description="the regulator lands this far off its setpoint")
+    residual_kpa: Real = Field(0.0, ge=-50, le=50, description="the actuator starts holding this much gauge "
+                               "pressure (a tube a previous run left not yet vented); it vents from there")
 
 
 class SimDriverConfig(StrictModel):

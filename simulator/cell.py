@@ -31,6 +31,7 @@ class Perturbation:
 
     tank_warming_k: float = 0.0
     regulator_bias_kpa: float = 0.0
+    residual_kpa: float = 0.0  # the actuator starts at this gauge pressure
 
 
 @dataclass(frozen=True)
@@ -110,7 +111,8 @@ class SimulatedCell:
         if c.flow_sensor:
             self.flow_links = {"vent": -1.0} if isinstance(c, FlowControlledCircuit) else {"actuate": 1.0, "vent": -1.0}
         tau = getattr(c, "regulator_tau_s", 0.05)
-        self.plant = Plant(net, valves, p_reg_abs=self.p_atm, regulator_tau_s=tau)
+        residual = {"actuator": self.p_atm + cfg.perturb.residual_kpa * KPA} if cfg.perturb.residual_kpa else None
+        self.plant = Plant(net, valves, p_reg_abs=self.p_atm, regulator_tau_s=tau, p_initial_abs=residual)
         self.valve_names = tuple(c.safe_valves)
         self.outputs = dict(c.safe_valves)  # the valve driver's output register, as commanded
         self.setpoint_pa = 0.0

@@ -20,9 +20,9 @@ from controller.sensing.calibration import (
     NEEDS_REFERENCE,
     Calibration,
     CalibrationError,
-    Estimate,
     feature_value,
 )
+from controller.sensing.estimate import Estimate, si_unit
 from controller.service import Controller
 
 from .journal import CycleJournal
@@ -57,31 +57,33 @@ class CalibrationRun:
 async def calibrate(ctrl: Controller, scene: Any, target: str, values: Sequence[float], *, feature: str = "p_eq",
                     fit: str = "linear", cycles: int = 8, drop_first: int = 1, place: Place | None = None,
                     progress: Callable[[int], None] | None = None, seed: int | None = None,
-                    journal: CycleJournal | None = None) -> CalibrationRun:
+                    journal: CycleJournal | None = None, free_cycles: int = 0) -> CalibrationRun:
     """Run ``cycles`` cycles per target value (dropping the first ``drop_first``, as the
-    paper does) and fit ``feature`` against the target. Each finished cycle goes into
-    ``journal`` as it completes; cycles already in it (``--resume``) are not run again. A
-    run that cannot finish raises JobStopped with what it had done."""
+    paper does) and fit ``feature`` against the target; first ``free_cycles`` with nothing
+    there (the free reading that tells "no object" apart; same drop). Each finished cycle
+    goes into ``journal`` as it completes; cycles already in it (``--resume``) are not run
+    again. A run that cannot finish raises JobStopped with what it had done."""
     if feature not in FEATURES:
         raise CalibrationError(f"unknown feature {feature!r}; known: {', '.join(FEATURES)}")
     place = place or ctrl.scene.place
     unit = TARGETS.get(scene.kind, (target, ""))[1]
     entries: list[dict[str, Any]] = list(journal.entries) if journal is not None else []
-    total = len(values) * cycles
+    total = len(values) * cycles + free_cycles
     try:
         if feature in NEEDS_REFERENCE:
             await ensure_reference(ctrl, place)
-        for value in values:
+        plan: list[tuple[float | None, int]] = [(None, free_cycles)] if free_cycles else []
+        for value, n in [*plan, *((v, cycles) for v in values)]:
             done = sum(1 for e in entries if e["value"] == value)
-            if done >= cycles:
+            if done >= n:
                 continue
-            await place(scene_with(scene, target, value))
-            for k in range(done, cycles):
-                res = await ctrl.run_cycle(label=f"{target}={value:g}")
+            await place(EmptyScene() if value is None else scene_with(scene, target, value))
+            label = "free" if value is None else f"{target}={value:g}"
+            for k in range(done, n):
+                res = await ctrl.run_cycle(label=label)
                 if not res.ok:
-                    raise FluidsenseError(f"calibration cycle {res.cycle_id} at {target}={value:g} ended: "
-                                          f"{res.aborted}")
-                entry = {"value": float(value), "k": k, "cycle_id": res.cycle_id,
+                    raise FluidsenseError(f"calibration cycle {res.cycle_id} ({label}) ended: {res.aborted}")
+                entry = {"value": None if value is None else float(value), "k": k, "cycle_id": res.cycle_id,
                          "y": feature_value(res, feature)}
                 entries.append(entry)
                 if journal is not None:
@@ -98,6 +100,8 @@ async def calibrate(ctrl: Controller, scene: Any, target: str, values: Sequence[
         raise JobStopped(stopped_message("calibration", ctrl, exc, f"{len(entries)} of {total} cycles") + kept,
                          partial, partial["fault"]) from exc
     used = [e for e in entries if e["k"] >= drop_first]
+    free_y = [e["y"] for e in used if e["value"] is None and e["y"] is not None]
+    used = [e for e in used if e["value"] is not None]
     skipped = [{"cycle_id": e["cycle_id"], target: e["value"]} for e in used if e["y"] is None]
     points = [(e["value"], e["y"]) for e in used if e["y"] is not None]
     seq = ctrl.profile.sequence
@@ -105,28 +109,45 @@ async def calibrate(ctrl: Controller, scene: Any, target: str, values: Sequence[
     cal = Calibration.fit_points(
         [x for x, _ in points], [y for _, y in points], fit, profile=ctrl.profile.name, method=seq.method,
         feature=feature, feature_unit=FEATURES[feature][1], scene=scene.model_dump(), target=target,
-        target_unit=unit, window=window, seed=seed, cycles=cycles, drop_first=drop_first)
+        target_unit=unit, window=window, seed=seed, cycles=cycles, drop_first=drop_first, free_y=free_y)
     return CalibrationRun(cal, skipped)
 
 
 @dataclass
 class Sensing:
     estimate: Estimate
-    values: list[float]
-    truth: float | None
+    values: list[float]  # the feature of every cycle, edge units
+    truth: float | None  # the scene's target (simulated cell), edge units
+    target_unit: str = ""
+    feature_unit: str = ""
 
     def to_dict(self) -> dict[str, Any]:
-        d = self.estimate.to_dict()
-        d["cycles"] = len(self.values)
-        d["measurements"] = self.values
-        d["truth"] = self.truth
-        d["error"] = None if self.truth is None else d["estimate"] - self.truth
-        return d
+        """Edge units. ``status`` says whether there is a value: ``ok``, ``no_object``
+        (nothing there) or ``out_of_range`` (``bound`` is the nearest calibrated one)."""
+        e = self.estimate
+        _, factor = si_unit(self.target_unit)
+
+        def edge(v: float | None) -> float | None:
+            return None if v is None else v / factor
+
+        ok = e.status == "ok"
+        return {
+            "quantity": e.quantity, "status": e.status, "object": e.status != "no_object",
+            "estimate": edge(e.value), "interval": [edge(e.lo), edge(e.hi)], "coverage": e.coverage,
+            "interval95": [edge(e.lo), edge(e.hi)] if ok and e.coverage == 0.95 else None,
+            "bound": edge(e.bound), "unit": self.target_unit, "detail": e.detail, "feature": e.feature,
+            "measured": None if not self.values else sum(self.values) / len(self.values),
+            "feature_unit": self.feature_unit, "extrapolated": e.status == "out_of_range",
+            "cycles": len(self.values), "measurements": self.values, "truth": self.truth,
+            "error": None if self.truth is None or not ok else edge(e.value) - self.truth,
+            "covered": None if self.truth is None or not ok else edge(e.lo) <= self.truth <= edge(e.hi),
+        }
 
 
 async def sense(ctrl: Controller, cal: Calibration, scene: Any | None = None, cycles: int = 1,
                 place: Place | None = None) -> Sensing:
-    """Measure ``cycles`` cycles (averaged) and invert the calibration."""
+    """Measure ``cycles`` cycles (averaged) and say what the calibration makes of them:
+    a value with its interval, no object, or out of range."""
     place = place or ctrl.scene.place
     if ctrl.profile.name != cal.profile:
         raise CalibrationError(f"calibration is for profile {cal.profile!r}, the cell runs {ctrl.profile.name!r}")
@@ -134,7 +155,8 @@ async def sense(ctrl: Controller, cal: Calibration, scene: Any | None = None, cy
         await ensure_reference(ctrl, place)
     if scene is not None:
         await place(scene)
-    values = []
+    values: list[float] = []
+    missing = 0
     for _ in range(cycles):
         try:
             res = await ctrl.run_cycle(label="sense")
@@ -147,10 +169,23 @@ async def sense(ctrl: Controller, cal: Calibration, scene: Any | None = None, cy
                              partial["fault"]) from exc
         y = feature_value(res, cal.feature)
         if y is None:
-            raise CalibrationError(f"cycle {res.cycle_id} gave no {cal.feature} (no contact detected?)")
-        values.append(y)
-    est = cal.invert(sum(values) / len(values), n_measurements=len(values))
-    truth = None
-    if scene is not None and hasattr(scene, cal.target):
-        truth = getattr(scene, cal.target)
-    return Sensing(est, values, truth)
+            missing += 1  # no contact: this cycle says "nothing there"
+        else:
+            values.append(y)
+    scale = FEATURES[cal.feature][2]
+    if missing > len(values):  # most cycles saw nothing
+        est = cal.estimate(None, n_measurements=cycles)
+    else:
+        est = cal.estimate(sum(values) / len(values) / scale, n_measurements=len(values))
+    truth = await _truth(ctrl, scene, cal.target)
+    return Sensing(est, values, truth, cal.target_unit, cal.feature_unit)
+
+
+async def _truth(ctrl: Controller, scene: Any | None, target: str) -> float | None:
+    """The target's true value from the scene's geometry (simulated cell), not from any
+    measurement."""
+    if scene is not None and hasattr(scene, target):
+        return float(getattr(scene, target))
+    truth = await ctrl.scene.truth() if ctrl.scene.available else None
+    value = None if truth is None else truth.get(target)
+    return float(value) if isinstance(value, (int, float)) else None

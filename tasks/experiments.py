@@ -7,7 +7,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from common.errors import FluidsenseError
+from common.errors import FluidsenseError, SequenceError
 from common.scenes import EmptyScene
 from controller.config import CellConfig, Profile
 from controller.cycles.analysis import CycleResult
@@ -39,6 +39,20 @@ async def reference(ctrl: Controller, p0_kpa: float | None = None) -> CycleResul
     return res
 
 
+async def _truth_at_window(ctrl: Controller) -> dict[str, Any] | None:
+    """What the simulated cell knows in the middle of the first measurement window (the
+    force on a plate, an indentation: a bench instrument's reading at the moment the
+    pressure is measured, from the plant's own state, not from the sensor)."""
+    if not ctrl.scene.available:
+        return None
+    try:
+        w = ctrl.profile.sequence.windows[0]
+        await ctrl.wait_after_open(0.5 * (w.start_s + w.end_s))
+    except SequenceError:  # the cycle ended before its valve opened: nothing to read
+        return None
+    return await ctrl.scene.truth()
+
+
 async def sweep(ctrl: Controller, scene: Any, target: str | None, values: Sequence[float | None], cycles: int = 1,
                 drop_first: int = 0, p0_kpa: float | None = None,
                 on_cycle: Callable[[], None] | None = None) -> list[Run]:
@@ -49,12 +63,14 @@ async def sweep(ctrl: Controller, scene: Any, target: str | None, values: Sequen
         sc = value if target is None else scene_with(scene, target, value)
         await ctrl.scene.place(sc)
         for k in range(cycles):
-            res = await ctrl.run_cycle(p0_kpa=p0_kpa)
+            pending = await ctrl.start_cycle(p0_kpa=p0_kpa)
+            truth = await _truth_at_window(ctrl)
+            res = await pending
             if on_cycle is not None:
                 on_cycle()
             if not res.ok:
                 raise FluidsenseError(f"cycle {res.cycle_id} on {sc} failed: {res.aborted}")
             if k >= drop_first:
                 tv = None if target is None else float(value)
-                runs.append(Run(sc, tv, res, await ctrl.scene.truth()))
+                runs.append(Run(sc, tv, res, truth))
     return runs

@@ -91,14 +91,19 @@ class CycleJournal:
         for n, line in enumerate(lines[1:], start=2):
             try:
                 e = json.loads(line)
-                entry = {"value": float(e["value"]), "k": int(e["k"]), "cycle_id": int(e["cycle_id"]),
+                # value None: a cycle with nothing there (the free reading)
+                entry = {"value": None if e["value"] is None else float(e["value"]), "k": int(e["k"]),
+                         "cycle_id": int(e["cycle_id"]),
                          "y": None if e["y"] is None else float(e["y"])}
             except (ValueError, KeyError, TypeError) as exc:
                 if n == len(lines):  # the cycle a crash cut off while it was written
                     complete = False
                     break
                 raise ConfigError(f"{path}:{n}: not a finished cycle ({type(exc).__name__}: {exc})") from exc
-            if entry["value"] not in plan["values"] or not 0 <= entry["k"] < plan["cycles"]:
+            if entry["value"] is None:
+                if not 0 <= entry["k"] < plan.get("free_cycles", 0):
+                    raise ConfigError(f"{path}:{n}: free cycle {entry['k']} is not in the plan")
+            elif entry["value"] not in plan["values"] or not 0 <= entry["k"] < plan["cycles"]:
                 raise ConfigError(f"{path}:{n}: cycle {entry['k']} at {entry['value']} is not in the plan")
             entries.append(entry)
         return entries, complete

@@ -136,3 +136,42 @@ def test_calibrate_and_sense_commands(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "fluidsense.cli", "sense", "-k", str(out), "--scene", "wall",
                           "--set", "distance=3"], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "distance" in bad.stderr
+
+
+# ----------------------------------------------------------- estimates: what a reading says
+def _with_free(cal, level=23.6, sd=0.03, n=7, seed=5):
+    cal.free_y = list(level + np.random.default_rng(seed).normal(0, sd, n))
+    return cal
+
+
+def test_estimate_is_si_with_an_interval_and_status_ok():
+    cal = _with_free(synthetic())
+    est = cal.estimate((22.6 - 0.04 * 17.5) * 1e3)  # Pa in
+    assert est.status == "ok" and est.quantity == "height" and est.unit == "m"
+    assert est.value == pytest.approx(17.5e-3, abs=1e-3) and est.lo < est.value < est.hi
+    assert set(est.as_dict()) >= {"quantity", "value", "lo", "hi", "coverage", "status"}
+    assert est.to_edge("mm")["value_mm"] == pytest.approx(est.value * 1e3)
+
+
+def test_the_free_reading_is_no_object_and_beyond_the_range_is_out_of_range():
+    cal = _with_free(synthetic())  # P_eq falls with h; nothing there reads 23.6 kPa (above h = 0)
+    empty = cal.estimate(23.6e3)
+    assert empty.status == "no_object" and empty.value is None and "free reading" in empty.detail
+    assert cal.estimate(None).status == "no_object"  # no contact feature at all
+    far = cal.estimate((22.6 - 0.04 * 55) * 1e3)  # h = 55 mm: calibrated 0..40
+    assert far.status == "out_of_range" and far.bound == pytest.approx(40e-3) and far.lo == far.bound
+    assert far.value is None and far.hi is None
+    # just inside the range stays a value, even when the free level is known
+    assert cal.estimate((22.6 - 0.04 * 39) * 1e3).status == "ok"
+
+
+def test_lack_of_fit_does_not_average_away():
+    """A curved truth fitted by a line: the interval of a 50-cycle mean keeps the lack of
+    fit, so it covers the truth at every calibrated height; pure error alone would not."""
+    cal = synthetic(curve=0.0006, sd=0.01, n_per=7, seed=3)
+    covered = 0
+    for h in np.arange(0, 45, 5.0):
+        y = 22.6 - 0.04 * h + 0.0006 * h**2
+        inv = cal.invert(y, n_measurements=50)
+        covered += inv.interval95[0] <= h <= inv.interval95[1]
+    assert covered == 9

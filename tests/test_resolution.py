@@ -89,3 +89,28 @@ def test_design_command(tmp_path):
     assert data["recommended"]["feasible"] and data["improvement"] >= 1.0
     assert data["current"]["min_resolution"] == pytest.approx(0.041, rel=0.1)
     assert data["resolution_unit"] == "kPa/mm"
+
+
+def test_design_for_a_requirement_takes_the_lowest_p0_that_meets_it_and_says_why_not():
+    """--resolution-mm/--decide-by-s: a loose requirement is met below the P0 limit (not
+    pushed to it); one the noise cannot reach, or a decision before the transient has
+    settled, gets no design and a reason."""
+    import json as _json
+
+    def design(*extra):
+        out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "design", "--profile", "pneunet-gripper",
+                              "--tanks", "0.1,0.3,1.0", "--json", *extra], cwd=REPO, capture_output=True,
+                             text=True, timeout=120)
+        return out.returncode, _json.loads(out.stdout)
+
+    rc, loose = design("--resolution-mm", "4", "--decide-by-s", "10")
+    best = loose["recommended"]
+    assert rc == 0 and best["meets"] and best["half_width"] <= 4 and best["settle_s"] < 10
+    assert best["p0_kpa"] <= 90.0 - loose["p0_margin_kpa"] and best["p0_kpa"] < 60.0  # lowest that does it
+    rc, tight = design("--resolution-mm", "0.05", "--decide-by-s", "10")
+    assert rc == 1 and tight["recommended"] is None and "noise" in tight["why_none"]
+    rc, early = design("--resolution-mm", "4", "--decide-by-s", "0.05")
+    assert rc == 1 and "settle" in early["why_none"]
+    bad = subprocess.run([sys.executable, "-m", "fluidsense.cli", "design", "--profile", "pneunet-gripper",
+                          "--resolution-mm", "1"], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "together" in bad.stderr

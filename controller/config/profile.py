@@ -54,6 +54,16 @@ class SequenceConfig(StrictModel):
     actuate_s: Real = Field(20.0, gt=0, le=3600)
     vent_s: Real = Field(10.0, gt=0, le=600)
     offset_s: Real = Field(1.0, gt=0, le=60, description="sensor offset: mean of this long before opening")
+    settle_window_s: Real = Field(
+        15.0, gt=0, le=120, description="the valve opens only once the vented actuator has read flat (its drift "
+        "within the noise) over this long (at most charge_s + isolate_s): a tube still venting would bias the "
+        "offset and the gas the actuator starts with")
+    settle_timeout_s: Real = Field(
+        180.0, ge=0, le=3600, description="how long past the planned opening to wait for the actuator to settle "
+        "before the cycle is refused ('not settled'); 0 opens without the check")
+    settle_floor_kpa: Real = Field(
+        0.003, ge=0, le=10, description="drift over settle_window_s always taken as flat (a very quiet sensor "
+        "would otherwise wait for drifts no measurement can see)")
     windows: list[Window] = Field(default_factory=lambda: [Window(name="eq", start_s=4.0, end_s=5.0)],
                                   min_length=1, max_length=16)
     flow_window: Window | None = Field(
@@ -92,6 +102,12 @@ class SequenceConfig(StrictModel):
     @property
     def p0_pa(self) -> float:
         return self.p0_kpa * KPA
+
+    @property
+    def settle_s(self) -> float:
+        """The settle test's window: a fast cycle (the sorting gripper's 2.5 s before
+        opening) is not made to wait for a window longer than its own preparation."""
+        return min(self.settle_window_s, self.charge_s + self.isolate_s)
 
 
 class Limits(StrictModel):

@@ -30,6 +30,16 @@ class CycleTrace:
         self._v.append(block.values)
         self.missed += block.missed
 
+    def tail(self, seconds: float) -> tuple[np.ndarray, np.ndarray]:
+        """The samples of the last ``seconds`` (at least), joined: cheap to ask often."""
+        k = len(self._t)
+        while k > 0 and self._t[-1][-1] - self._t[k - 1][0] < seconds:
+            k -= 1
+        k = max(k - 1, 0)
+        if not self._t:
+            return np.empty(0), np.empty((0, len(self.channels)))
+        return np.concatenate(self._t[k:]), np.vstack(self._v[k:])
+
     def arrays(self) -> tuple[np.ndarray, np.ndarray]:
         if not self._t:
             return np.empty(0), np.empty((0, len(self.channels)))

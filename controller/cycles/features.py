@@ -50,6 +50,23 @@ def sensor_offset(t: np.ndarray, p: np.ndarray, t_open: float, duration_s: float
     return float(np.mean(p[sel]))
 
 
+def drift(t: np.ndarray, p: np.ndarray) -> tuple[float, float]:
+    """Change of ``p`` over the span of ``t`` by a least-squares line, and its standard
+    error from the scatter about that line: is the vented actuator still moving?"""
+    n = len(t)
+    if n < 3:
+        return float("nan"), float("inf")
+    tc = t - t.mean()
+    sxx = float(np.sum(tc * tc))
+    if sxx <= 0:
+        return float("nan"), float("inf")
+    slope = float(np.sum(tc * (p - p.mean())) / sxx)
+    resid = p - p.mean() - slope * tc
+    se_slope = float(np.sqrt(np.sum(resid * resid) / (n - 2) / sxx))
+    span = float(t[-1] - t[0])
+    return slope * span, se_slope * span
+
+
 def window_stats(t: np.ndarray, p: np.ndarray, t_open: float, start_s: float, end_s: float) -> WindowStats:
     """Mean and sample sd of ``p`` over [t_open + start_s, t_open + end_s)."""
     sel = _between(t, t_open + start_s, t_open + end_s)

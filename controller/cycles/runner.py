@@ -24,6 +24,7 @@ from common.units import KPA
 from drivers.backend import Backend
 
 from ..config import Profile
+from . import features as F
 from .analysis import CycleResult, CycleTrace, Reference, analyse, make_reference, transition_dict
 from .sequencer import Action, FlowProfileAction, Sequencer, SetpointAction, State, ValveAction
 
@@ -52,7 +53,7 @@ class CycleRunner:
         (a cycle's start, each action: what a replay needs); ``trip`` latches a fault."""
         self.profile, self.backend = profile, backend
         self._now, self._emit, self._record, self._trip = now, emit, record, trip
-        self.sequencer = Sequencer(profile.sequence, backend.valves.safe_positions)
+        self.sequencer = Sequencer(profile.sequence, backend.valves.safe_positions, settled=self._settled)
         self.references: dict[float, Reference] = {}
         self.results: deque[CycleResult] = deque(maxlen=100)
         self._trace: CycleTrace | None = None
@@ -185,6 +186,25 @@ class CycleRunner:
     def publish_transitions(self) -> None:
         for tr in self.sequencer.drain_transitions():
             self._emit("state", transition_dict(tr))
+
+    def _settled(self, t_now: float) -> str | None:
+        """None when the vented actuator has read flat over the last ``settle_s``
+        (its drift within 2 standard errors of the noise, or below the floor), else why
+        not. The runner holds the cycle's samples, so it is the one to look."""
+        cfg = self.profile.sequence
+        if self._trace is None:
+            return None
+        window = cfg.settle_s
+        t, values = self._trace.tail(window)
+        if len(t) < 3 or t[0] > t_now - window + 1.5 * (t[1] - t[0]):
+            return f"fewer than {window:g} s of vented readings yet"
+        sel = t > t_now - window
+        change, se = F.drift(t[sel], values[sel, self._trace.channels.index("p_act")])
+        limit = max(2.0 * se, cfg.settle_floor_kpa * KPA)
+        if abs(change) <= limit:
+            return None
+        return (f"the vented actuator still moves {change / KPA:+.4f} kPa over {window:g} s "
+                f"(flat is within {limit / KPA:.4f} kPa)")
 
     def _measurement_due(self) -> bool:
         seq = self.sequencer

@@ -5,7 +5,12 @@ IDLE -> CHARGE -> ISOLATE -> ACTUATE -> HOLD -> VENT -> IDLE
 CHARGE   regulator at P0 (tank: supply valve open, the tank fills).
 ISOLATE  tank method: supply valve closed, the tank holds its charge. Skipped when its
          duration is 0. The sensor offset is read just before the next step, while the
-         actuator is still vented.
+         actuator is still vented. The valve opens only once the vented actuator reads
+         flat (``settled``, checked by the runner on its samples): until then the step
+         lasts longer, and past ``settle_timeout_s`` the cycle is aborted "not settled".
+         So every cycle, the first of a session too, starts from the same empty actuator
+         and reads a true offset (paper, Methods: a blank for the sensor offset, then
+         the mean of the last 0.5-1 s before the valve opens).
 ACTUATE  actuation valve open (t_open): the actuator fills from the tank, the regulator
          or the flow controller.
 HOLD     from the first measurement window until the valve closes.
@@ -20,6 +25,7 @@ from __future__ import annotations
 
 import enum
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from common.errors import SequenceError
@@ -28,6 +34,8 @@ from common.units import SLPM
 from controller.config import SequenceConfig
 
 log = logging.getLogger(__name__)
+
+SETTLE_RECHECK_S = 0.5  # while waiting for the actuator to settle, look again this often
 
 
 class State(str, enum.Enum):
@@ -74,8 +82,13 @@ class Transition:
 class Sequencer:
     """``valves``: the circuit's valves and their safe positions (name -> open)."""
 
-    def __init__(self, cfg: SequenceConfig, valves: dict[str, bool] | None = None):
+    def __init__(self, cfg: SequenceConfig, valves: dict[str, bool] | None = None,
+                 settled: Callable[[float], str | None] | None = None):
+        """``settled(t)``: None when the vented actuator reads flat at ``t``, else why not
+        (default: always flat)."""
         self.cfg = cfg
+        self._settled = settled or (lambda t: None)
+        self._settle_since: float | None = None
         self.valves = dict(valves if valves is not None else {SUPPLY: False, ACTUATE: False})
         self.state = State.IDLE
         self.cycle_id = 0
@@ -122,6 +135,7 @@ class Sequencer:
         self.p0_pa = self.cfg.p0_pa if p0_pa is None else p0_pa
         self.t_start, self.t_open, self.t_end, self.aborted = t, None, None, None
         self._isolate_at = float("inf")
+        self._settle_since = None
         self.hold = hold
         self._go(t, State.CHARGE, "start")
         self._deadline = t + self.cfg.charge_s
@@ -151,9 +165,9 @@ class Sequencer:
                 self._go(t, State.ISOLATE, "charged")
                 self._deadline = t + cfg.isolate_s
                 return [ValveAction(SUPPLY, False)] if cfg.method == "tank" else []
-            return self._open(t)
+            return self._open_when_settled(t)
         if self.state == State.ISOLATE:
-            return self._open(t)
+            return self._open_when_settled(t)
         if self.state == State.ACTUATE:
             self._go(t, State.HOLD, "measuring")
             self._deadline = float("inf") if self.hold else self.t_open + cfg.actuate_s
@@ -168,6 +182,25 @@ class Sequencer:
             self._deadline = float("inf")
             return []
         raise SequenceError(f"no transition from {self.state}")  # pragma: no cover
+
+    def _open_when_settled(self, t: float) -> list[Action]:
+        """Open now if the vented actuator reads flat; else look again shortly, up to
+        ``settle_timeout_s`` past the planned opening, then refuse the cycle."""
+        why = self._settled(t) if self.cfg.settle_timeout_s > 0 else None
+        if why is None:
+            if self._settle_since is not None:
+                log.info("cycle %d: actuator settled after %.1f s more", self.cycle_id, t - self._settle_since)
+            return self._open(t)
+        if self._settle_since is None:
+            self._settle_since = t
+            log.info("cycle %d: waiting for the vented actuator to settle: %s", self.cycle_id, why)
+        waited = t - self._settle_since
+        if waited >= self.cfg.settle_timeout_s:
+            return self.abort(t, f"not settled: {why} after {waited:.0f} s more venting; the offset and the "
+                              "gas the actuator starts with would be wrong (a leak into the actuator, a blocked "
+                              "vent, a drifting sensor?)")
+        self._deadline = t + SETTLE_RECHECK_S
+        return []
 
     def _open(self, t: float) -> list[Action]:
         cfg = self.cfg

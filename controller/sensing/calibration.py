@@ -2,10 +2,13 @@
 
 The curve is fitted as the paper draws it, feature against target (P_eq against h), by
 least squares (numpy's polynomial fit), one point per cycle. Sensing inverts it: the
-estimate is the target whose predicted feature equals the measurement, and the 95 %
-interval is the classical inverse-prediction interval: the residual sd of the fit (which
-holds per-cycle noise and cycle-to-cycle variation) plus the uncertainty of the curve
-itself, divided by the local slope.
+estimate is the target whose predicted feature equals the measurement, and the interval
+is the classical inverse-prediction interval: the repeatability of one cycle (pure
+error: window noise, offset noise, cycle-to-cycle variation; it shrinks with averaging),
+the curve's lack of fit (it does not) and the uncertainty of the curve itself, divided by
+the local slope (``fitstats``). ``estimate`` also says when there is no object (the
+feature reads what the actuator reads with nothing there, ``free_y``) or when the object
+is outside the calibrated range.
 """
 
 from __future__ import annotations
@@ -19,13 +22,16 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import Field, JsonValue, model_validator
-from scipy import optimize, stats
+from scipy import optimize
 
 from common.errors import ConfigError, FluidsenseError
 from common.files import MB, check_name, decode_utf8, nested_within, read_bounded
 from common.models import FieldError, Integer, Real, StrictModel
 from common.names import FEATURES, FIT_DEGREE, NEEDS_REFERENCE  # noqa: F401 - their home is light
 from controller.config.loading import validate
+
+from .estimate import Estimate, quantity_name, si_unit
+from .fitstats import fit_stats, prediction_sd, t_quantile
 
 FORMAT = "fluidsense-calibration/1"
 
@@ -42,14 +48,23 @@ def feature_value(result, feature: str) -> float | None:
     return None if v is None or not math.isfinite(v) else v * scale
 
 
+# a reading within this many sd of the free (nothing there) level, or beyond it, is "no
+# object": one-sided, 1 in 740 readings of an empty actuator would claim an object
+NO_OBJECT_Z = 3.0
+
+
 @dataclass
-class Estimate:
+class Inversion:
+    """The target for a feature value, in the calibration's units (the curve read
+    backwards; ``estimate`` adds what the reading means)."""
+
     estimate: float
     interval95: tuple[float, float]
     unit: str
     feature: str
     measured: float
     extrapolated: bool
+    half_width: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -79,6 +94,7 @@ class Calibration:
     drop_first: int = 0
     residual_sd: float = 0.0
     r2: float = 0.0
+    free_y: list[float] = field(default_factory=list)  # the feature with nothing there, one per cycle
     format: str = FORMAT
 
     # ------------------------------------------------------------------ fit
@@ -110,33 +126,88 @@ class Calibration:
         return np.polyval(self.coeffs, x)
 
     # -------------------------------------------------------------- invert
-    def invert(self, measured: float, n_measurements: int = 1) -> Estimate:
-        """Target for a measured feature, with its 95 % interval."""
+    def _crossing(self, measured: float) -> float | None:
+        """The target whose predicted feature is ``measured`` (searched half a range
+        beyond each end, the root nearest the range preferred); None if there is none."""
         lo, hi = min(self.x), max(self.x)
         span = hi - lo
-        a, b = lo - 0.5 * span, hi + 0.5 * span  # search a little beyond the calibrated range
-        grid = np.linspace(a, b, 2001)
+        grid = np.linspace(lo - 0.5 * span, hi + 0.5 * span, 2001)
         g = self.predict(grid) - measured
         crossings = np.nonzero(np.sign(g[:-1]) != np.sign(g[1:]))[0]
         if len(crossings) == 0:
+            return None
+        mid = 0.5 * (lo + hi)
+        k = min(crossings, key=lambda i: abs(grid[i] - mid))
+        return float(optimize.brentq(lambda v: float(self.predict(v)) - measured, grid[k], grid[k + 1]))
+
+    def invert(self, measured: float, n_measurements: int = 1, coverage: float = 0.95) -> Inversion:
+        """Target for a measured feature (the mean of ``n_measurements`` cycles, edge
+        units), with its interval (``coverage``, 95 % by default)."""
+        est = self._crossing(measured)
+        lo, hi = min(self.x), max(self.x)
+        if est is None:
+            span = hi - lo
             raise CalibrationError(
                 f"measured {self.feature} {measured:.4g} {self.feature_unit} is outside what the calibration "
-                f"predicts for {self.target} in [{a:.3g}, {b:.3g}] {self.target_unit}")
-        mid = 0.5 * (lo + hi)
-        k = min(crossings, key=lambda i: abs(grid[i] - mid))  # prefer the root nearest the range
-        est = float(optimize.brentq(lambda v: float(self.predict(v)) - measured, grid[k], grid[k + 1]))
+                f"predicts for {self.target} in [{lo - 0.5 * span:.3g}, {hi + 0.5 * span:.3g}] {self.target_unit}")
         slope = float(np.polyval(np.polyder(self.coeffs), est))
         if slope == 0:
             raise CalibrationError(f"the calibration is flat at {self.target} = {est:.3g}: no resolution there")
-        x = np.asarray(self.x)
-        n = len(x)
-        deg = FIT_DEGREE[self.fit]
-        t = stats.t.ppf(0.975, n - (deg + 1))
-        sxx = float(np.sum((x - x.mean()) ** 2))
-        lever = 1.0 / n + (est - x.mean()) ** 2 / sxx if sxx > 0 else 1.0 / n
-        half = t * self.residual_sd * math.sqrt(1.0 / max(n_measurements, 1) + lever) / abs(slope)
-        return Estimate(est, (est - half, est + half), self.target_unit, self.feature, measured,
-                        extrapolated=not lo <= est <= hi)
+        fs = fit_stats(self.x, self.y, self.coeffs)
+        half = t_quantile(coverage, fs.dof) * prediction_sd(fs, est, n_measurements) / abs(slope)
+        return Inversion(est, (est - half, est + half), self.target_unit, self.feature, measured,
+                         extrapolated=not lo <= est <= hi, half_width=half)
+
+    def estimate(self, feature_value: float | None, n_measurements: int = 1, coverage: float = 0.95) -> Estimate:
+        """What a measured feature (SI: Pa, s, m^3; the mean of ``n_measurements``
+        cycles; None when the cycle gave none, e.g. no contact) says about the target."""
+        unit, factor = si_unit(self.target_unit)
+        scale = FEATURES[self.feature][2]
+        base = {"quantity": quantity_name(self.target, self.target_unit), "coverage": coverage, "unit": unit,
+                "feature": self.feature, "measured": feature_value, "n_measurements": max(n_measurements, 1)}
+        if feature_value is None or not math.isfinite(feature_value):
+            return Estimate(status="no_object", detail=f"no {self.feature}: no contact detected", **base)
+        y = feature_value * scale
+        free = self._free_reading(y, n_measurements)
+        if free is not None:
+            return Estimate(status="no_object", detail=free, **base)
+        lo, hi = min(self.x), max(self.x)
+        est = self._crossing(y)
+        if est is None:
+            above = (y - float(self.predict(0.5 * (lo + hi)))) * self.slope > 0
+            return self._out_of_range(base, hi if above else lo, above, factor,
+                                      f"{self.feature} {y:.4g} {self.feature_unit} is beyond what the curve reaches")
+        inv = self.invert(y, n_measurements, coverage)
+        a, b = inv.interval95
+        if b < lo or a > hi:
+            above = a > hi
+            return self._out_of_range(base, hi if above else lo, above, factor,
+                                      f"the reading points to {inv.estimate:.3g} {self.target_unit}, outside the "
+                                      f"calibrated {lo:g} .. {hi:g} {self.target_unit}")
+        return Estimate(status="ok", value=inv.estimate * factor, lo=a * factor, hi=b * factor, **base)
+
+    @staticmethod
+    def _out_of_range(base: dict[str, Any], bound: float, above: bool, factor: float, detail: str) -> Estimate:
+        b = bound * factor
+        return Estimate(status="out_of_range", bound=b, lo=b if above else None, hi=None if above else b,
+                        detail=detail, **base)
+
+    def _free_reading(self, y: float, n_measurements: int) -> str | None:
+        """Why ``y`` is what the actuator reads with nothing there, or None. A reading
+        counts as free when it is within NO_OBJECT_Z sd of the free level or beyond it
+        (on the side away from the calibrated range)."""
+        if not self.free_y:
+            return None
+        free = np.asarray(self.free_y, dtype=float)
+        fs = fit_stats(self.x, self.y, self.coeffs)
+        sd1 = float(np.std(free, ddof=1)) if len(free) > 2 else fs.pure_sd
+        sd = sd1 * math.sqrt(1.0 / max(n_measurements, 1) + 1.0 / len(free))
+        level = float(np.mean(free))
+        toward = np.sign(float(np.mean(self.predict([min(self.x), max(self.x)]))) - level)
+        if (y - level) * toward < NO_OBJECT_Z * sd:
+            return (f"{self.feature} {y:.4g} {self.feature_unit} is within the noise of the free reading "
+                    f"{level:.4g} +- {NO_OBJECT_Z * sd:.2g} {self.feature_unit}")
+        return None
 
     # --------------------------------------------------------------- files
     def to_dict(self) -> dict[str, Any]:
@@ -202,6 +273,8 @@ class CalibrationFile(StrictModel):
     drop_first: Integer = Field(0, ge=0)
     residual_sd: Real = Field(0.0, ge=0)
     r2: Real = 0.0
+    free_y: list[Real] = Field(default_factory=list, max_length=MAX_POINTS,
+                               description="the feature with nothing there (one per cycle): 'no object' readings")
 
     @model_validator(mode="after")
     def _consistent(self) -> CalibrationFile:

@@ -29,6 +29,8 @@ def register(sub) -> None:
     p.add_argument("--fit", choices=list(FIT_DEGREE), help="curve (default: linear)")
     p.add_argument("--cycles", type=int, help="cycles per target (default: the profile's)")
     p.add_argument("--drop-first", type=int, help="cycles dropped per target (default: the profile's)")
+    p.add_argument("--free-cycles", type=int, help="cycles with nothing there, first: what 'no object' reads "
+                   "(default: as many as per target; 0 = none, sense then cannot say 'no object' from P_eq)")
     p.add_argument("--out", "-o", default="calibration.json", help="calibration file (default calibration.json)")
     p.add_argument("--json", action="store_true", help="print the calibration as JSON")
     p.add_argument("--resume", action="store_true", help="continue a run that stopped: the cycles in OUT.cycles.jsonl "
@@ -159,17 +161,21 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     drop = args.drop_first if args.drop_first is not None else (plan.drop_first if plan else 1)
     if drop >= cycles:
         raise ConfigError(f"--drop-first {drop} leaves no cycle of --cycles {cycles}")
+    free = cycles if args.free_cycles is None else args.free_cycles
+    if free < 0 or (free and drop >= free):
+        raise ConfigError(f"--free-cycles {free}: give 0 or more than --drop-first {drop}")
     operator = Operator(target, args.targets_from, args.yes) if _needs_operator(cfg) else None
     journal = CycleJournal.open(journal_path(args.out), {
         "profile": cfg.profile.name, "scene": scene.model_dump(), "target": target, "values": values,
-        "feature": feature, "fit": fit, "cycles": cycles, "drop_first": drop}, resume=args.resume)
+        "feature": feature, "fit": fit, "cycles": cycles, "drop_first": drop, "free_cycles": free},
+        resume=args.resume)
     if journal.entries:
         print(f"resuming: {len(journal.entries)} of {len(values) * cycles} cycles done ({journal.path})",
               file=sys.stderr)
 
     async def job():
         async with app.controller(cfg, own_process=True) as ctrl:
-            total = len(values) * cycles
+            total = len(values) * cycles + free
             with tqdm(total=total, initial=len(journal.entries), desc=f"calibrating {cfg.profile.name}",
                       unit="cycle", file=sys.stderr, disable=args.json) as bar:
                 if operator is not None:
@@ -177,7 +183,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                 return await calibrate(ctrl, scene, target, values, feature=feature, fit=fit, cycles=cycles,
                                        drop_first=drop, place=operator.place if operator else None,
                                        progress=bar.update, seed=args.seed if cfg.driver.kind == "sim" else None,
-                                       journal=journal)
+                                       journal=journal, free_cycles=free)
 
     try:
         run = asyncio.run(job())
@@ -234,12 +240,26 @@ def cmd_sense(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(res, indent=2))
         return 0
-    lo, hi = res["interval95"]
-    line = (f"{cal.target} = {res['estimate']:.2f} {res['unit']}  (95 % interval {lo:.2f} .. {hi:.2f}; "
-            f"{cal.feature} {res['measured']:.4g} {cal.feature_unit} over {res['cycles']} cycle(s))")
-    if res["truth"] is not None:
-        line += f"; true {res['truth']:g}, error {res['error']:+.2f}"
-    if res["extrapolated"]:
-        line += "  [outside the calibrated range]"
-    print(line)
+    print(sensing_words(res, cal))
     return 0
+
+
+def sensing_words(res: dict, cal) -> str:
+    """The sensing result in words: a value with its interval, no object, or out of range."""
+    unit, feat = res["unit"], f"{cal.feature} over {res['cycles']} cycle(s)"
+    if res["status"] == "no_object":
+        line = f"no object ({res['detail']}; {feat})"
+    elif res["status"] == "out_of_range":
+        side = "above" if res["interval"][0] is not None else "below"
+        line = (f"{cal.target}: out of the calibrated range, {side} {res['bound']:g} {unit} "
+                f"({res['detail']}; {feat})")
+    else:
+        lo, hi = res["interval"]
+        line = (f"{cal.target} = {res['estimate']:.2f} {unit}  ({100 * res['coverage']:g} % interval "
+                f"{lo:.2f} .. {hi:.2f}; {cal.feature} {res['measured']:.4g} {cal.feature_unit} over "
+                f"{res['cycles']} cycle(s))")
+    if res["truth"] is not None:
+        line += f"; true {res['truth']:g}"
+        if res["error"] is not None:
+            line += f", error {res['error']:+.2f}"
+    return line

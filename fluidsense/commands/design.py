@@ -21,6 +21,10 @@ def register(sub) -> None:
     p.add_argument("--points", type=int, default=5, help="targets evaluated across the range (default 5)")
     p.add_argument("--tanks", help="comma-separated tank volumes in litres (default: 24 from 1/10 to 10x)")
     p.add_argument("--p0", help="comma-separated P0 values in kPa (default: 24 up to the profile's limit)")
+    p.add_argument("--resolution-mm", type=float, metavar="R", help="the accuracy needed: 95 %% half-width of one "
+                   "reading, in the target's unit (mm, deg...); with --decide-by-s: design for it")
+    p.add_argument("--decide-by-s", type=float, metavar="T", help="seconds after the valve opens by which the "
+                   "reading must be done")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=main)
 
@@ -63,6 +67,17 @@ def main(args: argparse.Namespace) -> int:
     def scene_at(x):
         return scene_with(plan.scene, plan.target, x)
 
+    if (args.resolution_mm is None) != (args.decide_by_s is None):
+        raise ConfigError("give --resolution-mm and --decide-by-s together")
+    if args.resolution_mm is not None:
+        if not args.resolution_mm > 0 or not args.decide_by_s > 0:
+            raise ConfigError("--resolution-mm and --decide-by-s must be positive")
+        margin = prof.p0_margin_kpa
+        if not args.p0:
+            top = limit - margin if not vacuum else limit + margin
+            p0s = list(np.linspace(top / 24, top, 24))
+        return _requirement(args, prof, plan, scene_at, targets, tanks, p0s, lo, hi)
+
     limits = (prof.limits.min_kpa, prof.limits.max_kpa)
     sensor = tuple(prof.sensor.range_kpa)
     p_atm = circuit.p_atm
@@ -91,4 +106,32 @@ def main(args: argparse.Namespace) -> int:
           f"  ({out['improvement']:.2f}x the current worst case)" if out["improvement"] else "")
     infeasible = sum(not d.feasible for d in grid)
     print(f"  {len(grid)} candidates, {infeasible} infeasible (missed contact, limits or sensor range)")
+    return 0
+
+
+def _requirement(args, prof, plan, scene_at, targets, tanks, p0s, lo, hi) -> int:
+    """Design for an accuracy by a decision time (simulator/design.py)."""
+    from common.scenes import TARGETS
+    from simulator.design import recommend
+
+    unit = TARGETS.get(plan.scene.kind, (plan.target, ""))[1]
+    best, grid, why = recommend(prof, scene_at, targets, tanks, p0s, args.resolution_mm, args.decide_by_s)
+    out = {"profile": prof.name, "target": plan.target, "unit": unit, "range": [lo, hi],
+           "resolution": args.resolution_mm, "decide_by_s": args.decide_by_s,
+           "noise_sd_kpa": prof.sensor.noise_sd_kpa, "p0_margin_kpa": prof.p0_margin_kpa,
+           "recommended": None if best is None else best.to_dict(), "why_none": why or None,
+           "candidates": len(grid), "meeting": sum(g.meets for g in grid)}
+    if args.json:
+        print(json.dumps(out, indent=2))
+        return 0 if best is not None else 1
+    print(f"{prof.name}: {plan.target} over [{lo:g}, {hi:g}] {unit}, +-{args.resolution_mm:g} {unit} (95 %) by "
+          f"{args.decide_by_s:g} s after opening, sensor noise {prof.sensor.noise_sd_kpa:g} kPa")
+    if best is None:
+        print(f"  no design reaches it: {why}")
+        return 1
+    print(f"  recommended: tank {best.tank_l:.3g} L at P0 {best.p0_kpa:.3g} kPa (limit {prof.limits.max_kpa:g} kPa, "
+          f"margin {prof.p0_margin_kpa:.2f}): predicted +-{best.half_width:.2f} {unit} per reading, "
+          f"settled after {best.settle_s:.2f} s, window {best.window_s:.2f} s before {args.decide_by_s:g} s; "
+          f"worst |dP/d{plan.target}| {best.resolution_kpa:.4f} kPa/{unit}")
+    print(f"  {out['meeting']} of {len(grid)} candidates meet it; the lowest P0 is recommended")
     return 0

@@ -1,14 +1,10 @@
-"""Calibrated estimates for the gripper's events: the one place that turns a calibration
-and a measured feature into the agreed estimate shape
+"""Calibrated estimates for the gripper's events: a calibration and a cycle's features
+into the estimate shape the events carry (``controller.sensing.estimate.Estimate``: SI
+inside, metres), and that shape into what the events publish (mm).
 
-    {"quantity": str, "value": float | None, "lo": float | None, "hi": float | None,
-     "coverage": float, "status": "ok" | "no_object" | "out_of_range"}
-
-(SI inside: metres), and that shape into what the events publish (mm).
-
-``estimate()`` is a thin adapter over today's ``Calibration.invert``: a calibration that
-offers ``estimate(feature_value)`` itself (with its own "no object" and range decisions)
-is used as it is, so this module is where that swap happens and nothing else changes.
+The calibration decides "ok", "no object" (the reading is the calibration's free level)
+and "out of range" itself; the gripper adds "no object" when the grip's dP against the
+free-air reference shows no contact.
 """
 
 from __future__ import annotations
@@ -18,16 +14,9 @@ from typing import Any
 
 from common.errors import ConfigError
 from common.names import FEATURES
-from controller.sensing.calibration import Calibration, CalibrationError
+from controller.sensing.calibration import Calibration
 
-COVERAGE = 0.95  # Calibration.invert's interval
 MM = 1e-3
-ESTIMATE_STATUS = ("ok", "no_object", "out_of_range")
-
-
-def quantity_of(cal: Calibration) -> str:
-    """``diameter_mm`` -> ``diameter``: the quantity, its unit said by the published name."""
-    return cal.target.removesuffix(f"_{cal.target_unit}")
 
 
 def load_calibration(path: str | Path, profile: str, where: str) -> Calibration:
@@ -42,29 +31,13 @@ def load_calibration(path: str | Path, profile: str, where: str) -> Calibration:
     return cal
 
 
-def estimate(cal: Calibration, feature_value: float) -> dict[str, Any]:
-    """The agreed estimate shape (SI) for a measured feature in the calibration's unit."""
-    own = getattr(cal, "estimate", None)
-    if callable(own):  # the calibration decides by itself (sensing issue 16)
-        return dict(own(feature_value))
-    base = {"quantity": quantity_of(cal), "coverage": COVERAGE}
-    try:
-        est = cal.invert(feature_value)
-    except CalibrationError:
-        return {**base, "value": None, "lo": None, "hi": None, "status": "out_of_range"}
-    lo, hi = est.interval95
-    return {**base, "value": est.estimate * MM, "lo": lo * MM, "hi": hi * MM,
-            "status": "out_of_range" if est.extrapolated else "ok"}
-
-
 def of_result(cals: list[Calibration], result: Any) -> list[dict[str, Any]]:
     """One estimate per calibration whose feature the cycle result has, with its feature."""
     out = []
     for cal in cals:
-        attr, _, scale = FEATURES[cal.feature]
-        value = getattr(result, attr, None)
-        if value is not None:
-            out.append({**estimate(cal, value * scale), "feature": cal.feature})
+        attr = FEATURES[cal.feature][0]
+        value = getattr(result, attr, None)  # SI; None when the cycle gave none (no contact)
+        out.append({**cal.estimate(value).as_dict(), "feature": cal.feature})
     return out
 
 

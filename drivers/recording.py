@@ -91,7 +91,7 @@ SCHEMAS: dict[str, dict[str, Any]] = {
 }
 
 
-def _event_schema(topic: str) -> dict[str, Any]:
+def event_schema(topic: str) -> dict[str, Any]:
     return SCHEMAS.get(topic) or {
         "title": f"fluidsense.{topic}",
         "description": f"The payload of the published '{topic}' topic (docs/zmq-schema.md, schema version 1) "
@@ -209,7 +209,7 @@ class RecordingWriter:
         self._add(SAMPLES, block.t_end, to_json(block_payload(block)), SCHEMAS[SAMPLES])
 
     def write_event(self, topic: str, t_s: float, payload: dict[str, Any]) -> None:
-        self._add(topic, t_s, to_json({"t_s": t_s, **payload}), _event_schema(topic))
+        self._add(topic, t_s, to_json({"t_s": t_s, **payload}), event_schema(topic))
 
     def flush(self) -> None:
         self._mcap.flush()

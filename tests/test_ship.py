@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -104,3 +105,22 @@ def test_the_installed_wheel_runs_outside_the_checkout(wheel, tmp_path):
                           env={"PYTHONPATH": str(site), "PATH": "/usr/bin"}, capture_output=True, text=True,
                           timeout=120)
     assert demo.returncode == 0 and "usage: fluidsense demo" in demo.stdout
+
+
+@pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze is not installed")
+def test_the_device_drop_in_verifies_and_keeps_the_hardening(tmp_path):
+    """The drop-in's settings added at the end of the unit's [Service] (a later assignment
+    wins, as a drop-in's does), verified with /opt/fluidsense pointing at this checkout."""
+    unit_text = (REPO / "config/systemd/fluidsense.service").read_text().replace("/opt/fluidsense", str(REPO))
+    drop_in = (REPO / "config/systemd/fluidsense-devices.conf").read_text()
+    assert "PrivateDevices=no" in drop_in and "DevicePolicy=closed" in drop_in
+    kept = ("NoNewPrivileges=yes", "ProtectSystem=strict", "ProtectHome=yes", "PrivateTmp=yes")
+    assert all(k in unit_text for k in kept) and not any(k.split("=")[0] + "=" in drop_in for k in kept)
+    unit = tmp_path / "fluidsense.service"
+    settings = "\n".join(line for line in drop_in.splitlines() if not line.startswith("["))
+    unit.write_text(unit_text.replace("\n[Install]", "\n" + settings + "\n\n[Install]", 1))
+    assert "DevicePolicy=closed" in unit.read_text()
+    out = subprocess.run(["systemd-analyze", "verify", "--man=no", str(unit)], capture_output=True, text=True,
+                         timeout=60)
+    problems = [line for line in (out.stdout + out.stderr).splitlines() if "fluidsense.service" in line]
+    assert out.returncode == 0 and not problems, out.stdout + out.stderr

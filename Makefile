@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test install clean lint-imports report speed-accuracy stability timing faults fuzz busy soak firmware firmware-host
+.PHONY: demo test install clean wheel wheelhouse-check lint-imports report speed-accuracy stability timing faults fuzz busy soak firmware firmware-host
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -76,8 +76,24 @@ soak: $(STAMP)
 	mkdir -p docs/soak
 	$(BIN)/fluidsense bench soak --virtual-hours 8 --json > docs/soak/soak-8h.json
 
+# The project as a wheel (dist/), configs, profiles and tasks inside it as package data.
+wheel: $(STAMP)
+	$(BIN)/python -m pip wheel --no-deps --quiet --wheel-dir dist .
+
+# The Docker image's two pip steps on this host (no Docker engine here): every runtime
+# wheel built into a wheelhouse, a fresh venv installs from it alone (no index, no test
+# extras), then `fluidsense demo` runs from a directory outside the checkout (~3 minutes).
+WHEELHOUSE_TMP := $(shell mktemp -d -u /tmp/fluidsense-wheelhouse.XXXXXX)
+wheelhouse-check:
+	$(PYTHON) -m venv $(WHEELHOUSE_TMP)/venv
+	$(WHEELHOUSE_TMP)/venv/bin/python -m pip wheel --quiet --wheel-dir $(WHEELHOUSE_TMP)/wheels .
+	$(WHEELHOUSE_TMP)/venv/bin/python -m pip install --quiet --no-index --find-links $(WHEELHOUSE_TMP)/wheels fluidsense
+	mkdir -p $(WHEELHOUSE_TMP)/elsewhere
+	cd $(WHEELHOUSE_TMP)/elsewhere && $(WHEELHOUSE_TMP)/venv/bin/fluidsense demo
+	rm -rf $(WHEELHOUSE_TMP)
+
 lint-imports: $(STAMP)
 	$(BIN)/lint-imports
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache firmware/build
+	rm -rf $(VENV) build dist *.egg-info .pytest_cache firmware/build

@@ -67,7 +67,11 @@ _BACKEND_MODULES = {
 }
 
 
-def build_backend(cfg: AnyDriverConfig, hardware: Hardware) -> Backend:
-    """Import the selected backend lazily and build it."""
+def build_backend(cfg: AnyDriverConfig, hardware: Hardware, read_only: bool = False) -> Backend:
+    """Import the selected backend lazily and build it. ``read_only``: a backend that
+    connects and reads without writing anything to the device (no safe positions written
+    at connection, no box watchdog installed, no arm control script uploaded; its valves
+    and regulator refuse to move), for ``fluidsense check`` to look at a cell untouched.
+    Its ``stop()`` must not be used (it vents): stop its devices one by one."""
     module = importlib.import_module(_BACKEND_MODULES[cfg.kind])
-    return module.build(cfg, hardware)
+    return module.build(cfg, hardware, read_only=read_only)

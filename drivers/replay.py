@@ -86,7 +86,8 @@ class ReplayValves(ValveBank):
         log.debug("replay: valve %s -> %s at t=%.3f ignored (a recording cannot be commanded)", valve, open, t)
 
 
-def build(cfg: Any, hw: Hardware) -> Backend:
+def build(cfg: Any, hw: Hardware, read_only: bool = False) -> Backend:
+    """``read_only`` changes nothing: a recording is never written to."""
     return Backend(name="replay", source=ReplaySource(cfg.file), valves=ReplayValves("replay-valves",
                                                                                       hw.circuit.safe_valves))
 

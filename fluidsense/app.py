@@ -200,6 +200,12 @@ async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: N
     except BaseException:
         pub.close()
         raise
+    try:
+        live = _start_live(cfg)
+    except BaseException:
+        server.close()
+        pub.close()
+        raise
     for sig in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(sig, stop.set)
     failed: list[str] = []
@@ -207,6 +213,8 @@ async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: N
     try:
         async with controller(cfg, publisher=pub, record=True, connect_in_background=True,
                               own_process=own_process) as ctrl:
+            if live is not None:  # no await since start(): the view's times are the recording's
+                ctrl.add_sink(_share_clock(ctrl, live))
             ctrl.commands.task_runner = _task_runner(ctrl, tasks_dir)
             server.handler = ctrl.commands.handle
             ctrl.command_stats = lambda: server.stats
@@ -231,12 +239,33 @@ async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: N
     finally:
         server.close()
         pub.close()
+        if live is not None:  # closed already if the controller got to close its sinks
+            live.close()
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.remove_signal_handler(sig)
         notifier.close()
     if bad_setting is not None:
         raise bad_setting
     return EXIT_FAILURE if failed else EXIT_OK
+
+
+def _start_live(cfg: CellConfig):
+    """The live view's process, bound with the daemon's sockets (before any device)."""
+    if not cfg.live.enabled:
+        return None
+    from controller.telemetry.live import LiveSink
+
+    return LiveSink(cfg.live)
+
+
+def _share_clock(ctrl: Controller, live):
+    """The live view takes the recording's wall clock at sample time 0, so that a viewer
+    shows the live daemon and its file on the same timeline."""
+    for sink in ctrl.telemetry.sinks:
+        t0 = getattr(getattr(sink, "inner", sink), "t0_unix_ns", None)  # the recording, behind its queue
+        if t0 is not None:
+            live.set_t0(t0)
+    return live
 
 
 __all__ = ["FluidsenseError", "controller", "load", "run_daemon", "default_config_path"]

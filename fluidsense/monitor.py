@@ -1,4 +1,5 @@
-"""``fluidsense monitor``: subscribe to the PUB socket and show state and results."""
+"""``fluidsense monitor --log``: one line per message, for scripts (the screen a person
+reads is fluidsense/screen.py); ``send_command``: one request on the command socket."""
 
 from __future__ import annotations
 
@@ -10,6 +11,10 @@ import zmq
 import zmq.auth
 
 from controller.telemetry.publisher import WELCOME
+
+
+NOT_RUNNING = ("the daemon may not be running (fluidsense run), or it listens elsewhere "
+               "(its {what} endpoint: --endpoint, or {option} in --config)")
 
 
 def format_message(topic: str, msg: dict[str, Any]) -> str | None:
@@ -61,6 +66,9 @@ def monitor(endpoint: str, topics: list[str], count: int | None, timeout_s: floa
     try:
         while count is None or shown < count:
             if timeout_s is not None and not sock.poll(int(timeout_s * 1000)):
+                if not shown:
+                    print(f"fluidsense monitor: nothing heard from {endpoint} within {timeout_s:g} s: "
+                          f"{NOT_RUNNING.format(what='publisher', option='publisher.pub')}", file=sys.stderr)
                 return 0 if shown else 1
             frames = sock.recv_multipart()
             if frames == [WELCOME]:
@@ -100,7 +108,8 @@ def send_command(endpoint: str, request: dict[str, Any], timeout_s: float = 5.0,
     try:
         sock.send(json.dumps(request).encode())
         if not sock.poll(int(timeout_s * 1000)):
-            raise TimeoutError(f"no reply from {endpoint} within {timeout_s} s")
+            raise TimeoutError(f"no reply from {endpoint} within {timeout_s:g} s: "
+                               + NOT_RUNNING.format(what="command", option="publisher.cmd"))
         return json.loads(sock.recv())
     finally:
         sock.close()

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import json
 import re
 import shlex
 import shutil
@@ -281,48 +280,7 @@ def test_systemd_analyze_verifies_the_unit(tmp_path):
     assert out.returncode == 0 and not problems, out.stdout + out.stderr
 
 
-# ---------------------------------------------------------------- Dockerfile
-def dockerfile() -> list[tuple[str, str]]:
-    """(INSTRUCTION, arguments), continuation lines joined."""
-    text = re.sub(r"\\\n", " ", (REPO / "Dockerfile").read_text())
-    return [(line.split(None, 1)[0].upper(), line.split(None, 1)[1].strip())
-            for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")]
-
-
-def make_variable(name: str) -> str:
-    m = re.search(rf"^{name}\s*:?=\s*(\S+)", (REPO / "Makefile").read_text(), flags=re.M)
-    assert m, f"no {name} in the Makefile"
-    return m.group(1)
-
-
-def test_the_dockerfile_installs_as_the_makefile_and_runs_the_sim_cell():
-    steps = dockerfile()
-    makefile = (REPO / "Makefile").read_text()
-    # the same install the test target depends on: `make install`, after the sources are in
-    runs = [a for k, a in steps if k == "RUN"]
-    assert "make install" in runs
-    assert re.search(r"^install: \$\(STAMP\)$", makefile, flags=re.M)
-    assert re.search(r"^test: \$\(STAMP\)$", makefile, flags=re.M)
-    assert steps.index(("COPY", ". .")) < steps.index(("RUN", "make install"))
-    # a host .venv copied in would carry its stamp and make `make install` a no-op
-    ignored = (REPO / ".dockerignore").read_text().split()
-    assert make_variable("VENV") in ignored
-    # the base image satisfies requires-python
-    base = dict(steps)["FROM"]
-    version = re.search(r"python:(\d+)\.(\d+)", base)
-    required = re.search(r'requires-python = ">=(\d+)\.(\d+)"', (REPO / "pyproject.toml").read_text())
-    assert version and required and tuple(map(int, version.groups())) >= tuple(map(int, required.groups()))
-    # CMD: the venv's fluidsense on a config that exists in the image and validates
-    cmd = json.loads(dict(steps)["CMD"])
-    assert cmd[:4] == [f"{make_variable('VENV')}/bin/fluidsense", "run", "--config", cmd[3]]
-    cfg = load_cell_config(REPO / cmd[3])
-    assert cfg.driver.kind == "sim" and cfg.driver.clock == "realtime"
-    # events on every interface of the container; commands on loopback only
-    assert cfg.publisher.pub.startswith("tcp://0.0.0.0:")
-    assert cfg.publisher.cmd.startswith("tcp://127.0.0.1:") and cfg.publisher.cmd_curve is None
-    exposed = " ".join(a for k, a in steps if k == "EXPOSE").split()
-    assert exposed == [cfg.publisher.pub.rsplit(":", 1)[1]]
-    assert dict(steps)["STOPSIGNAL"] == "SIGTERM"
+# the Dockerfile and the wheel: tests/test_ship.py
 
 
 def test_a_daemon_started_before_the_robot_is_connecting_then_ready_when_it_comes(tmp_path):

@@ -4,6 +4,7 @@ actuator profile), and the loading that treats every file as untrusted input."""
 from .cell import (
                    CellConfig,
                    CurveKeys,
+                   LiveConfig,
                    LoopConfig,
                    PublisherConfig,
                    RecordingConfig,
@@ -14,6 +15,6 @@ from .cell import (
 from .loading import load_model, read_yaml, validate
 from .profile import CalibrationPlan, FlowProfile, Limits, Profile, SequenceConfig, Window
 
-__all__ = ["CalibrationPlan", "CellConfig", "CurveKeys", "FlowProfile", "Limits", "LoopConfig", "Profile",
+__all__ = ["CalibrationPlan", "CellConfig", "CurveKeys", "FlowProfile", "LiveConfig", "Limits", "LoopConfig", "Profile",
            "PublisherConfig", "RecordingConfig", "SequenceConfig", "Supervision", "Window", "load_cell_config",
            "load_model", "load_profile", "read_yaml", "validate"]

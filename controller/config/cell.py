@@ -143,6 +143,21 @@ class RecordingConfig(StrictModel):
                                "disk has less free space than this")
 
 
+class LiveConfig(StrictModel):
+    """The live view (docs/recording.md, "Live view"): the Foxglove WebSocket protocol served by a
+    process of its own, with the recording's channels, schemas and timestamps. Loopback by
+    default: a viewer sees every sample and event."""
+
+    enabled: bool = Field(False, description="serve the live view (fluidsense run --live [HOST:]PORT turns it on)")
+    host: str = Field("127.0.0.1", min_length=1, max_length=253, pattern=r"^[A-Za-z0-9.:_-]+$",
+                      description="address to listen on; 0.0.0.0 opens it to the network")
+    port: Integer = Field(8765, ge=1, le=65535)
+    queue: Integer = Field(10_000, ge=10, le=1_000_000, description="messages the daemon queues for the "
+                           "live process; past it they are dropped and counted, never waited for")
+    backlog: Integer = Field(1024, ge=16, le=100_000, description="messages queued per viewer; a slow "
+                             "viewer loses the oldest")
+
+
 # The sample loop's pacing (CellConfig._paced): a block at most every 5 ms (200 loop
 # iterations a second, each handling a block, feeding the sinks and publishing) leaves
 # the event loop time to serve commands and signals; at least NO_DATA_BLOCKS blocks per
@@ -160,6 +175,7 @@ class CellConfig(StrictModel):
     publisher: PublisherConfig = PublisherConfig()
     supervision: Supervision = Supervision()
     recording: RecordingConfig = RecordingConfig()
+    live: LiveConfig = LiveConfig()
     loop: LoopConfig = LoopConfig()
     gripper: GripperConfig = GripperConfig()
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"

@@ -83,6 +83,11 @@ class RecordingSink(Sink):
                               "(fluidsense run --no-record runs without recording)") from exc
 
     @property
+    def t0_unix_ns(self) -> int:
+        """The wall clock at sample time 0: the live view shares it, so its times are the file's."""
+        return self._t0_ns
+
+    @property
     def path(self) -> Path:
         return self._writer.path
 

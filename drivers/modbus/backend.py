@@ -28,8 +28,9 @@ _DOMAIN_CODE = {"current": 0, "voltage": 1}  # UR's analog domain registers
 class ModbusConnection(Connection):
     """One Modbus TCP connection, shared by the valves and the regulator."""
 
-    def __init__(self, cfg: ModbusDriverConfig):
+    def __init__(self, cfg: ModbusDriverConfig, read_only: bool = False):
         self.cfg = cfg
+        self.read_only = read_only
         self.name = f"modbus {cfg.host}:{cfg.port}"
         self.client: AsyncModbusTcpClient | None = None
         self._lost: LinkLostError | None = LinkLostError(f"{self.name}: not connected")
@@ -75,6 +76,8 @@ class ModbusConnection(Connection):
         return reply.registers
 
     async def write(self, address: int, value: int) -> None:
+        if self.read_only:
+            raise DriverError(f"{self.name}: read-only connection: writing register {address} refused")
         await self._request(f"write {address}", lambda: self.client.write_register(
             address, value, device_id=self.cfg.device_id))
 
@@ -155,14 +158,19 @@ def modbus_inputs(cfg: ModbusDriverConfig, channels: tuple[str, ...]) -> list[li
     return out
 
 
-def build(cfg: ModbusDriverConfig, hw: Hardware) -> Backend:
+def build(cfg: ModbusDriverConfig, hw: Hardware, read_only: bool = False) -> Backend:
+    """``read_only``: the Modbus connection refuses writes, nothing runs at connection (no
+    safe positions written, no watchdog sent) and the arm is left out (its control
+    script would take the robot over)."""
     from ..ur.backend import scene_link, worker_link  # noqa: PLC0415 - no ur_rtde import on this side
     from ..ur.devices import UrArm, WorkerKick  # noqa: PLC0415
 
-    link = ModbusConnection(cfg)
+    link = ModbusConnection(cfg, read_only)
     links: list[Connection] = [link]
     arm = watchdog = None
-    if cfg.arm is not None:
+    if read_only:
+        pass  # no arm, no watchdog
+    elif cfg.arm is not None:
         worker = worker_link(cfg.host, cfg.arm, io=False, watchdog=cfg.watchdog)
         links.append(worker)
         arm = UrArm(worker, cfg.arm)
@@ -170,7 +178,7 @@ def build(cfg: ModbusDriverConfig, hw: Hardware) -> Backend:
             watchdog = WorkerKick(worker, cfg.watchdog)
     elif cfg.watchdog is not None:  # the box runs fluidsense's watchdog program
         watchdog = ModbusHeartbeat(link, cfg.watchdog)
-    script = None if cfg.watchdog is None else \
+    script = None if cfg.watchdog is None or read_only else \
         box_script(cfg.wiring.valves, hw.circuit.safe_valves, cfg.watchdog, arm=cfg.arm is not None)
     poller = {"host": cfg.host, "port": cfg.port, "device_id": cfg.device_id, "timeout_s": cfg.timeout_s,
               "inputs": modbus_inputs(cfg, hw.channels)}
@@ -180,8 +188,9 @@ def build(cfg: ModbusDriverConfig, hw: Hardware) -> Backend:
     regulator = ModbusRegulator(link, cfg.wiring.regulator, cfg.registers, cfg.analog) if regulated else None
     source = PolledCellSource("modbus", sampler, links, cfg.reconnect)
     valves = ModbusValves(link, cfg.wiring, cfg.registers, hw.circuit.safe_valves)
-    source.on_connect.append(lambda: confirm_safe_on_connect(valves))
+    if not read_only:
+        source.on_connect.append(lambda: confirm_safe_on_connect(valves))
     if script is not None:
         source.on_connect.append(lambda: send_script(cfg.host, cfg.watchdog.script_port, script))
     return Backend(name="modbus", source=source, valves=valves, regulator=regulator, arm=arm,
-                   scene=scene_link(cfg.host, cfg.sim_control_port), watchdog=watchdog)
+                   scene=None if read_only else scene_link(cfg.host, cfg.sim_control_port), watchdog=watchdog)

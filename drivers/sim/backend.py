@@ -130,7 +130,9 @@ class SimBackend(Backend):
     sim: SimulatedCell | None = None
 
 
-def build(cfg: SimDriverConfig, hw: Hardware) -> SimBackend:
+def build(cfg: SimDriverConfig, hw: Hardware, read_only: bool = False) -> SimBackend:
+    """``read_only`` changes nothing: the simulated cell is built in its safe state and
+    its set-up writes nothing."""
     cell = SimulatedCell(cfg, hw)
     c = hw.circuit
     regulator = SimRegulator(cell) if isinstance(c, (TankCircuit, RegulatedCircuit)) else None

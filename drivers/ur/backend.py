@@ -26,10 +26,12 @@ def rtde_inputs(wiring: Wiring, channels: tuple[str, ...]) -> list[list[float]]:
     return out
 
 
-def worker_link(host: str, arm, io: bool, watchdog: BoxWatchdogConfig | None = None) -> WorkerConnection:
+def worker_link(host: str, arm, io: bool, watchdog: BoxWatchdogConfig | None = None,
+                control: bool = True) -> WorkerConnection:
     """``watchdog``: arm ur_rtde's RTDE watchdog so that the control script stops (and the
-    box's run-state output actions vent) when the daemon stops kicking it."""
-    return WorkerConnection({"host": arm.host or host, "io": io, "control": True, "status_hz": arm.status_hz,
+    box's run-state output actions vent) when the daemon stops kicking it. Without ``io``
+    and ``control`` the worker only receives (status, outputs): it cannot write."""
+    return WorkerConnection({"host": arm.host or host, "io": io, "control": control, "status_hz": arm.status_hz,
                        "upper_range_registers": arm.upper_range_registers,
                        "watchdog_hz": None if watchdog is None else 1.0 / watchdog.timeout_s})
 
@@ -42,8 +44,14 @@ def scene_link(host: str, port: int | None):
     return RemoteScene(host, port)
 
 
-def build(cfg: UrDriverConfig, hw: Hardware) -> Backend:
-    link = worker_link(cfg.host, cfg.arm, io=True, watchdog=cfg.watchdog)
+def build(cfg: UrDriverConfig, hw: Hardware, read_only: bool = False) -> Backend:
+    """``read_only``: the worker only receives (no IO interface: the valves cannot be
+    written; no control script: the robot's own program keeps running), and nothing
+    runs at connection (no safe positions written, no watchdog sent)."""
+    if read_only:
+        link = worker_link(cfg.host, cfg.arm, io=False, control=False)
+    else:
+        link = worker_link(cfg.host, cfg.arm, io=True, watchdog=cfg.watchdog)
     poller = {"host": cfg.host, "frequency": cfg.rate_hz, "inputs": rtde_inputs(cfg.wiring, hw.channels),
               "upper_range_registers": cfg.arm.upper_range_registers, "stale_s": cfg.rtde_timeout_s}
     sampler = sampler_config("drivers.ur.poller:RtdeAnalogPoller", poller, hw.channels, cfg.rate_hz,
@@ -52,11 +60,12 @@ def build(cfg: UrDriverConfig, hw: Hardware) -> Backend:
     regulated = isinstance(hw.circuit, (TankCircuit, RegulatedCircuit))
     regulator = UrRegulator(link, cfg.wiring.regulator, cfg.analog) if regulated else None
     valves = UrValves(link, cfg.wiring.valves, hw.circuit.safe_valves)
-    source.on_connect.append(lambda: confirm_safe_on_connect(valves))
+    if not read_only:
+        source.on_connect.append(lambda: confirm_safe_on_connect(valves))
     watchdog = None
-    if cfg.watchdog is not None:
+    if cfg.watchdog is not None and not read_only:
         watchdog = WorkerKick(link, cfg.watchdog)
         script = box_script(cfg.wiring.valves, hw.circuit.safe_valves, cfg.watchdog, arm=True)
         source.on_connect.append(lambda: send_script(cfg.host, cfg.watchdog.script_port, script))
     return Backend(name="ur", source=source, valves=valves, regulator=regulator, arm=UrArm(link, cfg.arm),
-                   scene=scene_link(cfg.host, cfg.sim_control_port), watchdog=watchdog)
+                   scene=None if read_only else scene_link(cfg.host, cfg.sim_control_port), watchdog=watchdog)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 from common.names import COMMANDS
 
@@ -12,10 +13,15 @@ from ..exitcodes import EXIT_BAD_INPUT, EXIT_OK
 
 def register(sub) -> None:
     p = sub.add_parser("monitor", help="show live state and results from a running daemon",
-                       description="Subscribe to the daemon's PUB socket and print state transitions, "
-                       "cycle results, heartbeats and faults.")
+                       description="One screen, updated in place: state and cycle phase, pressure now with a "
+                       "trace of the last seconds, valve outputs as the device reports them, the last results, "
+                       "faults with what to do. With --log (or any of --count, --timeout, --topic, --all, "
+                       "--json, or when the output is not a terminal): one line per message, for scripts.")
+    p.add_argument("--log", action="store_true", help="one line per message instead of the screen")
     p.add_argument("--config", "-c", help="cell config naming the endpoint (default: config/cell-sim.yaml)")
     p.add_argument("--endpoint", help="PUB endpoint, e.g. tcp://127.0.0.1:5560 (overrides --config)")
+    p.add_argument("--cmd-endpoint", help="command endpoint the screen asks for status once a second "
+                   "(default: the config's, unless it needs CURVE keys)")
     p.add_argument("--topic", action="append", help="topic to show (repeatable; default: all but pressure)")
     p.add_argument("--all", action="store_true", help="every topic, pressure included")
     p.add_argument("--count", type=int, help="exit after this many messages")
@@ -40,9 +46,17 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     from .. import app
     from ..monitor import monitor
 
-    endpoint = args.endpoint
-    if endpoint is None:
-        endpoint = app.load(args.config).publisher.pub
+    endpoint, cmd_endpoint = args.endpoint, args.cmd_endpoint
+    if endpoint is None or (cmd_endpoint is None and args.config is not None):
+        publisher = app.load(args.config).publisher
+        endpoint = endpoint or publisher.pub
+        if cmd_endpoint is None and publisher.cmd_curve is None:
+            cmd_endpoint = publisher.cmd
+    lines = args.log or args.json or args.all or args.topic or args.count is not None or args.timeout is not None
+    if not lines and sys.stdout.isatty():
+        from ..screen import run_screen
+
+        return run_screen(endpoint, cmd_endpoint)
     topics = args.topic or ["state", "cycle", "heartbeat", "fault", "task", "log"]
     if args.all:
         topics = [""]

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import sys
 from pathlib import Path
 
+from ..exitcodes import EXIT_BAD_INPUT
 from ._common import setup_logging
 
 
@@ -21,6 +23,8 @@ def register(sub) -> None:
     rec.add_argument("--record", metavar="DIR", help="record to this directory (default: the config's "
                      "recording.dir, runs/ unless set; docs/recording.md)")
     rec.add_argument("--no-record", action="store_true", help="do not record")
+    p.add_argument("--live", metavar="[HOST:]PORT", help="serve the live view to Foxglove (WebSocket) on this "
+                   "port, on loopback unless HOST is given (docs/recording.md; the config's live: section)")
     p.add_argument("--tasks-dir", help="directory of task files the command socket may start "
                    "(default: config/tasks)")
     p.set_defaults(func=main)
@@ -32,6 +36,15 @@ def main(args: argparse.Namespace) -> int:
     overrides = {"driver": {"clock": "virtual"}} if args.virtual else {}
     if args.record or args.no_record:
         overrides["recording"] = {"enabled": False} if args.no_record else {"enabled": True, "dir": args.record}
+    if args.live is not None:
+        from controller.telemetry.live import parse_listen
+
+        try:
+            host, port = parse_listen(args.live)
+        except ValueError as exc:
+            print(f"fluidsense run: --live: {exc}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        overrides["live"] = {"enabled": True, "host": host, "port": port}
     cfg = app.load(args.config, overrides)
     setup_logging(args.log_level or cfg.log_level)
     return asyncio.run(app.run_daemon(cfg, Path(args.tasks_dir) if args.tasks_dir else None, own_process=True))

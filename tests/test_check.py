@@ -1,0 +1,213 @@
+"""``fluidsense check`` against the emulated control box (``fluidsense simcell``), wired as
+its own config says, through the real ur and modbus drivers: a correct config passes
+and leaves the cell safe, a config with swapped valve outputs fails naming the valves,
+read-only mode writes nothing, a box that does not answer is exit 3, a bad config exit 2,
+and Ctrl-C while pulsing still ends vented."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+
+import pytest
+import yaml
+from pymodbus.client import ModbusTcpClient
+
+from .conftest import REPO, free_loopback, free_simcell, sim_config, write_cell
+
+MODBUS_PORT = 5020  # the emulated box's Modbus server for both kinds (simcell's default, the modbus config's)
+OUTPUTS, SET_MASK = 1, 2  # the UR box's Modbus registers: output bits (read), set mask (write)
+
+
+def check(cell, *extra: str, timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "fluidsense.cli", "check", "--config", str(cell), "--seconds", "1",
+                           *extra], capture_output=True, text=True, timeout=timeout, cwd=REPO,
+                          stdin=subprocess.DEVNULL)
+
+
+def problems(out: str) -> list[str]:
+    lines = out.split("\nresult\n", 1)[1].splitlines()
+    return [line.strip() for line in lines if line.strip() != "everything matches the config"]
+
+
+def not_about_rate(found: list[str]) -> list[str]:
+    """The emulated box shares two busy cores with the test: it may miss RTDE slots, which
+    check rightly reports; everything else must match."""
+    return [p for p in found if not p.startswith("sampling:")]
+
+
+def swapped(cell, tmp_path, whole_entries: bool = False):
+    """The same cell with the supply and actuate valves' outputs swapped in the wiring
+    (``whole_entries``: with their open_when_energised too)."""
+    data = yaml.safe_load(cell.read_text())
+    valves = data["driver"]["wiring"]["valves"]
+    if whole_entries:
+        valves["supply"], valves["actuate"] = valves["actuate"], valves["supply"]
+    else:
+        valves["supply"]["output"], valves["actuate"]["output"] = valves["actuate"]["output"], valves["supply"]["output"]
+    return write_cell(tmp_path, data)
+
+
+def output_bits(host: str) -> int:
+    client = ModbusTcpClient(host, port=MODBUS_PORT, timeout=5)
+    assert client.connect()
+    try:
+        return client.read_holding_registers(OUTPUTS, count=1).registers[0]
+    finally:
+        client.close()
+
+
+def energise(host: str, output: int) -> None:
+    client = ModbusTcpClient(host, port=MODBUS_PORT, timeout=5)
+    assert client.connect()
+    try:
+        assert not client.write_register(SET_MASK, 1 << output).isError()
+    finally:
+        client.close()
+
+
+@pytest.mark.parametrize("kind", ["ur", "modbus"])
+def test_correct_wiring_passes_and_ends_safe(kind, tmp_path):
+    with free_simcell(tmp_path, kind) as (_, cell):
+        r = check(cell, "--actuate", "--yes")
+        assert r.returncode in (0, 4), r.stdout + r.stderr
+        assert not_about_rate(problems(r.stdout)) == [], r.stdout
+        for step in ("supply open: as wired", "actuate open: as wired", "actuate closed (vents): as wired"):
+            assert step in r.stdout, r.stdout
+        assert "confirmed by read-back" in r.stdout
+        assert "URSoftware 5.11" in r.stdout and "safety mode NORMAL" in r.stdout  # the dashboard's account
+        # left safe: a read-only look afterwards finds every valve at its safe position
+        r = check(cell)
+        assert not_about_rate(problems(r.stdout)) == [], r.stdout
+        assert "valve supply (output 0): closed, its safe position" in r.stdout
+        assert "valve actuate (output 1): closed, its safe position" in r.stdout
+        assert "p_act: AI0 " in r.stdout and " V -> +0." in r.stdout  # signal through the transfer, ~0 kPa
+
+
+@pytest.mark.parametrize("kind", ["ur", "modbus"])
+def test_read_only_changes_no_output_and_flags_unsafe_ones(kind, tmp_path):
+    with free_simcell(tmp_path, kind) as (_, cell):
+        host = yaml.safe_load(cell.read_text())["driver"]["host"]
+        energise(host, 1)  # actuate open, as a crashed program might leave it
+        before = output_bits(host)
+        r = check(cell)
+        assert output_bits(host) == before
+        assert r.returncode == 4, r.stdout + r.stderr
+        assert "valve actuate (output 1): the device reports it open; its safe position is closed" in r.stdout
+        # the fresh box also leaves the normally-open supply valve de-energised: open
+        assert "valve supply (output 0): the device reports it open" in r.stdout
+
+
+@pytest.mark.parametrize("kind", ["ur", "modbus"])
+def test_swapped_outputs_are_named(kind, tmp_path):
+    with free_simcell(tmp_path, kind) as (_, cell):
+        host = yaml.safe_load(cell.read_text())["driver"]["host"]
+        r = check(swapped(cell, tmp_path), "--actuate", "--yes")
+        assert r.returncode == 4, r.stdout + r.stderr
+        found = not_about_rate(problems(r.stdout))
+        # the wiring's "safe" state energises the real actuate valve and leaves the real
+        # normally-open supply valve open: pressure reaches both sensors
+        assert any(p.startswith("valve supply (output 1, normally open): pressure reached p_tank") for p in found), found
+        assert any(p.startswith("valve actuate (output 0): pressure reached p_act") for p in found), found
+        assert "confirmed by read-back" in r.stdout
+        # ended in the (miswired) config's safe state, as read back: output 1 energised, output 0 not
+        assert output_bits(host) & 0b11 == 0b10
+
+
+def test_swapped_valve_entries_answer_as_the_other_valve(tmp_path):
+    with free_simcell(tmp_path, "modbus") as (_, cell):
+        r = check(swapped(cell, tmp_path, whole_entries=True), "--actuate", "--yes")
+        assert r.returncode == 4, r.stdout + r.stderr
+        found = not_about_rate(problems(r.stdout))
+        assert any(p.startswith("valve actuate (output 0, normally open): actuate open: answered as 'supply open' "
+                                "should") and "look swapped" in p for p in found), found
+        assert any(p.startswith("valve supply (output 1): supply open: no pressure answered") for p in found), found
+        assert "confirmed by read-back" in r.stdout
+
+
+@pytest.mark.parametrize("kind", ["ur", "modbus"])
+def test_no_box_is_a_timeout_naming_the_address(kind, tmp_path):
+    from .conftest import simcell_config
+
+    host = free_loopback()
+    r = check(simcell_config(tmp_path, kind, host), "--timeout", "5")
+    assert r.returncode == 3, r.stdout + r.stderr
+    assert host in r.stderr and "check that the" in r.stderr
+    assert "Traceback" not in r.stderr
+
+
+def test_silent_modbus_server_is_a_timeout(tmp_path):
+    """A box that accepts the connection and never answers."""
+    from .conftest import simcell_config
+
+    host = free_loopback([MODBUS_PORT])
+    data = yaml.safe_load(simcell_config(tmp_path, "modbus", host).read_text())
+    data["driver"]["arm"] = None  # no robot: only the Modbus server is asked
+    cell = write_cell(tmp_path, data)
+    with socket.create_server((host, MODBUS_PORT)) as server:
+        accepted: list[socket.socket] = []
+        threading.Thread(target=lambda: accepted.append(server.accept()[0]), daemon=True).start()
+        r = check(cell, "--timeout", "3")
+        for conn in accepted:
+            conn.close()
+    assert r.returncode == 3, r.stdout + r.stderr
+    assert f"{host}:{MODBUS_PORT}" in r.stderr and "Modbus server is enabled" in r.stderr
+
+
+def test_bad_config_is_exit_2_with_file_and_field(tmp_path):
+    from .conftest import simcell_config
+
+    data = yaml.safe_load(simcell_config(tmp_path, "modbus", "127.0.0.1").read_text())
+    data["driver"]["wiring"]["valves"]["supply"]["output"] = 99
+    cell = write_cell(tmp_path, data)
+    r = check(cell)
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines() == [f"fluidsense: error: {cell}: driver.wiring.valves.supply.output: "
+                                             "Input should be less than or equal to 15"]
+    assert r.stdout == ""
+
+
+def test_actuate_without_a_terminal_asks_and_moves_nothing(tmp_path):
+    r = check(sim_config(tmp_path), "--actuate")
+    assert r.returncode == 2
+    assert "confirm on a terminal, or pass --yes" in r.stderr
+    assert "pulsing" not in r.stdout and "connecting" not in r.stdout
+
+
+def test_sim_driver_miswired_sensor_is_flagged(tmp_path):
+    """The sim driver has no wiring to swap: its plant is the profile's. A vented actuator
+    reading far from zero (a sensor with a large offset) is what the read-only look flags."""
+    profile = yaml.safe_load((REPO / "config" / "profiles" / "pneunet-gripper.yaml").read_text())
+    profile["sensor"] = {**profile.get("sensor", {}), "offset_kpa": 5.0}
+    r = check(sim_config(tmp_path, clock="virtual", profile=profile), "--actuate", "--yes")
+    assert r.returncode == 4, r.stdout + r.stderr
+    found = problems(r.stdout)
+    assert len(found) == 1 and found[0].startswith("p_act: reads +5."), found
+    assert "supply open: as wired" in r.stdout and "confirmed by read-back" in r.stdout
+
+
+def test_ctrl_c_while_pulsing_ends_vented(tmp_path):
+    with free_simcell(tmp_path, "modbus") as (_, cell):
+        host = yaml.safe_load(cell.read_text())["driver"]["host"]
+        proc = subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "check", "--config", str(cell), "--seconds",
+                                 "1", "--actuate", "--yes", "--pulse-s", "2"], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, cwd=REPO, stdin=subprocess.DEVNULL)
+        try:
+            for line in proc.stdout:
+                if line.startswith("  supply open"):  # the pulses are under way
+                    break
+            os.kill(proc.pid, signal.SIGINT)
+            rest, err = proc.communicate(timeout=60)
+        finally:
+            with contextlib.suppress(ProcessLookupError):
+                proc.kill()
+        assert proc.returncode == 130, rest + err
+        assert "actuate open" not in rest  # pulsing stopped there
+        assert "every valve at its safe position, confirmed by read-back" in rest, rest + err
+        assert "Traceback" not in err
+        assert output_bits(host) & 0b11 == 0b01  # supply (normally open) energised: closed; actuate off: vented

@@ -1,0 +1,88 @@
+"""``fluidsense monitor`` as a person sees it: a real daemon, the monitor in a real
+pseudo-terminal, the screen read back from what it drew. And what `cmd` and `monitor`
+say when nothing answers."""
+
+from __future__ import annotations
+
+import os
+import pty
+import re
+import select
+import subprocess
+import sys
+import time
+
+from fluidsense.screen import View, render, sparkline
+
+from .conftest import REPO, sim_config
+
+ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
+
+
+def screens(raw: str) -> list[list[str]]:
+    """Each redraw starts by homing the cursor: the frames, as lines without escapes."""
+    return [[ANSI.sub("", line) for line in frame.split("\n")] for frame in raw.split("\x1b[H")[1:]]
+
+
+def test_the_view_shows_pressure_results_and_what_to_do_about_a_fault():
+    v = View()
+    assert "waiting for the daemon at ipc://x" in render(v, "ipc://x", None)[0]
+    v.take("pressure", {"seq": 1, "t_s": 1.0, "channels": ["p_act", "p_tank"], "units": ["kPa", "kPa"],
+                        "times_s": [0.998, 0.999, 1.0], "values": [[1.0, 2.0, 3.5], [50.0, 50.0, 49.0]]})
+    v.take("state", {"seq": 2, "t_s": 1.0, "cycle_id": 4, "from": "idle", "to": "charge", "reason": "command"})
+    v.take("cycle", {"seq": 5, "t_s": 2.0, "cycle_id": 4, "ok": True, "p_eq_kpa": 34.25, "p_sd_kpa": 0.01,
+                     "dp_eq_kpa": 1.5, "t_c_threshold_s": None, "label": "cyl60"})
+    v.take("fault", {"seq": 6, "t_s": 2.1, "kind": "leak", "detail": "falls 3 kPa/s", "vented": True})
+    text = "\n".join(render(v, "ipc://x", None))
+    assert "state CHARGE" in text and "cycle 4" in text
+    assert re.search(r"p_act\s+3\.50 kPa", text) and re.search(r"p_tank\s+49\.00 kPa", text)
+    assert "cycle 4 cyl60: P_eq 34.250 ± 0.020 kPa (95 %), dP 1.500 kPa" in text
+    assert "FAULT leak: falls 3 kPa/s" in text and "check the tubing" in text
+    assert v.missed_messages == 2  # seq 3 and 4 never arrived
+    assert sparkline([0.0, 1.0]) == "▁█" and sparkline([]) == ""
+
+
+def test_monitor_in_a_terminal_shows_state_pressure_and_the_last_result(tmp_path, daemon_factory):
+    cfg = sim_config(tmp_path, clock="virtual")  # a cycle in moments; pressure flows while it runs
+    d = daemon_factory(cfg)
+    d.wait_welcome()
+    master, slave = pty.openpty()
+    mon = subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "monitor", "--config", str(cfg)], cwd=REPO,
+                           stdin=slave, stdout=slave, stderr=subprocess.PIPE, env={**os.environ, "TERM": "xterm"})
+    os.close(slave)
+    raw = ""
+    try:
+        def read_until(pred, timeout_s=60.0):
+            nonlocal raw
+            deadline = time.monotonic() + timeout_s
+            while time.monotonic() < deadline:
+                if select.select([master], [], [], 1.0)[0]:
+                    raw += os.read(master, 65536).decode(errors="replace")
+                    frames = screens(raw)
+                    if len(frames) > 1 and pred("\n".join(frames[-2])):  # the last complete frame
+                        return "\n".join(frames[-2])
+            raise AssertionError(f"the screen never showed it; last frames:\n{raw[-3000:]}")
+
+        read_until(lambda s: "state IDLE" in s and "valves (device):" in s and "none yet" in s)
+        assert d.request({"cmd": "cycle"})["ok"]
+        screen = read_until(lambda s: "cycle 1:" in s and "P_eq" in s)
+    finally:
+        mon.terminate()
+        mon.wait(30)
+        os.close(master)
+    assert re.search(r"cycle 1: P_eq \d+\.\d{3} ± \d+\.\d{3} kPa", screen), screen
+    assert re.search(r"p_act\s+-?\d+\.\d\d kPa", screen), screen  # the trace of the cycle
+    assert "state IDLE" in screen and "valves (device):" in screen and "closed" in screen, screen
+    assert "Traceback" not in mon.stderr.read().decode()
+
+
+def test_cmd_and_monitor_name_the_endpoint_when_nothing_answers(tmp_path):
+    nobody = f"ipc://{tmp_path}/nobody"
+    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "cmd", "status", "--endpoint", nobody,
+                          "--timeout", "0.2"], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 3
+    assert nobody in out.stderr and "may not be running" in out.stderr and "Traceback" not in out.stderr
+    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "monitor", "--log", "--endpoint", nobody,
+                          "--timeout", "0.2"], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 1
+    assert nobody in out.stderr and "may not be running" in out.stderr

@@ -79,3 +79,38 @@ def test_a_window_before_contact_cannot_separate_objects_after_contact_it_can():
     after = [window_mean(r, 0.5, 0.05) for r in (big, small)]
     assert abs(before[0] - before[1]) < 1e-6  # the same free trajectory until the first touch
     assert after[0] - after[1] > 0.5  # the larger cylinder reads higher once both are held
+
+
+def test_timing_section_is_a_ledger_and_keeps_its_disagreements(tmp_path):
+    from fluidsense.report.common import ledger_counts
+    from fluidsense.report.sections.timing import timing
+
+    sec = timing(tmp_path, 1)
+    rows = {r["quantity"]: r for r in sec.rows}
+    assert all(r["kind"] in ("fitted", "predicted") and r["source"] for r in sec.rows)
+    # the two sorting readings the gripper was built from are fitted, never counted as predictions
+    assert {q for q, r in rows.items() if r["kind"] == "fitted"} == {
+        "sorting reading at 5 s, D = 40 mm", "sorting reading at 5 s, D = 100 mm"}
+    assert rows["a reading before contact cannot separate 40 from 100 mm"]["verdict"] == "match"
+    assert sec.numbers["before_contact_gap_kpa"] < 1e-6 < 0.5 < sec.numbers["after_contact_gap_kpa"]
+    fast = sec.numbers["fast_sorting_74_kpa"]
+    assert [fast[str(d)] for d in (40, 60, 80, 100)] == sorted(fast.values())
+    for r in sec.rows:  # a verdict is the tolerance applied, not an opinion
+        if r["quantity"].startswith("fast sorting (") and "D =" in r["quantity"]:
+            paper = float(r["paper"].split()[0])
+            ours = float(r["ours"].split()[0])
+            assert (r["verdict"] == "match") == (abs(ours - paper) <= 1.0)
+            assert r["verdict"] == "match" or r["why"]
+    n = ledger_counts(sec.rows)
+    assert n["fitted"] == 2 and n["predicted"] == len(sec.rows) - 2
+    assert (tmp_path / "timing.png").stat().st_size > 10_000
+
+
+def test_a_row_must_say_what_kind_it_is():
+    from fluidsense.report.common import Section
+
+    sec = Section("x", "x")
+    with pytest.raises(ValueError, match="kind"):
+        sec.row("q", "1", "1", True, "", "Fig. 1", kind="tuned")
+    with pytest.raises(ValueError, match="reason"):
+        sec.row("q", "1", "2", False, "", "Fig. 1", kind="predicted")

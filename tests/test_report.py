@@ -47,7 +47,7 @@ def test_report_reproduces_the_committed_numbers(regenerated):
 def test_report_covers_every_section_and_the_key_claims(regenerated):
     res, out = regenerated
     assert set(res["sections"]) == {"distance_tank", "distance_pressure_flow", "distance_flow_control", "gripper",
-                                    "shape", "stiffness", "profile", "suction", "retrofit", "resolution"}
+                                    "shape", "stiffness", "profile", "suction", "retrofit", "resolution", "timing"}
     rows = {r["quantity"]: r for r in res["paper_vs_ours"]}
     tank = res["sections"]["distance_tank"]
     assert -2.5 <= tank["err95_lo_mm"] and tank["err95_hi_mm"] <= 2.5  # the criterion

@@ -76,3 +76,11 @@ def settling_time(resp: StepResponse, fraction: float = 0.9) -> float:
     final = resp.p_act_kpa[-1]
     idx = np.flatnonzero(resp.p_act_kpa >= fraction * final)
     return float(resp.t_s[idx[0]])
+
+
+def settled_time(resp: StepResponse, band_kpa: float) -> float:
+    """Last time the actuator pressure is more than ``band_kpa`` from its final value (the
+    last sample): after it, a reading no longer depends on when it is taken."""
+    final = resp.p_act_kpa[-1]
+    outside = np.flatnonzero(np.abs(resp.p_act_kpa - final) > band_kpa)
+    return float(resp.t_s[min(outside[-1] + 1, len(resp.t_s) - 1)]) if len(outside) else 0.0

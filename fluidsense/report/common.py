@@ -57,6 +57,13 @@ def ledger_counts(rows: list[dict[str, Any]]) -> dict[str, int]:
             "fitted": len(rows) - len(pred)}
 
 
+# The PneuNet's mechanical lag (docs/physics.md, "Actuator dynamics"): assumed, the published
+# text gives no figure. The pneunet profiles keep 0: their paper protocols read after 4 s and
+# a 0.05 s lag moves those readings by under 0.001 kPa; the studies that read within the first
+# second (the timing section, `fluidsense bench speed-accuracy`) add it.
+PNEUNET_RESPONSE_S = 0.05
+
+
 def profile(name: str) -> Profile:
     return load_profile(PROFILES / f"{name}.yaml")
 

@@ -142,6 +142,14 @@ Circuit = Annotated[TankCircuit | RegulatedCircuit | FlowControlledCircuit, Fiel
 class _Compliant(StrictModel):
     v0_ml: PositiveFloat = Field(description="internal volume at atmospheric pressure, tubing included")
     compliance_ml_per_kpa: PositiveFloat = Field(description="free dv/dp")
+    response_s: Real = Field(
+        0.0, ge=0, le=10, description="mechanical time constant of free inflation: the volume follows "
+        "the P-V law through a dashpot (0: quasi-static, the volume is always on the law)")
+
+    @property
+    def damping(self) -> float:
+        """Pa*s/m^3: the dashpot that gives ``response_s`` on the free P-V line."""
+        return self.response_s / self.compliance
 
     @property
     def v0(self) -> float:

@@ -82,7 +82,9 @@ def _network(hw: Hardware, law: VolumeLaw) -> tuple[Network, dict[str, bool]]:
     links.append(Pipe(act, ATMOSPHERE, 2e10, FAULT_LEAK, True, FAULT_LEAK))
     links.append(Pipe(REGULATOR, act, c.valve_resistance_pa_s_per_m3, FAULT_SUPPLY, True, FAULT_SUPPLY))
     valves = {**dict.fromkeys(c.safe_valves, False), AIR: False, FAULT_LEAK: False, FAULT_SUPPLY: False}
-    return Network(names, laws, links, p_atm=p_atm, p_std=p_atm, flow_sources=sources), valves
+    response = getattr(hw.actuator, "response_s", 0.0)
+    dampers = {act: hw.actuator.damping} if response > 0 else None
+    return Network(names, laws, links, p_atm=p_atm, p_std=p_atm, flow_sources=sources, dampers=dampers), valves
 
 
 class SimulatedCell:

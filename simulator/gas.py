@@ -36,7 +36,7 @@ class VolumeLaw:
     increasing and therefore invertible.
     """
 
-    __slots__ = ("p_gauge", "volume", "p_atm", "_m", "_slopes", "_pg_list", "_m_list")
+    __slots__ = ("p_gauge", "volume", "p_atm", "_m", "_slopes", "_pg_list", "_m_list", "_v_list", "_stop_stiffness")
 
     def __init__(self, p_gauge: Sequence[float], volume: Sequence[float], p_atm: float = P_ATM):
         pg = np.asarray(p_gauge, dtype=float)
@@ -57,6 +57,9 @@ class VolumeLaw:
         self._m = (pg + p_atm) * vol
         self._pg_list = pg.tolist()
         self._m_list = self._m.tolist()
+        self._v_list = vol.tolist()
+        positive = self._slopes[self._slopes > 0]
+        self._stop_stiffness = 1e3 / float(positive.max()) if len(positive) else 1e15
 
     @classmethod
     def constant(cls, volume: float, p_atm: float = P_ATM) -> VolumeLaw:
@@ -106,6 +109,20 @@ class VolumeLaw:
         pg = -2.0 * c / (b + disc)
         return pg + self.p_atm
 
+    def pressure_for_volume(self, v: float) -> float:
+        """Gauge pressure the actuator's structure holds at volume ``v`` (the inverse law).
+
+        A flat segment (a rigid stop: the volume cannot grow) is inverted as a spring a
+        thousand times stiffer than the stiffest free segment, which is what a stop is on
+        the actuator's time scales and keeps the inverse a function.
+        """
+        vols = self.volume
+        j = min(max(bisect_right(self._v_list, v) - 1, 0), len(self._slopes) - 1)
+        s = self._slopes[j]
+        if s <= 0.0:
+            return self._pg_list[j] + (v - vols[j]) * self._stop_stiffness
+        return self._pg_list[j] + (v - vols[j]) / s
+
     def amount_at(self, p_gauge: float) -> float:
         """Gas amount m (Pa*m^3) at gauge pressure."""
         return float((p_gauge + self.p_atm) * self.volume_at(p_gauge))
@@ -139,9 +156,16 @@ class Network:
     """Nodes (volumes with laws), links and sources; builds the ODE right-hand side."""
 
     def __init__(self, names: Sequence[str], laws: Sequence[VolumeLaw], links: Sequence[Pipe],
-                 p_atm: float = P_ATM, p_std: float = P_ATM, flow_sources: Sequence[FlowSource] = ()):
+                 p_atm: float = P_ATM, p_std: float = P_ATM, flow_sources: Sequence[FlowSource] = (),
+                 dampers: dict[int, float] | None = None):
         if len(names) != len(laws):
             raise ValueError("one volume law per node")
+        # node -> damping (Pa*s/m^3): that node's volume is a state of its own that follows
+        # the law through a dashpot (Kelvin-Voigt), see ``rhs_factory``
+        self.dampers = {int(i): float(b) for i, b in (dampers or {}).items()}
+        if any(not 0 <= i < len(names) or not b > 0 for i, b in self.dampers.items()):
+            raise ValueError("dampers need a known node and a positive damping")
+        self.dynamic = sorted(self.dampers)
         self.names = list(names)
         self.index = {n: i for i, n in enumerate(self.names)}
         self.laws = list(laws)
@@ -160,15 +184,25 @@ class Network:
     def n_nodes(self) -> int:
         return len(self.names)
 
-    def pressures_abs(self, m: Sequence[float]) -> list[float]:
-        return [law.pressure_abs(mi) for law, mi in zip(self.laws, m)]
+    @property
+    def n_state(self) -> int:
+        """Gas amounts, the regulator output, then the volume of each damped node."""
+        return self.n_nodes + 1 + len(self.dynamic)
+
+    def volume_slot(self, node: int) -> int | None:
+        """Index in the state vector of a damped node's volume (None: quasi-static node)."""
+        return self.n_nodes + 1 + self.dynamic.index(node) if node in self.dampers else None
 
     def rhs_factory(self, valves: dict[str, bool], laws: Sequence[VolumeLaw],
                     regulator_target_abs: float, regulator_tau: float,
                     flow_of_t: Callable[[float], float] | None) -> Callable:
         """Right-hand side for one segment with fixed valve states.
 
-        State vector: ``[m_0 .. m_{n-1}, p_regulator_abs]``.
+        State vector: ``[m_0 .. m_{n-1}, p_regulator_abs, v_d ...]``. A quasi-static node's
+        pressure follows from its law; a damped node's volume ``v`` is a state, its
+        pressure is ``m / v``, and the structure yields at the rate the pressure exceeds
+        what the structure holds at that volume: ``b dv/dt = p - p_law(v)``. In a free
+        segment of compliance ``c`` this is a first-order lag of time constant ``b c``.
         """
         active = [(lk.a, lk.b, 1.0 / lk.resistance) for lk in self.links if lk.enabled(valves)]
         sources = [fs.node for fs in self.flow_sources if fs.valve is None or valves[fs.valve] == fs.when_open]
@@ -178,10 +212,17 @@ class Network:
         laws = list(laws)
         tau = max(regulator_tau, 1e-6)
 
+        dyn = [(i, n + 1 + k, self.dampers[i]) for k, i in enumerate(self.dynamic)]
+        n_state = self.n_state
+
         def rhs(t: float, y: np.ndarray) -> np.ndarray:
             p = [laws[i].pressure_abs(y[i]) for i in range(n)]
+            dy = np.zeros(n_state)
+            for i, slot, b in dyn:
+                v = max(y[slot], _MIN_VOLUME)
+                p[i] = y[i] / v
+                dy[slot] = (p[i] - p_atm - laws[i].pressure_for_volume(v)) / b
             p_reg = y[n]
-            dy = np.zeros(n + 1)
             for a, b, g in active:
                 pa_ = p_reg if a == REGULATOR else (p_atm if a == ATMOSPHERE else p[a])
                 pb_ = p_reg if b == REGULATOR else (p_atm if b == ATMOSPHERE else p[b])

@@ -61,12 +61,15 @@ class Plant:
         self.flow_of_t: Callable[[float], float] | None = None
         self._events: list[_Event] = []
         self._seq = itertools.count()
-        y0 = np.empty(network.n_nodes + 1)
+        y0 = np.empty(network.n_state)
         p_initial_abs = p_initial_abs or {}
         for i, name in enumerate(network.names):
             p_abs = p_initial_abs.get(name, network.p_atm)
             y0[i] = self.laws[i].amount_at(p_abs - network.p_atm)
-        y0[-1] = p_reg_abs
+            slot = network.volume_slot(i)
+            if slot is not None:  # a damped actuator starts at rest: on its law
+                y0[slot] = float(self.laws[i].volume_at(p_abs - network.p_atm))
+        y0[network.n_nodes] = p_reg_abs
         self._seg = self._new_segment(t0, y0)
         self.n_solves = 0
 
@@ -112,8 +115,13 @@ class Plant:
         """Set a node's pressure at time t (an operator bleeding or topping up a volume)."""
         i = self.net.index[node]
 
+        slot = self.net.volume_slot(i)
+
         def apply() -> None:
-            self._seg.y0[i] = self.laws[i].amount_at(p_abs - self.net.p_atm)
+            if slot is None:
+                self._seg.y0[i] = self.laws[i].amount_at(p_abs - self.net.p_atm)
+            else:  # the structure does not move in the instant: the gas amount does
+                self._seg.y0[i] = p_abs * self._seg.y0[slot]
 
         self.schedule(t, apply, f"set {node} to {p_abs:.0f} Pa")
 
@@ -190,14 +198,14 @@ class Plant:
                flow_sources: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
         """State at the sample instants (sorted, not before the segment start).
 
-        Returns (state, flow): state has shape (n_nodes + 1, len(times)), the gas amounts
-        then the regulator output; flow (standard m^3/s, or None when not asked for) is
+        Returns (state, flow): state has shape (n_state, len(times)), the gas amounts,
+        the regulator output, then the volumes of damped nodes; flow (standard m^3/s, or None when not asked for) is
         the signed sum over ``flow_links`` (link name -> sign) of the flow through each,
         plus the flow sources when ``flow_sources``. Events due at or before a sample
         instant are applied before it.
         """
         times = np.asarray(times, dtype=float)
-        out = np.empty((self.net.n_nodes + 1, len(times)))
+        out = np.empty((self.net.n_state, len(times)))
         flow = np.zeros(len(times)) if flow_links is not None else None
         i = 0
         while i < len(times):
@@ -220,7 +228,7 @@ class Plant:
 
     def _flow(self, t: np.ndarray, state: np.ndarray, links: dict[str, float], sources: bool) -> np.ndarray:
         p_abs = self.pressures_abs(state)
-        flows = self.net.link_flows(self.valves, p_abs, state[-1], list(links))
+        flows = self.net.link_flows(self.valves, p_abs, state[self.net.n_nodes], list(links))
         total = sum(sign * flows[name] for name, sign in links.items())
         total = np.zeros(len(t)) + total
         if sources and self.flow_of_t is not None and any(
@@ -239,8 +247,23 @@ class Plant:
 
     def pressures_abs(self, state: np.ndarray) -> np.ndarray:
         """Absolute pressure of every node for a state array from ``sample``."""
-        n = self.net.n_nodes
-        return np.vstack([self.laws[i].pressure_abs_array(state[i]) for i in range(n)])
+        rows = []
+        for i in range(self.net.n_nodes):
+            slot = self.net.volume_slot(i)
+            if slot is None:
+                rows.append(self.laws[i].pressure_abs_array(state[i]))
+            else:
+                rows.append(state[i] / np.maximum(state[slot], 1e-12))
+        return np.vstack(rows)
+
+    def volumes(self, state: np.ndarray, node: str) -> np.ndarray:
+        """Volume (m^3) of a node for a state array from ``sample``: the damped state, or
+        the law at the node's pressure."""
+        i = self.net.index[node]
+        slot = self.net.volume_slot(i)
+        if slot is not None:
+            return state[slot]
+        return self.laws[i].volume_at(self.pressures_abs(state)[i] - self.net.p_atm)
 
     def amounts_now(self) -> np.ndarray:
         return self._seg.y0.copy()

@@ -32,7 +32,7 @@ def _close(a, b, path=""):
 # The suite regenerates the quick sections (under a minute on two cores) and compares them
 # with the committed report; `make report` regenerates all ten (about nine minutes), and
 # `git diff docs/reproduction` then shows any change.
-QUICK = ["shape", "stiffness", "resolution"]
+QUICK = ["shape", "stiffness", "resolution", "timing"]
 
 
 @pytest.fixture(scope="module")
@@ -55,13 +55,13 @@ def test_report_reproduces_the_committed_numbers(regenerated, committed):
     assert res["paper_vs_ours"], "the quick sections add rows to the paper-versus-ours table"
     for row in res["paper_vs_ours"]:
         old = by_quantity[row["quantity"]]
-        assert (row["ours"], row["verdict"]) == (old["ours"], old["verdict"]), row["quantity"]
+        assert (row["ours"], row["verdict"], row["kind"]) == (old["ours"], old["verdict"], old["kind"]), row["quantity"]
 
 
 def test_committed_report_covers_every_section_and_the_key_claims(committed):
     assert set(committed["sections"]) == {"distance_tank", "distance_pressure_flow", "distance_flow_control",
                                           "gripper", "shape", "stiffness", "profile", "suction", "retrofit",
-                                          "resolution"}
+                                          "resolution", "timing"}
     rows = {r["quantity"]: r for r in committed["paper_vs_ours"]}
     tank = committed["sections"]["distance_tank"]
     assert -2.5 <= tank["err95_lo_mm"] and tank["err95_hi_mm"] <= 2.5  # the criterion

@@ -15,7 +15,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from .common import Section, md_table, out_path
+from .common import Section, ledger_counts, md_table, out_path
 from .sections import SECTIONS
 
 SEED = 1
@@ -53,14 +53,15 @@ def generate(out_dir: str | Path, jobs: int = 1, only: list[str] | None = None, 
     results = {s.key: s.numbers for s in sections}
     rows = [r for s in sections for r in s.rows]
     if only is None:
-        (out / "results.json").write_text(json.dumps({"seed": seed, "sections": results, "paper_vs_ours": rows},
+        (out / "results.json").write_text(json.dumps({"seed": seed, "sections": results, "paper_vs_ours": rows,
+                                                      "ledger": ledger_counts(rows)},
                                                      indent=1, sort_keys=True) + "\n")
         (out / "README.md").write_text(_readme(sections, rows, seed))
     return {"seed": seed, "sections": results, "paper_vs_ours": rows, "wall_s": time.perf_counter() - t0}
 
 
 def _readme(sections: list[Section], rows: list[dict[str, Any]], seed: int) -> str:
-    counts = {v: sum(r["verdict"] == v for r in rows) for v in ("match", "mismatch", "qualitative")}
+    n = ledger_counts(rows)
     parts = [
         "# Reproduction report",
         "",
@@ -69,15 +70,20 @@ def _readme(sections: list[Section], rows: list[dict[str, Any]], seed: int) -> s
         "regenerates the report and compares.",
         "",
         "What this is and is not: the simulated cell is a lumped gas model with one small contact law per scene "
-        "(docs/physics.md). Where the paper gives a number that a model parameter was derived from, the match is "
-        "by construction and the table says so; the other rows are consequences of the model. Accuracy figures "
-        "include only the noise and cycle-to-cycle variation the model has.",
+        "and a first-order mechanical lag per actuator (docs/physics.md). The table is a ledger: a row is "
+        "`fitted` when a model parameter was set from that very paper number (it agrees by construction and "
+        "proves nothing), `predicted` otherwise. A verdict uses the paper's own uncertainty or the tolerance the "
+        "row states; a mismatch stays a mismatch, with its reason. Accuracy figures include only the noise and "
+        "cycle-to-cycle variation the model has.",
         "",
-        f"## Paper against ours ({counts['match']} match, {counts['mismatch']} mismatch, "
-        f"{counts['qualitative']} qualitative)",
+        f"## Ledger: {n['predicted_match']} of {n['predicted']} predicted rows agree "
+        f"({n['predicted_mismatch']} disagree, {n['predicted_qualitative']} qualitative); "
+        f"{n['fitted']} rows fitted",
         "",
-        md_table(["quantity", "paper", "ours", "verdict", "why / note", "paper source"],
-                 [[r["quantity"], r["paper"], r["ours"], r["verdict"], r["why"], r["source"]] for r in rows]),
+        md_table(["quantity", "paper (uncertainty)", "ours", "kind", "verdict", "tolerance / why", "paper source"],
+                 [[r["quantity"], r["paper"], r["ours"],
+                   r["kind"] + (f" ({r['parameter']})" if r["parameter"] else ""), r["verdict"],
+                   "; ".join(x for x in (r["tolerance"], r["why"]) if x), r["source"]] for r in rows]),
         "",
     ]
     for s in sections:

@@ -28,10 +28,40 @@ class Section:
     numbers: dict[str, Any] = field(default_factory=dict)
     rows: list[dict[str, Any]] = field(default_factory=list)
 
-    def row(self, quantity: str, paper: str, ours: str, match: bool | None, why: str, source: str) -> None:
+    def row(self, quantity: str, paper: str, ours: str, match: bool | None, why: str, source: str, *,
+            kind: str, tolerance: str = "") -> None:
+        """One ledger row. ``paper``: the published value with its uncertainty; ``source``:
+        where it is (figure/table/section of the published text); ``kind``: ``predicted``,
+        or ``fitted: <parameter>`` when a model parameter was set from this very number (such
+        a row agrees by construction and is never counted as a prediction); ``tolerance``:
+        what "match" means for this row when the paper gives no uncertainty. ``match`` None:
+        the paper states no number here (a qualitative claim, checked as stated in ``why``)."""
+        if kind != "predicted" and not kind.startswith("fitted: "):
+            raise ValueError(f"row kind must be 'predicted' or 'fitted: <parameter>', got {kind!r}")
+        if match is False and not why:
+            raise ValueError(f"mismatch without a reason: {quantity}")
         verdict = {True: "match", False: "mismatch", None: "qualitative"}[match]
+        fitted = kind.startswith("fitted: ")
         self.rows.append({"quantity": quantity, "paper": paper, "ours": ours, "verdict": verdict,
-                          "why": why, "source": source})
+                          "kind": "fitted" if fitted else "predicted",
+                          "parameter": kind.removeprefix("fitted: ") if fitted else "",
+                          "tolerance": tolerance, "why": why, "source": source})
+
+
+def ledger_counts(rows: list[dict[str, Any]]) -> dict[str, int]:
+    """The summary line: how many predicted rows agree, and everything else."""
+    pred = [r for r in rows if r["kind"] == "predicted"]
+    return {"predicted": len(pred), "predicted_match": sum(r["verdict"] == "match" for r in pred),
+            "predicted_mismatch": sum(r["verdict"] == "mismatch" for r in pred),
+            "predicted_qualitative": sum(r["verdict"] == "qualitative" for r in pred),
+            "fitted": len(rows) - len(pred)}
+
+
+# The PneuNet's mechanical lag (docs/physics.md, "Actuator dynamics"): assumed, the published
+# text gives no figure. The pneunet profiles keep 0: their paper protocols read after 4 s and
+# a 0.05 s lag moves those readings by under 0.001 kPa; the studies that read within the first
+# second (the timing section, `fluidsense bench speed-accuracy`) add it.
+PNEUNET_RESPONSE_S = 0.05
 
 
 def profile(name: str) -> Profile:

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from .stability import PERTURBATIONS, SIZE_METHODS, SIZE_THRESHOLD_MM, TASK_THRESHOLD
+from .stability_spec import PERTURBATIONS, SIZE_METHODS, SIZE_THRESHOLD_MM, TASK_THRESHOLD
 
 
 def rounded(v):

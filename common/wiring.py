@@ -21,6 +21,9 @@ from .models import Integer, Real, StrictModel
 from .units import KPA
 
 RAW_MAX = 65535  # UR Modbus analog registers are unsigned 16-bit counts
+#: the control rate per UR controller generation: the box refreshes its I/O (RTDE outputs and
+#: the Modbus server's registers) no faster, so a faster poll reads each value again
+CONTROLLER_HZ = {"e-series": 500.0, "cb3": 125.0}
 Domain = Literal["voltage", "current"]
 
 

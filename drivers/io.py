@@ -7,18 +7,13 @@ from __future__ import annotations
 from pydantic import Field
 
 from common.models import Host, Integer, Port, Real, StrictModel
-from common.wiring import Wiring  # noqa: F401 - the drivers' configs take it from here
+from common.wiring import CONTROLLER_HZ, Wiring  # noqa: F401 - the drivers' configs take them from here
 
 from .sampler.config import SamplerOptions  # noqa: F401 - drivers' configs take it from here
 
 BLOCK_SIZE = ("samples per delivered block. The block period block_size / rate_hz must be at least 5 ms (the sample "
               "loop yields to commands and signals only between blocks) and at most supervision.no_data_s / 5 "
               "(else waiting for a block is a no_data fault); the cell config checks both")
-
-
-#: the control rate per UR controller generation: the box refreshes its I/O (RTDE outputs and
-#: the Modbus server's registers) no faster, so a faster poll reads each value again
-CONTROLLER_HZ = {"e-series": 500.0, "cb3": 125.0}
 
 
 def check_controller_rate(rate_hz: float, controller: str, path: str) -> float:

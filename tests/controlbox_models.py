@@ -29,3 +29,13 @@ def loopback() -> LoopbackModel:
 
 def not_a_model() -> object:
     return object()
+
+
+#: the ramp's slope on analog input 0 (V/s); it wraps at 10 V, every 2 s
+RAMP_V_PER_S = 5.0
+
+
+def ramp() -> KinematicModel:
+    """Analog input 0 reads a voltage ramp of the model's own time, so a value read through
+    the box tells when the box sampled it: 5 V/s, modulo 10 V (0-10 V is the raw range)."""
+    return KinematicModel(analog_input_source=lambda ch, domain, t: (RAMP_V_PER_S * t) % 10.0 if ch == 0 else 0.0)

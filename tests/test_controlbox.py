@@ -529,7 +529,11 @@ def test_a_model_factory_backs_the_box(start_box, clients):
 
     async def set_through_modbus(client):
         await client.write_register(2, 1 << 1)
-        return (await regs(client, 0))[0]
+        # the box reads its inputs into its I/O image at the next control cycle: poll until then
+        deadline = time.monotonic() + 10
+        while not (value := (await regs(client, 0))[0]) & (1 << 1) and time.monotonic() < deadline:
+            pass
+        return value
     assert modbus(box.host, set_through_modbus) == (1 << 5) | (1 << 1)
 
 

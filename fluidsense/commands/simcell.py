@@ -36,7 +36,6 @@ def register(sub) -> None:
 def main(args: argparse.Namespace) -> int:
     from controller.config import load_cell_config
     from drivers.config import SimDriverConfig
-    from drivers.ur.config import RTDE_MAX_HZ
     from simulator.controlbox.__main__ import main_async
     from simulator.controlbox.config import ControlBoxConfig
     from simulator.controlbox.plant import PlantModel
@@ -49,8 +48,12 @@ def main(args: argparse.Namespace) -> int:
     setup_logging(args.log_level)
     logging.getLogger("pymodbus").setLevel(logging.WARNING)
     modbus_port = args.modbus_port or (driver.port if driver.kind == "modbus" else 5020)
+    # the box refreshes its I/O at its generation's control rate; a Modbus I/O module's
+    # registers are served at the polled rate (the slowest its data sheet may promise)
+    io_module = driver.controller == "io-module"
     box = ControlBoxConfig(host=driver.host, modbus_port=modbus_port, analog=driver.analog,
-                           rtde_max_hz=RTDE_MAX_HZ.get(getattr(driver, "controller", "e-series"), RTDE_MAX_HZ["e-series"]))
+                           controller="e-series" if io_module else driver.controller,
+                           io_refresh_hz=driver.rate_hz if io_module else None)
     sim = SimDriverConfig(clock="realtime", rate_hz=1000.0, block_size=1, seed=args.seed,
                           **({"scene": s} if (s := scene_from_args(args)) is not None else {}))
     model = PlantModel(cfg.profile.hardware, driver.wiring, sim)

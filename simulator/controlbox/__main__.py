@@ -40,7 +40,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--modbus-port", type=int, default=502)
     p.add_argument("--model", default=None, metavar="MODULE:FACTORY",
                    help="callable returning a ControlBoxModel (default: a KinematicModel)")
-    p.add_argument("--rtde-max-hz", type=float, default=500.0, help="highest RTDE output rate (e-Series: 500)")
+    p.add_argument("--controller", choices=["e-series", "cb3"], default="e-series",
+                   help="generation: the control rate, at which RTDE sends at most and the I/O registers refresh "
+                   "(e-series 500 Hz, cb3 125 Hz; default e-series)")
     p.add_argument("--unlock-delay", type=float, default=5.0,
                    help="seconds after a protective stop before the dashboard may unlock it")
     p.add_argument("--analog-voltage-range", type=float, nargs=2, default=(0.0, 10.0), metavar=("LOW_V", "HIGH_V"))
@@ -54,7 +56,7 @@ def make_config(args: argparse.Namespace) -> ControlBoxConfig:
     try:
         return ControlBoxConfig(
             host=args.host, rtde_port=args.rtde_port, dashboard_port=args.dashboard_port,
-            script_port=args.script_port, modbus_port=args.modbus_port, rtde_max_hz=args.rtde_max_hz,
+            script_port=args.script_port, modbus_port=args.modbus_port, controller=args.controller,
             unlock_delay_s=args.unlock_delay, remote_control=not args.no_remote_control,
             analog=AnalogScale(voltage_v=tuple(args.analog_voltage_range),
                                current_ma=tuple(args.analog_current_range)))

@@ -1,9 +1,12 @@
 """The controller around the model: registers, the running program, safety reactions,
 and the glue every protocol server writes through.
 
-Everything runs on the emulator's asyncio loop. ``tick()`` is called at the RTDE rate
-(500 Hz); it brings the model to the current time, reacts to safety stops, and steps the
-running program one controller cycle, which is what URScript's ``sync()`` waits for.
+Everything runs on the emulator's asyncio loop. ``tick()`` is called at the control rate
+(500 Hz e-Series, 125 Hz CB3); it brings the model to the current time, reacts to safety
+stops, and steps the running program one controller cycle, which is what URScript's
+``sync()`` waits for. The inputs Modbus and RTDE report come from an I/O image refreshed
+on the box's clock at the I/O rate (the control rate), as a real box does: a client
+polling faster reads the same value again.
 """
 
 from __future__ import annotations
@@ -109,6 +112,10 @@ class ControlBox:
         #: emulator closes and reopens its ports when this is asked for
         self.network_up = True
         self.network_requested: Callable[[bool], None] | None = None
+        #: the I/O image: the inputs as read at the start of the current I/O cycle (number
+        #: ``io_cycle``, at ``io_cycle / config.io_hz`` s); what Modbus and RTDE report
+        self.io_cycle = 0
+        self.latch_inputs()
 
     # -- time ----------------------------------------------------------------------------------
     def now(self) -> float:
@@ -116,11 +123,27 @@ class ControlBox:
         return self._clock() - self._t0
 
     def sync(self) -> float:
-        """Bring the model to now (before applying anything that happens now)."""
+        """Bring the model to now (before applying anything that happens now); on the way,
+        refresh the I/O image with the inputs at the last I/O cycle's start. A cycle nobody
+        looked at is skipped: the image changes at most once per cycle, never in a burst."""
         t = self.now()
+        cycle = math.floor(t * self.config.io_hz)
+        if cycle > self.io_cycle:
+            start = cycle / self.config.io_hz
+            if start > self.model.t:
+                self.model.advance(start)
+            self.io_cycle = cycle
+            self.latch_inputs()
         if t > self.model.t:
             self.model.advance(t)
         return self.model.t
+
+    def latch_inputs(self) -> None:
+        """Take the model's inputs into the I/O image (each I/O cycle; the sim control
+        channel also at once after it set an input, so that a test reads what it set)."""
+        m = self.model
+        self.image_digital_inputs = m.digital_inputs
+        self.image_analog_inputs = [m.analog_input(ch) for ch in range(N_ANALOG)]
 
     def tick(self) -> None:
         """One controller cycle."""
@@ -365,4 +388,6 @@ class ControlBox:
             "runstate": {str(o): s for o, s in sorted(self.runstate.items())},
             "output_journal": [list(e) for e in self.journal],
             "network_up": self.network_up,
+            "controller": self.config.controller,
+            "io_hz": self.config.io_hz,
         }

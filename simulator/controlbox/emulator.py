@@ -79,9 +79,9 @@ class Emulator:
         self._network = asyncio.get_running_loop().create_task(change())
 
     async def run(self) -> None:
-        """The controller cycle at the RTDE rate, until ``stop()``."""
+        """The controller cycle at the control rate, until ``stop()``."""
         loop = asyncio.get_running_loop()
-        period = 1.0 / self.config.rtde_max_hz
+        period = 1.0 / self.config.control_hz
         deadline = loop.time()
         while not self._stop.is_set():
             self.box.tick()

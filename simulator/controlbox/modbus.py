@@ -3,7 +3,9 @@
 Registers are unsigned 16-bit; signed values (robot mode -1, negative TCP coordinates)
 wrap two's-complement. Holding and input register reads (function codes 3 and 4) see the
 same map, and any unit id is answered. Every request first refreshes the registers from
-the model; writes go to the model through the box, so other clients see them at once.
+the model; the inputs (0, 4, 6, 30) come from the box's I/O image, which changes at most
+once per control cycle (500 Hz e-Series, 125 Hz CB3), so a faster poll reads repeats, as on
+a real box. Writes go to the model through the box, so other clients see them at once.
 
 ========  ===  =========================================================================
 register  r/w  meaning
@@ -102,14 +104,14 @@ class UrModbus:
         def put(address: int, value: int) -> None:
             registers[address - start] = _u16(value)
 
-        put(0, standard_to_register(m.digital_inputs))
+        # inputs from the I/O image (refreshed at the control rate), their domains as set
+        put(0, standard_to_register(box.image_digital_inputs))
         put(1, standard_to_register(m.digital_outputs))
-        put(30, (m.digital_inputs >> 8) & 0xFF)
+        put(30, (box.image_digital_inputs >> 8) & 0xFF)
         put(31, (m.digital_outputs >> 8) & 0xFF)
         for ch, base in ((0, 4), (1, 6)):
-            sig = m.analog_input(ch)
-            put(base, self.to_raw(sig))
-            put(base + 1, int(sig.domain))
+            put(base, self.to_raw(box.image_analog_inputs[ch]))
+            put(base + 1, int(m.analog_input(ch).domain))
         for ch, base in ((0, 16), (1, 18)):
             sig = m.analog_output(ch)
             put(base, self.to_raw(sig))

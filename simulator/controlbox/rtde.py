@@ -143,7 +143,7 @@ class RtdeSession:
             log.warning("RTDE %s: outputs not found: %s", self.peer, missing)
             self.send(O, bytes([0]) + ",".join(types).encode())
             return
-        max_hz = self.box.config.rtde_max_hz
+        max_hz = self.box.config.control_hz
         if not 0 < frequency <= max_hz:
             log.warning("RTDE %s asked for %.1f Hz; sending at %.1f Hz", self.peer, frequency, max_hz)
             frequency = max_hz

@@ -123,6 +123,7 @@ def handle(box: ControlBox, line: str) -> dict[str, Any]:
             return reply
         if isinstance(command, SetCommand):
             _apply(box, command)
+            box.latch_inputs()
         elif isinstance(command, NetworkCommand):
             if box.network_requested is None:
                 raise NotSupportedError("this box's network cannot be pulled")

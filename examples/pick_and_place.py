@@ -1,12 +1,13 @@
 """Pick and place with your own motion stack: the arm moved by ur_rtde from here, the
 gripper by the fluidsense client.
 
-    fluidsense simcell --config config/cell-modbus-sim.yaml &     # or a real UR box
-    fluidsense run --config config/cell-modbus-sim.yaml &
+    fluidsense simcell --config config/cell-gripper-modbus-sim.yaml &     # or a real UR box
+    fluidsense run --config config/cell-gripper-modbus-sim.yaml &
     python examples/pick_and_place.py --robot 127.0.0.1
 
-Without ``--robot`` the arm moves are only printed (the gripper part runs as it is): that
-is how the test suite runs it. The poses are the sorting task's slots
+The arm's program is this script's (ur_rtde's control script): the daemon's cell config
+must leave the arm to it (``arm: null``), as that one does; that is how the test suite runs
+it. Without ``--robot`` the arm moves are only printed. The poses are the sorting task's slots
 (config/tasks/sorting.yaml); change them for your cell.
 """
 
@@ -15,7 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from fluidsense.client import GripEnded, Gripper
+from fluidsense.client import GripEnded, Gripper, Refused
 
 PICK = [0.40, -0.20, 0.10, 0.0, 3.14, 0.0]
 PLACE = [0.40, 0.20, 0.10, 0.0, 3.14, 0.0]
@@ -54,7 +55,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--speed", type=float, default=0.25)
     p.add_argument("--acc", type=float, default=0.5)
     args = p.parse_args(argv)
-    arm = Arm(args.robot, args.speed, args.acc)
+    try:
+        arm = Arm(args.robot, args.speed, args.acc)
+    except RuntimeError as exc:  # ur_rtde: no robot there, or not in remote control
+        print(f"pick_and_place: the robot at {args.robot}: {exc}", file=sys.stderr)
+        return 3
     with Gripper(args.cmd, args.pub) as g:
         try:
             arm.move(arm.above(PICK), "approach")
@@ -77,6 +82,9 @@ def main(argv: list[str] | None = None) -> int:
         except GripEnded as exc:
             print(f"the grip ended: {exc}", file=sys.stderr)
             return 4
+        except Refused as exc:  # e.g. the daemon is in FAULT: it needs a reset first
+            print(f"pick_and_place: {exc}", file=sys.stderr)
+            return 2
         finally:
             arm.close()
     return 0

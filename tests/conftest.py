@@ -66,6 +66,8 @@ def simcell_config(tmp_path: Path, kind: str, host: str, profile: str | None = N
     data["driver"].update(driver or {})
     data["driver"]["host"] = host
     data["profile"] = str(CONFIG / "profiles" / (profile or data["profile"].rsplit("/", 1)[-1]))
+    if data.get("gripper", {}).get("calibrations"):  # named relative to config/: the copy is elsewhere
+        data["gripper"]["calibrations"] = [str(CONFIG / c) for c in data["gripper"]["calibrations"]]
     pub, cmd = ipc_endpoints(tmp_path)
     data["publisher"] = {"pub": pub, "cmd": cmd}
     data["recording"] = {"dir": str(tmp_path / "runs"), "min_free_mb": 16}  # never into the repository

@@ -18,7 +18,8 @@ import numpy as np
 
 from common.errors import RecordingError
 from common.units import KPA
-from drivers.recording import REFERENCE, RecordingReader
+from drivers.recording import RecordingReader
+from drivers.recording_schema import REFERENCE
 
 
 @dataclass

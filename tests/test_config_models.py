@@ -44,6 +44,7 @@ EXAMPLES = {
     "TaskCmd": {"cmd": "task", "file": "x.yaml"}, "ShutdownCmd": {"cmd": "shutdown"},
     "GripCmd": {"cmd": "grip"}, "ReleaseCmd": {"cmd": "release"}, "MeasureCmd": {"cmd": "measure"},
     "RipenessObject": {"name": "o", "diameter_mm": 55},
+    "Estimate": {"quantity": "diameter"},
     "CalibrationFile": {"format": "fluidsense-calibration/1", "profile": "p", "method": "tank", "feature": "p_eq",
                         "feature_unit": "kPa", "scene": {"kind": "plate"}, "target": "height_mm", "target_unit": "mm",
                         "fit": "linear", "coeffs": [-0.04, 22.6], "x": [0, 10, 20], "y": [22.6, 22.2, 21.8]},

@@ -43,7 +43,7 @@ def _ur_gripper_cell(cell):
 
 
 @pytest.mark.parametrize("kind", ["gripper-modbus", "ur"])
-def test_grip_a_60_mm_cylinder_then_nothing_through_the_box(kind, tmp_path):
+def test_grip_a_60_mm_cylinder_let_it_slip_then_grip_nothing_through_the_box(kind, tmp_path):
     """Modbus: the gripper cell as shipped. ur: the same gripper and wiring through the
     ur-rtde driver (the box's program is then the daemon's control script); the
     calibration made through Modbus applies, as it calibrates the gripper, not the path."""
@@ -68,6 +68,13 @@ def test_grip_a_60_mm_cylinder_then_nothing_through_the_box(kind, tmp_path):
                 assert est["value_mm"] == pytest.approx(60, abs=2) and est["lo_mm"] < 60 < est["hi_mm"]
                 status = g.status()
                 assert status["holding"] is True and status["object"] is True and status["state"] == "hold"
+
+                # the object slips to a thinner part between the fingers (the box's plant, over
+                # its sim-control port): one slip, still an object, the new size
+                g.scene({"kind": "cylinder", "diameter_mm": 40})
+                (slip,) = [e for e in drain(g, "slip", cycle) if e.topic == "slip"]
+                assert slip.data["drop_kpa"] > 0.5 and slip.data["object"] is True
+                assert slip.data["estimates"][0]["value_mm"] == pytest.approx(40, abs=3)
 
                 released = g.release()
                 assert released.cycle_id == cycle and released.reason == "release" and released.ok

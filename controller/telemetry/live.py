@@ -26,7 +26,8 @@ import zmq
 
 from common.errors import ConfigError
 from common.samples import SampleBlock
-from drivers.recording import SAMPLES, block_payload, to_json
+from drivers.recording import block_payload, to_json
+from drivers.recording_schema import SAMPLES
 
 from ..config import LiveConfig
 from .fanout import Sink

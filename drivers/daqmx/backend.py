@@ -288,7 +288,11 @@ class DaqRegulator(Regulator):
         self._worker.close()
 
 
-def build(cfg: NiDaqDriverConfig, hw: Hardware, task_factory: TaskFactory | None = None) -> Backend:
+def build(cfg: NiDaqDriverConfig, hw: Hardware, task_factory: TaskFactory | None = None,
+          read_only: bool = False) -> Backend:
+    if read_only:  # set-up writes the valves' safe levels to the digital lines
+        raise ConfigError("driver: the nidaqmx driver has no read-only mode (set-up writes the safe levels); "
+                          "use fluidsense check --actuate")
     factory = task_factory or _daqmx().Task
     valves = DaqValves(cfg, hw.circuit.safe_valves, factory)
     regulated = isinstance(hw.circuit, (TankCircuit, RegulatedCircuit)) and cfg.wiring.regulator is not None

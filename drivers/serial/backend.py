@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from common.errors import LinkLostError
+from common.errors import ConfigError, LinkLostError
 from common.hardware import Hardware, RegulatedCircuit, TankCircuit
 from common.samples import SampleBlock
 from common.wiring import AnalogScale, RegulatorWiring
@@ -263,7 +263,10 @@ async def confirm_safe_on_connect(valves: ValveBank) -> None:
     log.info("%s: safe positions written and read back", valves.name)
 
 
-def build(cfg: SerialDriverConfig, hw: Hardware) -> Backend:
+def build(cfg: SerialDriverConfig, hw: Hardware, read_only: bool = False) -> Backend:
+    if read_only:  # a session starts with the device's outputs at their safe levels: a write
+        raise ConfigError("driver: the serial driver has no read-only mode (a session sets the outputs safe); "
+                          "fluidsense check --actuate, or check with the daemon's own status")
     source = SerialSource(cfg, hw)
     valves = SerialValves(source, cfg.wiring.valves, hw.circuit.safe_valves)
     source.on_connect.append(lambda: confirm_safe_on_connect(valves))

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 from common.hardware import SUPPLY, VENT, TankCircuit
 from common.units import KPA
-from drivers.base import Backend
+from drivers.backend import Backend
 
 from .findings import Findings
 from .readings import Rig

@@ -9,7 +9,7 @@ import logging
 from typing import Any
 
 from common.errors import DeviceTimeoutError, LinkLostError
-from drivers.base import Backend
+from drivers.backend import Backend
 
 log = logging.getLogger(__name__)
 

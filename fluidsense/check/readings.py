@@ -11,7 +11,7 @@ import numpy as np
 
 from common.samples import SampleBlock
 from common.units import KPA
-from drivers.base import Backend
+from drivers.backend import Backend
 
 from .findings import Findings
 

@@ -13,7 +13,7 @@ stay free of pydantic.
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import Field, model_validator
 
@@ -200,6 +200,31 @@ class RegulatorWiring(StrictModel):
         return (p0 + frac * (p1 - p0)) * KPA
 
 
+def check_distinct(outputs: list, inputs: list, output_names: list[str] | None = None,
+                   output_kind: str = "digital output") -> None:
+    """Refuse (ValueError) two valves on one output or two sensors on one input."""
+    if len(set(outputs)) != len(outputs):
+        raise ValueError(f"two valves on one {output_kind}: {output_names or outputs}")
+    if len(set(inputs)) != len(inputs):
+        raise ValueError(f"two sensors on one analog input: {inputs}")
+
+
+def wiring_problems(wiring: Any, valves: list[str], channels: tuple[str, ...], regulated: bool,
+                    inputs_hint: str = "") -> list[str]:
+    """Problems with wiring (any driver's: ``valves``, ``sensors``, ``regulator``) to a
+    circuit with these valves and sensor channels."""
+    problems = []
+    if missing := [v for v in valves if v not in wiring.valves]:
+        problems.append(f"valves {missing} of the profile's circuit are not wired (wired: {sorted(wiring.valves)})")
+    if extra := [v for v in wiring.valves if v not in valves]:
+        problems.append(f"valves {extra} are not in the profile's circuit (it has {valves})")
+    if unwired := [c for c in channels if c not in wiring.sensors]:
+        problems.append(f"channels {unwired} have no analog input{inputs_hint}")
+    if regulated and wiring.regulator is None:
+        problems.append("the profile's circuit has a regulator: wire it to an analog output")
+    return problems
+
+
 class Wiring(StrictModel):
     """What is connected where. Valve names are the profile circuit's (``supply``,
     ``actuate``, ``vent``); sensor names are its channels (``p_act``, ``p_tank``)."""
@@ -210,27 +235,10 @@ class Wiring(StrictModel):
 
     @model_validator(mode="after")
     def _distinct(self) -> Wiring:
-        outputs = [v.output for v in self.valves.values()]
-        if len(set(outputs)) != len(outputs):
-            raise ValueError(f"two valves on one digital output: {outputs}")
-        inputs = [s.analog_input for s in self.sensors.values()]
-        if len(set(inputs)) != len(inputs):
-            raise ValueError(f"two sensors on one analog input: {inputs}")
+        check_distinct([v.output for v in self.valves.values()], [s.analog_input for s in self.sensors.values()])
         return self
 
     def check_against(self, valves: list[str], channels: tuple[str, ...], regulated: bool) -> list[str]:
         """Problems with wiring this to a circuit with these valves and sensor channels."""
-        problems = []
-        missing = [v for v in valves if v not in self.valves]
-        if missing:
-            problems.append(f"valves {missing} of the profile's circuit are not wired (wired: {sorted(self.valves)})")
-        extra = [v for v in self.valves if v not in valves]
-        if extra:
-            problems.append(f"valves {extra} are not in the profile's circuit (it has {valves})")
-        unwired = [c for c in channels if c not in self.sensors]
-        if unwired:
-            problems.append(f"channels {unwired} have no analog input (a UR box has two: 0 and 1)")
-        if regulated and self.regulator is None:
-            problems.append("the profile's circuit has a regulator: wire it to an analog output")
-        return problems
+        return wiring_problems(self, valves, channels, regulated, " (a UR box has two: 0 and 1)")
 

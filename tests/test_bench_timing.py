@@ -8,15 +8,28 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
+from pathlib import Path
 
 import pytest
 
 from .conftest import REPO
 
 
-def test_sim_source_accounts_for_every_slot_and_cleans_up(tmp_path):
+@pytest.fixture
+def short_tmp():
+    """The bench's own directory (TMPDIR), short: its ipc socket paths must stay under the
+    107 bytes a Unix socket path may have (a pytest-xdist worker's tmp_path is longer)."""
+    path = Path(tempfile.mkdtemp(prefix="fst-", dir="/tmp"))
+    yield path
+    shutil.rmtree(path, ignore_errors=True)
+
+
+def test_sim_source_accounts_for_every_slot_and_cleans_up(short_tmp):
+    tmp_path = short_tmp
     env = {**os.environ, "TMPDIR": str(tmp_path)}  # the bench's own directory goes here
     out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "bench", "timing", "--seconds", "2", "--json"],
                          cwd=REPO, env=env, capture_output=True, text=True, timeout=180)
@@ -36,7 +49,8 @@ def test_sim_source_accounts_for_every_slot_and_cleans_up(tmp_path):
 
 
 
-def test_serial_source_accounts_for_every_slot_and_reports_the_link(tmp_path):
+def test_serial_source_accounts_for_every_slot_and_reports_the_link(short_tmp):
+    tmp_path = short_tmp
     """The daemon on the serial driver against the firmware's host board (fluidsense
     simserial): samples are stamped from device ticks (on the grid: the host board
     evaluates its inputs at the tick), every slot missing at the subscriber is one the

@@ -9,7 +9,7 @@ from typing import Literal
 from pydantic import Field, model_validator
 
 from common.models import Integer, Real, StrictModel
-from common.wiring import RegulatorWiring, Transfer
+from common.wiring import RegulatorWiring, Transfer, check_distinct, wiring_problems
 
 from ..io import BLOCK_SIZE
 
@@ -80,25 +80,13 @@ class DaqWiring(StrictModel):
     @model_validator(mode="after")
     def _distinct(self) -> DaqWiring:
         lines = [(v.port, v.line) for v in self.valves.values()]
-        if len(set(lines)) != len(lines):
-            raise ValueError(f"two valves on one digital line: {[f'port{p}/line{n}' for p, n in lines]}")
-        inputs = [s.ai for s in self.sensors.values()]
-        if len(set(inputs)) != len(inputs):
-            raise ValueError(f"two sensors on one analog input: {inputs}")
+        check_distinct(lines, [s.ai for s in self.sensors.values()], [f"port{p}/line{n}" for p, n in lines],
+                       "digital line")
         return self
 
     def check_against(self, valves: list[str], channels: tuple[str, ...], regulated: bool) -> list[str]:
         """Problems with wiring this to a circuit with these valves and sensor channels."""
-        problems = []
-        if missing := [v for v in valves if v not in self.valves]:
-            problems.append(f"valves {missing} of the profile's circuit are not wired (wired: {sorted(self.valves)})")
-        if extra := [v for v in self.valves if v not in valves]:
-            problems.append(f"valves {extra} are not in the profile's circuit (it has {valves})")
-        if unwired := [c for c in channels if c not in self.sensors]:
-            problems.append(f"channels {unwired} have no analog input")
-        if regulated and self.regulator is None:
-            problems.append("the profile's circuit has a regulator: wire it to an analog output")
-        return problems
+        return wiring_problems(self, valves, channels, regulated)
 
 
 class NiDaqDriverConfig(StrictModel):

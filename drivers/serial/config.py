@@ -8,7 +8,7 @@ from typing import Literal
 from pydantic import Field, model_validator
 
 from common.models import Integer, Port, Real, StrictModel
-from common.wiring import AnalogScale, RegulatorWiring, Transfer, ValveWiring
+from common.wiring import AnalogScale, RegulatorWiring, Transfer, ValveWiring, check_distinct, wiring_problems
 
 from ..io import BLOCK_SIZE, Reconnect
 
@@ -49,29 +49,12 @@ class SerialWiring(StrictModel):
 
     @model_validator(mode="after")
     def _distinct(self) -> SerialWiring:
-        outputs = [v.output for v in self.valves.values()]
-        if len(set(outputs)) != len(outputs):
-            raise ValueError(f"two valves on one digital output: {outputs}")
-        inputs = [s.adc for s in self.sensors.values()]
-        if len(set(inputs)) != len(inputs):
-            raise ValueError(f"two sensors on one analog input: {inputs}")
+        check_distinct([v.output for v in self.valves.values()], [s.adc for s in self.sensors.values()])
         return self
 
     def check_against(self, valves: list[str], channels: tuple[str, ...], regulated: bool) -> list[str]:
         """Problems with wiring this to a circuit with these valves and sensor channels."""
-        problems = []
-        missing = [v for v in valves if v not in self.valves]
-        if missing:
-            problems.append(f"valves {missing} of the profile's circuit are not wired (wired: {sorted(self.valves)})")
-        extra = [v for v in self.valves if v not in valves]
-        if extra:
-            problems.append(f"valves {extra} are not in the profile's circuit (it has {valves})")
-        unwired = [c for c in channels if c not in self.sensors]
-        if unwired:
-            problems.append(f"channels {unwired} have no analog input")
-        if regulated and self.regulator is None:
-            problems.append("the profile's circuit has a regulator: wire it to an analog output")
-        return problems
+        return wiring_problems(self, valves, channels, regulated)
 
 
 class AdcConfig(StrictModel):

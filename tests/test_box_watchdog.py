@@ -153,6 +153,10 @@ def test_a_link_lost_without_a_box_watchdog_vents_as_the_first_act_when_it_retur
             ctrl = Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware))
             async with ctrl:
                 await _inflate(ctrl, box, cfg)
+                # the outputs are re-read periodically: wait for a report of the inflated state,
+                # so that what status shows while the link is down is known
+                inflated = {"supply": False, "actuate": True}
+                await _until(lambda: ctrl.backend.valves.reported == inflated, 10, "a report of the inflated valves")
                 down = await _box(box.network, False)
                 await _until(lambda: ctrl.fault is not None, 10, "a fault")
                 assert ctrl.fault.kind in ("link_lost", "no_data")

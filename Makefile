@@ -22,7 +22,7 @@ demo: $(STAMP)
 # built by `make firmware`, when avr-gcc is there
 test: $(STAMP) firmware-host
 	@command -v avr-gcc >/dev/null || echo "make test: avr-gcc not found: the AVR image is not built (make firmware builds it; apt-get install gcc-avr avr-libc)"
-	$(BIN)/python -m pytest -n 2 --dist loadfile
+	$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder
 
 # The serial streamer's firmware (firmware/README.md): the AVR image (size reported; needs
 # gcc-avr and avr-libc) and the host board that runs behind a pty in the tests.

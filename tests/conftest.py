@@ -39,9 +39,28 @@ def sim_config(tmp_path: Path, *, clock: str = "virtual", seed: int = 1, scene: 
     return path
 
 
+# The files that take longest (seconds of one worker, `PYTEST_ADDOPTS=--durations=0 make
+# test` summed per file, 2026-11-25), longest first. `make test` hands whole files to the
+# workers in collection order (--dist loadfile --no-loadscope-reorder), so these go
+# first and the short ones fill in at the end, rather than one long file starting last.
+LONGEST_FIRST = [
+    "test_drivers.py", "test_check.py", "test_speed_stability.py", "test_gripper_box.py", "test_recording.py",
+    "test_scenes.py", "test_zmq.py", "test_serial.py", "test_calibration.py", "test_accuracy.py",
+    "test_examples.py", "test_controlbox.py", "test_box_watchdog.py", "test_tasks.py", "test_security.py",
+    "test_report.py", "test_backends.py", "test_soak.py", "test_protocol.py",
+]
+
+
+def _longest_first(items) -> None:
+    rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: the rest keep their order
+
+
 def pytest_collection_modifyitems(config, items):
-    """``hardware`` tests need a real robot cell: they run only when selected with
-    ``-m hardware`` (and FLUIDSENSE_HARDWARE_CONFIG names its cell config)."""
+    """Longest files first (above). ``hardware`` tests need a real robot cell: they run
+    only when selected with ``-m hardware`` (and FLUIDSENSE_HARDWARE_CONFIG names its
+    cell config)."""
+    _longest_first(items)
     if "hardware" in (config.getoption("-m") or ""):
         return
     skip = pytest.mark.skip(reason="needs a real robot cell: run with -m hardware")

@@ -61,12 +61,25 @@ class Supervisor:
         for j, ch in enumerate(block.channels):
             if not ch.startswith("p_"):
                 continue
-            fault = self._check_channel(ch, block.t, block.values[:, j])
+            v = block.values[:, j]
+            if self._plainly_good(ch, v):
+                fault = self._check_stuck(ch, block.t, v) if self.stuck_check.get(ch, True) else None
+            else:
+                fault = self._check_channel(ch, block.t, v)
             if fault is not None:
                 return fault
         if "p_act" in block.channels:
             return self._check_leak(block, holding)
         return None
+
+    def _plainly_good(self, ch: str, v: np.ndarray) -> bool:
+        """Every reading finite, off the rails and within the limits. This runs on every
+        block, so it looks at the block's extremes only (a NaN makes them NaN, and NaN
+        compares false); ``_check_channel`` finds which rule is broken, and where, for the
+        rare block that breaks one."""
+        rail_lo, rail_hi = self.rails.get(ch, (-np.inf, np.inf))
+        v_min, v_max = float(v.min()), float(v.max())
+        return rail_lo < v_min and v_max < rail_hi and self.min_pa <= v_min and v_max <= self.max_pa
 
     def _check_channel(self, ch: str, t: np.ndarray, v: np.ndarray) -> Fault | None:
         bad = ~np.isfinite(v)
@@ -94,9 +107,12 @@ class Supervisor:
 
     def _check_stuck(self, ch: str, t: np.ndarray, v: np.ndarray) -> Fault | None:
         value, since = self._last.get(ch, (np.nan, float(t[0])))
-        changed = np.nonzero(v != np.concatenate([[value], v[:-1]]))[0]
-        if len(changed):
-            since = float(t[changed[-1]])
+        if len(v) > 1 and v[-1] != v[-2]:
+            since = float(t[-1])  # a live sensor's usual block: its last reading is new
+        else:
+            changed = np.nonzero(v != np.concatenate([[value], v[:-1]]))[0]
+            if len(changed):
+                since = float(t[changed[-1]])
         self._last[ch] = (float(v[-1]), since)
         if t[-1] - since >= self.cfg.stuck_s:
             return Fault(FaultKind.SENSOR_STUCK, ch, since + self.cfg.stuck_s,

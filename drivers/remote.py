@@ -5,12 +5,12 @@ A backend's devices (valves, regulator, arm) talk through one or more ``Connecti
 Modbus client, the ur_rtde worker process). The source is the backend's heartbeat:
 every block it delivers also checks every link, so a link lost while the cell is idle
 still becomes a fault within one block. After a loss every read raises
-``LinkLostError`` until a reconnection succeeds; attempts run in a task of their own
-(exponential backoff between them), because reopening links and starting a sampler
-process takes longer than the controller waits for one block (under load, more than
-its 0.5 s: attempts cut off by that wait never succeeded). A successful one restarts the
-sampler and reopens the links, and sample time carries on from the first connection's
-origin, the gap reported as missed slots.
+``LinkLostError`` until a reconnection succeeds (drivers/reconnect.py: attempts in a task
+of their own with back-off, because reopening links and starting a sampler process takes
+longer than the controller waits for one block; under load, more than its 0.5 s, and
+attempts cut off by that wait never succeeded). A successful one restarts the sampler and
+reopens the links, and sample time carries on from the first connection's origin, the gap
+reported as missed slots.
 
 Each connection, the first one included, then runs the backend's ``on_connect`` steps
 before any sample is delivered: the valves go to their safe positions and are read back
@@ -31,6 +31,7 @@ from common.samples import SampleBlock
 from drivers.base import SampleSource, ValveBank
 
 from .io import Reconnect, SamplerOptions
+from .reconnect import Reconnector
 from .sampler.config import PollerSpec, SamplerConfig
 from .sampler.source import SampledSource
 
@@ -79,10 +80,7 @@ class PolledCellSource(SampleSource):
         self._origin: float | None = None  # CLOCK_MONOTONIC of sample time 0
         self._seq = 0
         self._t_last: float | None = None
-        self._lost: LinkLostError | None = None
-        self._retry_at = 0.0
-        self._backoff = reconnect.first_s
-        self._reconnecting: asyncio.Task[None] | None = None
+        self._reconnector = Reconnector(name, reconnect, self._connect)
         #: run after the links open, before the sampler starts, at every connection
         self.on_connect: list[Callable[[], Awaitable[None]]] = []
 
@@ -119,8 +117,8 @@ class PolledCellSource(SampleSource):
             self._origin = sampler.t0_monotonic_s
 
     async def _read_block(self) -> SampleBlock:
-        if self._lost is not None:
-            await self._try_reconnect()
+        if self._reconnector.lost is not None:
+            await self._reconnector.attempt()
         try:
             block = await self.sampler.read_block()
             for link in self.links:
@@ -142,35 +140,8 @@ class PolledCellSource(SampleSource):
         return dataclasses.replace(block, seq=self._seq, t=t, missed=missed)
 
     async def _lose(self, exc: LinkLostError) -> None:
-        if self._lost is None:
-            log.error("%s: link lost: %s", self.name, exc)
-            loop = asyncio.get_running_loop()
-            self._retry_at = loop.time() + self.reconnect.first_s
-            self._backoff = self.reconnect.first_s
-        self._lost = exc
+        self._reconnector.lose(exc)
         await self._close_all()
-
-    async def _try_reconnect(self) -> None:
-        """Returns once reconnected; otherwise raises LinkLostError at once, starting an
-        attempt in the background when the backoff allows one."""
-        loop = asyncio.get_running_loop()
-        task = self._reconnecting
-        if task is not None and task.done():
-            self._reconnecting = None
-            exc = task.exception() if not task.cancelled() else asyncio.CancelledError()
-            if exc is None:
-                log.warning("%s: reconnected", self.name)
-                self._lost = None
-                return
-            self._backoff = min(2 * self._backoff, self.reconnect.max_s)
-            self._retry_at = loop.time() + self._backoff
-            log.warning("%s: reconnection failed (%s); next attempt in %.1f s", self.name, exc, self._backoff)
-            raise LinkLostError(f"{self.name}: reconnection failed: {exc}") from exc
-        if task is None and loop.time() >= self._retry_at:
-            self._reconnecting = asyncio.create_task(self._connect(), name=f"{self.name}-reconnect")
-        state = "reconnecting" if self._reconnecting is not None else \
-            f"next attempt in {self._retry_at - loop.time():.1f} s"
-        raise LinkLostError(f"{self.name}: disconnected ({self._lost}); {state}") from self._lost
 
     async def _close_all(self) -> None:
         if self.sampler is not None:
@@ -185,11 +156,5 @@ class PolledCellSource(SampleSource):
                 log.error("%s: closing %s: %s", self.name, link.name, exc)
 
     async def _stop(self) -> None:
-        if self._reconnecting is not None:
-            self._reconnecting.cancel()
-            try:
-                await self._reconnecting  # _connect closes what it opened
-            except (asyncio.CancelledError, Exception):  # noqa: BLE001 - stopping anyway: the outcome no longer matters
-                pass
-            self._reconnecting = None
+        await self._reconnector.cancel()
         await self._close_all()

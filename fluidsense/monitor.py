@@ -12,7 +12,6 @@ import zmq.auth
 
 from controller.telemetry.publisher import WELCOME
 
-
 NOT_RUNNING = ("the daemon may not be running (fluidsense run), or it listens elsewhere "
                "(its {what} endpoint: --endpoint, or {option} in --config)")
 

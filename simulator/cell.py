@@ -17,7 +17,7 @@ from common.units import KPA
 
 from .actuators import contact_pressure, contact_truth, is_dynamic, update_step, volume_law
 from .arm import ArmModel
-from .gas import ATMOSPHERE, REGULATOR, FlowSource, Pipe, Network, VolumeLaw
+from .gas import ATMOSPHERE, REGULATOR, FlowSource, Network, Pipe, VolumeLaw
 from .plant import Plant
 from .sensor import SensorModel
 from .world import World

@@ -22,7 +22,7 @@ def true_contact_time(diameter_mm: float) -> float:
     from common.hardware import GripperActuator, TankCircuit
     from common.units import P_ATM
     from simulator.actuators import volume_law
-    from simulator.gas import Pipe, Network, VolumeLaw
+    from simulator.gas import Network, Pipe, VolumeLaw
     from simulator.plant import Plant
 
     act, c = GripperActuator(), TankCircuit()
@@ -167,7 +167,6 @@ def test_a_polled_sources_jitter_does_not_hold_a_batch_for_a_second_block(tmp_pa
     a few microseconds later than its slot while the last is on time. A 10 ms batch is
     still one block of 10 (it once waited for a second block, doubling the latency)."""
     from common.samples import SampleBlock
-    from controller.config import load_cell_config
     from controller.config import PublisherConfig
     from controller.telemetry.fanout import Telemetry
 

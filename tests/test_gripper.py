@@ -6,6 +6,7 @@ shipped calibration (config/calibrations/pneunet-gripper-p_eq.json)."""
 from __future__ import annotations
 
 import asyncio
+from pathlib import Path
 
 import pytest
 import yaml
@@ -125,6 +126,36 @@ def test_a_grip_held_past_max_hold_s_is_released(tmp_path, daemon_factory):
         g.scene({"kind": "cylinder", "diameter_mm": 60})  # sample time runs on: the hold limit passes
         released = g.wait_for("released", None, 60)
         assert released.data["reason"] == "max_hold_s"
+
+
+def test_a_grip_not_grasped_within_its_timeout_is_given_up_and_vented(tmp_path, daemon_factory):
+    """The tube still holds 8 kPa when the daemon starts and the profile charges and
+    isolates for only 0.5 s each: the first grip waits (about 2 s) for the actuator to
+    vent before its valve opens, so its grasp cannot come within a timeout_s just long
+    enough for the plan (0.5 + 0.5 + 5 s): the grip is given up and vented, and says so.
+    The next grip, on the vented actuator, grasps within the same timeout."""
+    path = gripper_config(tmp_path, calibrated=False)
+    data = yaml.safe_load(path.read_text())
+    profile = yaml.safe_load(Path(data["profile"]).read_text())
+    profile["sequence"].update(charge_s=0.5, isolate_s=0.5)
+    data["profile"] = profile
+    data["driver"]["perturb"] = {"residual_kpa": 8.0}
+    path.write_text(yaml.safe_dump(data))
+    d = daemon_factory(path)
+    d.wait_welcome()
+    with Gripper(d.cmd, d.pub) as g:
+        cycle = g.grip(timeout_s=6.5, wait=False)
+        with pytest.raises(GripEnded) as ended:
+            g.wait_for("grasp", cycle, 60, fail_on_end=True)
+        assert ended.value.released.reason == "timeout" and not ended.value.released.ok
+        status = g.status()
+        assert status["holding"] is False and status["fault"] is None
+        assert status["state"] in ("vent", "idle")
+        for _ in range(100):  # the vent runs on in sample time (each status is a round trip)
+            if g.status()["state"] == "idle":
+                break
+        assert g.grip(timeout_s=6.5).object is None  # uncalibrated: grasped, nothing to say about it
+        assert g.release().reason == "release"
 
 
 def test_a_calibration_of_another_profile_stops_the_daemon_before_it_starts(tmp_path):

@@ -14,7 +14,7 @@ from common.scenes import CylinderScene, WallScene
 from common.units import KPA, LITRE, ML, P_ATM
 from simulator.actuators import volume_law
 from simulator.equilibrium import eq2_resolution, equilibrium
-from simulator.gas import Pipe, Network, VolumeLaw
+from simulator.gas import Network, Pipe, VolumeLaw
 from simulator.plant import Plant
 from simulator.resolution import linear_sweep, resolution_at, search
 

@@ -18,9 +18,9 @@ import socket
 import numpy as np
 import pytest
 
+from common.errors import DriverError, LinkLostError
 from controller.config import load_cell_config
 from drivers.config import build_backend
-from common.errors import DriverError, LinkLostError
 
 from .conftest import Daemon, profile_controller
 from .serial_helpers import Proxy, SimSerialProcess, serial_config

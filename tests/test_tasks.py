@@ -126,7 +126,7 @@ def test_task_command_with_order_and_json():
 
 
 def test_task_started_through_the_command_socket(tmp_path, daemon_factory):
-    path = sim_config(tmp_path, profile=str(CONFIG / "profiles" / "sorting-gripper.yaml"))
+    path = sim_config(tmp_path, profile=str(CONFIG / "profiles" / "sorting-gripper-quick.yaml"))  # short cycles
     d = daemon_factory(path, "--tasks-dir", str(TASKS))
     d.wait_welcome()
     outside = d.request({"cmd": "task", "file": "../cell-sim.yaml"})

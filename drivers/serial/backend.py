@@ -27,6 +27,7 @@ from common.wiring import AnalogScale, RegulatorWiring
 
 from ..backend import Backend
 from ..base import BoxWatchdog, Regulator, SampleSource, ValveBank
+from ..reconnect import Reconnector
 from . import protocol as p
 from .clock import Timeline
 from .config import SerialDriverConfig, SerialValveWiring
@@ -75,10 +76,7 @@ class SerialSource(SampleSource):
         self._totals: dict[str, int] = {}
         self._session: int | None = None
         self._seq = 0
-        self._lost: LinkLostError | None = None
-        self._retry_at = 0.0
-        self._backoff = cfg.reconnect.first_s
-        self._reconnecting: asyncio.Task[None] | None = None
+        self._reconnector = Reconnector(self.name, cfg.reconnect, self._connect)
 
     @property
     def clock_origin_s(self) -> float | None:
@@ -87,7 +85,7 @@ class SerialSource(SampleSource):
     def require_link(self) -> SerialLink:
         link = self.link
         if link is None:
-            raise self._lost or LinkLostError(f"{self.name}: not connected")
+            raise self._reconnector.lost or LinkLostError(f"{self.name}: not connected")
         link.check()
         return link
 
@@ -125,8 +123,8 @@ class SerialSource(SampleSource):
         self.connections += 1
 
     async def _read_block(self) -> SampleBlock:
-        if self._lost is not None:
-            await self._try_reconnect()
+        if self._reconnector.lost is not None:
+            await self._reconnector.attempt()
         try:
             block = await self.link.next_block()
         except DeviceResetError as exc:
@@ -140,34 +138,8 @@ class SerialSource(SampleSource):
         return dataclasses.replace(block, seq=self._seq)
 
     async def _lose(self, exc: LinkLostError) -> None:
-        if self._lost is None:
-            log.error("%s: link lost: %s", self.name, exc)
-            self._retry_at = asyncio.get_running_loop().time() + self.cfg.reconnect.first_s
-            self._backoff = self.cfg.reconnect.first_s
-        self._lost = exc
+        self._reconnector.lose(exc)
         await self._close_link()
-
-    async def _try_reconnect(self) -> None:
-        """Returns once reconnected; otherwise raises LinkLostError at once, starting an
-        attempt in the background when the backoff allows one."""
-        loop = asyncio.get_running_loop()
-        task = self._reconnecting
-        if task is not None and task.done():
-            self._reconnecting = None
-            exc = task.exception() if not task.cancelled() else asyncio.CancelledError()
-            if exc is None:
-                log.warning("%s: reconnected", self.name)
-                self._lost = None
-                return
-            self._backoff = min(2 * self._backoff, self.cfg.reconnect.max_s)
-            self._retry_at = loop.time() + self._backoff
-            log.warning("%s: reconnection failed (%s); next attempt in %.1f s", self.name, exc, self._backoff)
-            raise LinkLostError(f"{self.name}: reconnection failed: {exc}") from exc
-        if task is None and loop.time() >= self._retry_at:
-            self._reconnecting = asyncio.create_task(self._connect(), name=f"{self.name}-reconnect")
-        state = "reconnecting" if self._reconnecting is not None else \
-            f"next attempt in {self._retry_at - loop.time():.1f} s"
-        raise LinkLostError(f"{self.name}: disconnected ({self._lost}); {state}") from self._lost
 
     async def _close_link(self) -> None:
         link, self.link = self.link, None
@@ -178,14 +150,8 @@ class SerialSource(SampleSource):
         await link.close()
 
     async def _stop(self) -> None:
-        if self._reconnecting is not None:
-            self._reconnecting.cancel()
-            try:
-                await self._reconnecting  # _connect closes what it opened
-            except (asyncio.CancelledError, Exception):  # noqa: BLE001 - stopping anyway
-                pass
-            self._reconnecting = None
-        if self.link is not None and self._lost is None:
+        await self._reconnector.cancel()
+        if self.link is not None and self._reconnector.lost is None:
             try:  # outputs safe, streaming off, the device's watchdog disarmed: nothing left to guard
                 await self.link.command(p.STOP, tries=2)
             except Exception as exc:  # noqa: BLE001 - closing anyway; the device's watchdog vents

@@ -8,7 +8,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from .speed_accuracy import CIRCUITS, DECIDED, DECISION_TIMES, SCENES, _round, earliest, same_as
+from .speed_spec import CIRCUITS, DECIDED, DECISION_TIMES, SCENES, _round, earliest, same_as
 
 # The paper's data on this chart's axes: the sorting protocols read the window mean of a
 # gripper closing on cylinders 20 mm apart (40-100 mm) through a circuit without a resistor,

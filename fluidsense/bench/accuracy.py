@@ -81,12 +81,10 @@ class Study:
 
 
 def _cell(profile_name: str, seed: int):
-    from controller.config import CellConfig
+    from controller.config import CellConfig, load_profile
     from drivers.config import SimDriverConfig
 
     from ..options import profile_path
-
-    from controller.config import load_profile  # noqa: I001 - kept beside its use
 
     prof = load_profile(profile_path(profile_name))
     return CellConfig(driver=SimDriverConfig(clock="virtual", seed=seed), profile=prof)

@@ -38,8 +38,8 @@ HELP = "hostile command messages (REQ and DEALER framing) against a live daemon:
 DESCRIPTION = __doc__
 
 PROFILE = Path(__file__).resolve().parents[2] / "config" / "profiles" / "pneunet-gripper.yaml"
-FUZZ_COMMANDS = ["status", "cycle", "abort", "reset", "scene", "task",  # not shutdown: it would end the run
-                 "", "stat", "SHUTDOWN", "cycles"]
+FUZZ_COMMANDS = ["status", "cycle", "grip", "release", "measure", "abort", "reset", "scene", "task",  # not shutdown:
+                 "", "stat", "SHUTDOWN", "cycles"]  # it would end the run
 PROBE = b'{"cmd": "status"}'
 
 
@@ -93,7 +93,7 @@ def message_strategy():
         lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner, max_size=4),
         max_leaves=10)
     fields = {k: json_values for k in ("p0_kpa", "label", "scene", "file", "reason", "extra", "store_reference",
-                                       "order_mm")}
+                                       "order_mm", "timeout_s")}
     commands = st.fixed_dictionaries({"cmd": st.sampled_from(FUZZ_COMMANDS)}, optional=fields)
     deep = st.builds(_nest, st.integers(1, 3000), st.sampled_from(["list", "object", "string"]))
     huge = st.integers(MAX_REQUEST_BYTES - 64, MAX_FRAME_BYTES).map(_padded_status)

@@ -17,8 +17,7 @@ and their fields: docs/zmq-schema.md.
 
 from .aio import AsyncGripper
 from .sync import Gripper
-from .types import (GRIPPER_TOPICS, Contact, Estimate, Event, GripEnded, Grasp, NoReply, Refused, Released, Slip,
-                    typed)
+from .types import GRIPPER_TOPICS, Contact, Estimate, Event, Grasp, GripEnded, NoReply, Refused, Released, Slip, typed
 
 __all__ = ["AsyncGripper", "Contact", "Estimate", "Event", "GRIPPER_TOPICS", "Grasp", "GripEnded", "Gripper",
            "NoReply", "Refused", "Released", "Slip", "typed"]

@@ -13,7 +13,7 @@ import zmq
 import zmq.asyncio
 
 from . import _sockets as S
-from .types import GRIPPER_TOPICS, Event, GripEnded, Grasp, NoReply, Refused, Released, typed
+from .types import GRIPPER_TOPICS, Event, Grasp, GripEnded, NoReply, Refused, Released, typed
 
 
 class AsyncGripper:

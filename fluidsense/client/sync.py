@@ -11,7 +11,7 @@ from typing import Any
 import zmq
 
 from . import _sockets as S
-from .types import GRIPPER_TOPICS, Event, GripEnded, Grasp, NoReply, Refused, Released, typed
+from .types import GRIPPER_TOPICS, Event, Grasp, GripEnded, NoReply, Refused, Released, typed
 
 
 class Gripper:

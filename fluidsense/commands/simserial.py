@@ -44,6 +44,7 @@ def register(sub) -> None:
 def main(args: argparse.Namespace) -> int:
     from controller.config import load_cell_config
     from drivers.config import SimDriverConfig
+
     from ..serialboard import SerialPlant, SimSerial, build_board
 
     cfg = load_cell_config(args.config)

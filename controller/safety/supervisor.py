@@ -61,11 +61,7 @@ class Supervisor:
         for j, ch in enumerate(block.channels):
             if not ch.startswith("p_"):
                 continue
-            v = block.values[:, j]
-            if self._plainly_good(ch, v):
-                fault = self._check_stuck(ch, block.t, v) if self.stuck_check.get(ch, True) else None
-            else:
-                fault = self._check_channel(ch, block.t, v)
+            fault = self._check_channel(ch, block.t, block.values[:, j])
             if fault is not None:
                 return fault
         if "p_act" in block.channels:
@@ -75,13 +71,20 @@ class Supervisor:
     def _plainly_good(self, ch: str, v: np.ndarray) -> bool:
         """Every reading finite, off the rails and within the limits. This runs on every
         block, so it looks at the block's extremes only (a NaN makes them NaN, and NaN
-        compares false); ``_check_channel`` finds which rule is broken, and where, for the
+        compares false); ``_broken_rule`` finds which rule is broken, and where, only for the
         rare block that breaks one."""
         rail_lo, rail_hi = self.rails.get(ch, (-np.inf, np.inf))
         v_min, v_max = float(v.min()), float(v.max())
         return rail_lo < v_min and v_max < rail_hi and self.min_pa <= v_min and v_max <= self.max_pa
 
     def _check_channel(self, ch: str, t: np.ndarray, v: np.ndarray) -> Fault | None:
+        fault = None if self._plainly_good(ch, v) else self._broken_rule(ch, t, v)
+        if fault is None and self.stuck_check.get(ch, True):
+            return self._check_stuck(ch, t, v)
+        return fault
+
+    def _broken_rule(self, ch: str, t: np.ndarray, v: np.ndarray) -> Fault | None:
+        """Which rule a reading breaks first: NaN, a rail, the limits."""
         bad = ~np.isfinite(v)
         if bad.any():
             k = int(np.argmax(bad))
@@ -101,8 +104,6 @@ class Supervisor:
             k = int(np.argmax(under))
             return Fault(FaultKind.UNDER_PRESSURE, ch, float(t[k]),
                          f"{ch} {v[k] / KPA:.2f} kPa below the limit {self.min_pa / KPA:.2f} kPa")
-        if self.stuck_check.get(ch, True):
-            return self._check_stuck(ch, t, v)
         return None
 
     def _check_stuck(self, ch: str, t: np.ndarray, v: np.ndarray) -> Fault | None:

@@ -18,17 +18,7 @@ import yaml
 from fluidsense.client import Gripper
 
 from .conftest import CONFIG, Daemon, free_simcell
-from .test_gripper import drain as _drain
-
-
-def drain(g: Gripper, until: str, cycle_id: int) -> list:
-    """The events up to ``until`` of the cycle (schema-checked); a fault among them fails
-    the test with what it was."""
-    try:
-        return _drain(g, until, cycle_id)
-    except AssertionError as exc:
-        raise AssertionError(f"{exc}; last grasp: {g.status().get('last_grasp')}; fault: {g.status().get('fault')}") \
-            from exc
+from .test_gripper import grip_a_60_mm_cylinder, slip_to_40_mm
 
 GRIPPER_CELL = yaml.safe_load((CONFIG / "cell-gripper-modbus-sim.yaml").read_text())
 # the ur-rtde driver on the same box wiring (arm and box watchdog through ur_rtde's script)
@@ -55,26 +45,9 @@ def test_grip_a_60_mm_cylinder_let_it_slip_then_grip_nothing_through_the_box(kin
         try:
             d.wait_welcome()
             with Gripper(d.cmd, d.pub, topics=("contact", "grasp", "slip", "released", "fault")) as g:
-                drain(g, "released", g.measure(store_reference=True, wait=False))  # free air: the reference
-                g.scene({"kind": "cylinder", "diameter_mm": 60})
-                cycle = g.grip(wait=False)
-                events = drain(g, "grasp", cycle)
-                assert [e.topic for e in events] == ["contact", "grasp"]
-                contact, grasp = events
-                assert 0 < contact.data["t_c_s"] < 2.0 and contact.data["at_s"] < grasp.data["at_s"]
-                assert grasp.data["object"] is True and grasp.data["in_range"] is True
-                (est,) = grasp.data["estimates"]
-                assert est["quantity"] == "diameter" and est["status"] == "ok"
-                assert est["value_mm"] == pytest.approx(60, abs=2) and est["lo_mm"] < 60 < est["hi_mm"]
-                status = g.status()
-                assert status["holding"] is True and status["object"] is True and status["state"] == "hold"
-
-                # the object slips to a thinner part between the fingers (the box's plant, over
-                # its sim-control port): one slip, still an object, the new size
-                g.scene({"kind": "cylinder", "diameter_mm": 40})
-                (slip,) = [e for e in drain(g, "slip", cycle) if e.topic == "slip"]
-                assert slip.data["drop_kpa"] > 0.5 and slip.data["object"] is True
-                assert slip.data["estimates"][0]["value_mm"] == pytest.approx(40, abs=3)
+                cycle = grip_a_60_mm_cylinder(g, t_c_max_s=2.0)
+                # the scene changes in the box's plant, over its sim-control port
+                slip_to_40_mm(g, cycle)
 
                 released = g.release()
                 assert released.cycle_id == cycle and released.reason == "release" and released.ok

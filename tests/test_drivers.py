@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 import yaml
 
-from common.errors import ConfigError
+from common.errors import ConfigError, DriverError, SafetyError
 from common.wiring import Linear, Mpx, Ratiometric, RegulatorWiring
 from controller.config import load_cell_config
 from controller.service import Controller
@@ -211,6 +211,37 @@ def test_a_sensor_on_an_input_set_to_the_other_domain_stops_the_modbus_driver_at
             with pytest.raises(ConfigError, match=r"driver.wiring.sensors.p_act: analog input 0 .* set to voltage"):
                 await backend.setup()
             assert not backend.source.connected
+
+        asyncio.run(asyncio.wait_for(body(), 60))
+
+
+def test_a_move_is_judged_arrived_or_stopped_on_the_control_stream_not_a_late_status(tmp_path):
+    """The ur_rtde worker's pose comes from a 50 Hz receive stream, the move's progress
+    from the control interface's 500 Hz one. On a busy PC the slow stream can fall behind
+    (here the box sends it 0.3 s late): a move that arrived must still read as arrived (it
+    once read "stopped" with the pose of 0.3 s before, and a sorting run ended), and a
+    move stopped short must still read as stopped."""
+    with free_simcell(tmp_path, "ur") as (box, cell):
+        cfg = load_cell_config(cell)
+        cfg = cfg.model_copy(update={"driver": cfg.driver.model_copy(update={"watchdog": None})})
+
+        async def body():
+            backend = build_backend(cfg.driver, cfg.profile.hardware)
+            async with backend:
+                arm = backend.arm
+                box.command({"cmd": "rtde_lag", "max_hz": 50, "lag_s": 0.3})
+                start = arm.tcp_pose
+                there = (start[0] + 0.05, *start[1:])
+                await arm.move_l(there, 0.25, 1.2, 0.0)  # arrived: returns
+                assert box.state()["tcp_pose"][:3] == pytest.approx(there[:3], abs=1e-3)
+                # a move the box stops half-way: stopped, not arrived
+                back = asyncio.ensure_future(arm.move_l(start, 0.05, 1.2, 0.0))
+                await asyncio.to_thread(box.wait_for, lambda st: abs(st["tcp_pose"][0] - there[0]) > 0.005, 5.0,
+                                        "the arm under way")
+                box.set(protective_stop=True)
+                with pytest.raises((DriverError, SafetyError)):
+                    await back
+                box.command({"cmd": "rtde_lag", "max_hz": 50, "lag_s": 0.0})
 
         asyncio.run(asyncio.wait_for(body(), 60))
 

@@ -25,11 +25,13 @@ signal that reached the whole process group, then closes its input.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import select
 import signal
 import sys
+import threading
 import time
 from typing import Any
 
@@ -101,10 +103,13 @@ class Worker:
         control = self._need(self.control, "control")
         self._ensure_script(control)
         pose = [float(v) for v in req["pose"]]
+        # the script gives every async operation a new id in its progress register: the
+        # move has started, in the control stream's own view, once the id differs from this
+        op_before = control.getAsyncOperationProgressEx().operationId()
         if not control.moveL(pose, float(req["speed"]), float(req["acc"]), True):
             raise RuntimeError("moveL refused by the robot")
         self.move_id += 1
-        self.move = {"id": self.move_id, "target": pose, "since": time.monotonic()}
+        self.move = {"id": self.move_id, "target": pose, "op_before": op_before}
         self.move_result = None
         return {"move_id": self.move_id}
 
@@ -159,27 +164,55 @@ class Worker:
                 "move_id": self.move_id, "move_result": self.move_result}
 
     def _follow_move(self, pose: list[float], running: bool | None) -> None:
-        move = self.move
-        busy = running and self.control.getAsyncOperationProgressEx().isAsyncOperationRunning()
-        # the progress register may not show the move in the first cycles after the call
-        if busy or (running and time.monotonic() - move["since"] < 0.1):
-            return
-        target = move["target"]
-        at = (math.dist(pose[:3], target[:3]) <= ARRIVED_M
-              and max(abs(a - b) for a, b in zip(pose[3:], target[3:])) <= ARRIVED_RAD)
-        self.move_result = "arrived" if at else ("stopped" if running else "stopped: the control script ended")
+        """Decide the running move's end from the control interface alone: its progress
+        register says when the move ended, and the pose is asked from the script after that.
+        The receive interface's pose is another RTDE stream, which on a busy PC can lag the
+        control stream by more than a move's last few centimetres: judged by it, a move that
+        arrived read as stopped short."""
+        move, control = self.move, self.control
+        if running:
+            progress = control.getAsyncOperationProgressEx()
+            if progress.operationId() == move["op_before"] or progress.isAsyncOperationRunning():
+                return  # not seen to start yet, or still moving
+            try:
+                pose = list(control.getForwardKinematics())  # the actual TCP pose, now
+            except Exception:  # noqa: BLE001 - e.g. the script just ended: judged at the next status
+                return
+        self.move_result = "arrived" if self._at(pose, move["target"]) else (
+            "stopped" if running else "stopped: the control script ended")
         self.move = None
+
+    @staticmethod
+    def _at(pose: list[float], target: list[float]) -> bool:
+        return (math.dist(pose[:3], target[:3]) <= ARRIVED_M
+                and max(abs(a - b) for a, b in zip(pose[3:], target[3:])) <= ARRIVED_RAD)
 
     def emit(self, message: dict[str, Any]) -> None:
         self.out.write(json.dumps(message) + "\n")
 
     def close(self) -> None:
-        for iface in (self.control, self.io, self.receive):
-            if iface is not None:
-                try:
-                    iface.disconnect()
-                except Exception:  # noqa: BLE001, S110 - leaving anyway
-                    pass
+        """Disconnects every interface, at once: each disconnect waits about 0.5 s for its
+        receiving thread, without holding the GIL, and a daemon stopping waits for this.
+        The interfaces are then kept until the process ends (``os._exit``, below): their
+        destructors would wait as long again, one after the other."""
+        ifaces = [iface for iface in (self.control, self.io, self.receive) if iface is not None]
+        threads = [threading.Thread(target=_disconnect, args=(iface,)) for iface in ifaces]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        DISCONNECTED.extend(ifaces)
+
+
+#: disconnected interfaces, never destroyed (see Worker.close)
+DISCONNECTED: list[Any] = []
+
+
+def _disconnect(iface) -> None:
+    try:
+        iface.disconnect()
+    except Exception:  # noqa: BLE001, S110 - leaving anyway
+        pass
 
 
 OPS = ("digital_out", "analog_out", "move_l", "stop_l", "ensure_program")
@@ -231,4 +264,11 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))
+    code = main(sys.argv[1:])
+    # everything is closed and flushed by now: skip the interpreter's teardown, in which
+    # ur_rtde's interfaces wait another 0.5 s each for threads they already stopped (a
+    # daemon's stop waits for this process)
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)

@@ -112,6 +112,10 @@ class ControlBox:
         #: emulator closes and reopens its ports when this is asked for
         self.network_up = True
         self.network_requested: Callable[[bool], None] | None = None
+        #: (max_hz, lag_s): RTDE output streams at max_hz or slower reach their clients
+        #: lag_s late (sim control ``rtde_lag``), as a receive thread starved on a busy PC
+        #: reads them; (0, 0): none
+        self.rtde_lag: tuple[float, float] = (0.0, 0.0)
         #: the I/O image: the inputs as read at the start of the current I/O cycle (number
         #: ``io_cycle``, at ``io_cycle / config.io_hz`` s); what Modbus and RTDE report
         self.io_cycle = 0

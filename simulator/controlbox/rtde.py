@@ -23,6 +23,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import struct
+from collections import deque
 
 from simulator.controlbox.box import ControlBox
 from simulator.controlbox.rtde_vars import Recipe, input_type, output_getter, output_type
@@ -54,6 +55,7 @@ class RtdeSession:
         self.started = False
         self._dropping = False
         self._warned: set = set()
+        self._late: deque[tuple[float, bytes]] = deque()  # (due at, package) under box.rtde_lag
 
     # -- sending ---------------------------------------------------------------------------
     def send(self, kind: int, payload: bytes = b"") -> None:
@@ -63,6 +65,8 @@ class RtdeSession:
 
     def send_outputs(self, t: float) -> None:
         """Send the output recipe if it is due at controller time ``t``."""
+        while self._late and self._late[0][0] <= t:
+            self.send(U, self._late.popleft()[1])
         if not self.started or self.output is None or t + 1e-9 < self._next_due:
             return
         self._next_due += self._period
@@ -76,7 +80,12 @@ class RtdeSession:
             return
         self._dropping = False
         values = [g(self.box) for g in self._getters]
-        self.send(U, bytes([self.output.id]) + self.output.pack(values))
+        package = bytes([self.output.id]) + self.output.pack(values)
+        max_hz, lag_s = self.box.rtde_lag
+        if lag_s > 0 and self._period >= 1.0 / max_hz:
+            self._late.append((t + lag_s, package))
+        else:
+            self.send(U, package)
 
     # -- receiving ---------------------------------------------------------------------------
     async def run(self) -> None:

@@ -11,7 +11,8 @@ request's ``id`` echoed when it has one. This is not part of the UR control box.
 
 A box backed by the simulated plant (``fluidsense simcell``) also answers ``scene``
 (place an object), ``world`` (lay out slots and objects for an arm), ``truth`` (what a
-bench instrument would read) and ``inject`` / ``clear_faults`` (fault injection). The
+bench instrument would read) and ``inject`` / ``clear_faults`` (fault injection). Every
+box answers ``network`` (pull the cable) and ``rtde_lag`` (slow RTDE streams arrive late). The
 same commands are served over TCP (one JSON object per line each way) when the cell
 config names a ``sim_control_port``: that is how a daemon's simulated task lays out its
 objects and scores itself.
@@ -104,9 +105,20 @@ class NetworkCommand(StrictModel):
     up: bool
 
 
+class RtdeLagCommand(StrictModel):
+    """RTDE output streams at ``max_hz`` or slower reach their clients ``lag_s`` late (a
+    client's receive thread starved on a busy PC); ``lag_s: 0`` ends it."""
+
+    cmd: Literal["rtde_lag"]
+    id: Any = None
+    max_hz: float = Field(gt=0, le=1000)
+    lag_s: float = Field(ge=0, le=10)
+
+
 _PLANT = (SceneCommand, WorldCommand, TruthCommand, InjectCommand, ClearFaultsCommand)
 SimRequest = TypeAdapter(Annotated[StateCommand | SetCommand | SceneCommand | WorldCommand | TruthCommand
-                                | InjectCommand | ClearFaultsCommand | NetworkCommand, Field(discriminator="cmd")])
+                                | InjectCommand | ClearFaultsCommand | NetworkCommand | RtdeLagCommand,
+                                Field(discriminator="cmd")])
 
 
 def handle(box: ControlBox, line: str) -> dict[str, Any]:
@@ -128,6 +140,9 @@ def handle(box: ControlBox, line: str) -> dict[str, Any]:
             if box.network_requested is None:
                 raise NotSupportedError("this box's network cannot be pulled")
             box.network_requested(command.up)
+        elif isinstance(command, RtdeLagCommand):
+            box.rtde_lag = (command.max_hz, command.lag_s)
+            log.info("sim control: RTDE streams at %g Hz or slower %g s late", command.max_hz, command.lag_s)
         reply["state"] = box.snapshot()
     except (FluidsenseError, ValueError) as exc:
         reply.update(ok=False, error=str(exc))

@@ -144,16 +144,18 @@ class PolledCellSource(SampleSource):
         await self._close_all()
 
     async def _close_all(self) -> None:
-        if self.sampler is not None:
-            try:
-                await self.sampler.stop()
-            finally:
-                self.sampler = None
-        for link in reversed(self.links):
-            try:
-                await link.close()
-            except Exception as exc:  # noqa: BLE001 - close the others anyway
-                log.error("%s: closing %s: %s", self.name, link.name, exc)
+        """The sampler and every link at once: each waits on its own peer (ur_rtde's
+        disconnects take about 0.5 s each), and none needs another closed first (the valves
+        were made safe before)."""
+        sampler, self.sampler = self.sampler, None
+        results = await asyncio.gather(*([sampler.stop()] if sampler is not None else []),
+                                       *(link.close() for link in reversed(self.links)), return_exceptions=True)
+        for name, res in zip([*(["sampler"] if sampler is not None else []), *(lk.name for lk in reversed(self.links))],
+                             results):
+            if isinstance(res, Exception):
+                log.error("%s: closing %s: %s", self.name, name, res)
+            elif isinstance(res, BaseException):  # cancelled while closing: the others are closed
+                raise res
 
     async def _stop(self) -> None:
         await self._reconnector.cancel()

@@ -238,4 +238,11 @@ def _close(poller: Any) -> None:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    code = main()
+    # everything is closed and flushed by now: skip the interpreter's teardown, in which
+    # ur_rtde's interfaces wait another 0.5 s each for threads they already stopped (a
+    # daemon's stop waits for this process)
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)

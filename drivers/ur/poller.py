@@ -54,3 +54,9 @@ class RtdeAnalogPoller(Poller):
     def close(self) -> None:
         if self.receive is not None:
             self.receive.disconnect()
+            # kept, not destroyed: ur_rtde's destructor would wait another 0.5 s for the
+            # thread just stopped, and the sampler process ends with os._exit right after
+            _DISCONNECTED.append(self.receive)
+
+
+_DISCONNECTED: list = []

@@ -89,20 +89,24 @@ class UrModbus:
         try:
             if set_values is not None:
                 self.write(address, [int(v) for v in set_values])
-            self.refresh(registers, start_address)
+            self.refresh(registers, start_address, address, count)
         except ValueError as exc:
             log.warning("modbus write at %d refused: %s", address, exc)
             return ExcCodes.ILLEGAL_VALUE
         return None
 
     # -- model -> registers ---------------------------------------------------------------------
-    def refresh(self, registers: list[int], start: int) -> None:
+    def refresh(self, registers: list[int], start: int, first: int = 0, count: int = 1 << 16) -> None:
+        """The request's registers ``first .. first + count - 1`` from the model (a poll
+        reads a few of them, hundreds of times a second)."""
         box = self.box
         box.sync()
         m = box.model
+        end = first + count
 
         def put(address: int, value: int) -> None:
-            registers[address - start] = _u16(value)
+            if first <= address < end:
+                registers[address - start] = _u16(value)
 
         # inputs from the I/O image (refreshed at the control rate), their domains as set
         put(0, standard_to_register(box.image_digital_inputs))
@@ -116,7 +120,7 @@ class UrModbus:
             sig = m.analog_output(ch)
             put(base, self.to_raw(sig))
             put(base + 1, int(sig.domain))
-        for i in range(128):
+        for i in range(max(first, 128) - 128, min(end, 256) - 128):
             put(128 + i, m.general_purpose(i))
         put(258, int(m.robot_mode))
         put(261, int(m.protective_stop))

@@ -15,8 +15,6 @@ about blocks not arriving rather than their content.
 
 from __future__ import annotations
 
-from collections import deque
-
 import numpy as np
 
 from common.faults import Fault, FaultKind
@@ -32,6 +30,35 @@ def _slope(t: np.ndarray, p: np.ndarray) -> tuple[float, float]:
     slope = float(tc @ (p - p.mean())) / sxx
     resid = p - p.mean() - slope * tc
     return slope, float(np.sqrt((resid @ resid) / (len(t) - 2) / sxx))
+
+
+class _HeldMeans:
+    """Block means (t, p_act) of the last 1.5 s while held, in arrays that grow in place:
+    the leak check looks at them on every block of a hold."""
+
+    SPAN_S = 1.5
+
+    def __init__(self, capacity: int = 512):
+        self.t, self.p = np.empty(capacity), np.empty(capacity)
+        self.lo = self.hi = 0
+
+    def clear(self) -> None:
+        self.lo = self.hi = 0
+
+    def append(self, t: float, p: float) -> None:
+        if self.hi == len(self.t):
+            n = self.hi - self.lo
+            if 2 * n > len(self.t):
+                self.t, self.p = np.resize(self.t, 2 * len(self.t)), np.resize(self.p, 2 * len(self.p))
+            self.t[:n], self.p[:n] = self.t[self.lo:self.hi].copy(), self.p[self.lo:self.hi].copy()
+            self.lo, self.hi = 0, n
+        self.t[self.hi], self.p[self.hi] = t, p
+        self.hi += 1
+        while self.hi - self.lo > 1 and t - self.t[self.lo] > self.SPAN_S:
+            self.lo += 1
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.t[self.lo:self.hi], self.p[self.lo:self.hi]
 
 
 class Supervisor:
@@ -51,34 +78,34 @@ class Supervisor:
         }
         self.vacuum = profile.sequence.p0_kpa < 0
         self._last: dict[str, tuple[float, float]] = {}  # channel -> (value, since when unchanged)
-        self._hold: deque[tuple[float, float]] = deque()  # (t, p_act) while held after the windows
+        self._hold = _HeldMeans()  # (t, p_act) block means while held after the windows
         self._hold_t0: float | None = None
 
     def check(self, block: SampleBlock, holding: bool = False, arm_stopped: bool = False) -> Fault | None:
         """``holding``: the actuator is inflated and its windows are done (equilibrium)."""
         if arm_stopped:
             return Fault(FaultKind.PROTECTIVE_STOP, None, block.t_end, "the arm is protective-stopped")
+        # every channel's extremes in one pass: this runs on every block
+        lows, highs = block.values.min(axis=0), block.values.max(axis=0)
         for j, ch in enumerate(block.channels):
             if not ch.startswith("p_"):
                 continue
-            fault = self._check_channel(ch, block.t, block.values[:, j])
+            fault = self._check_channel(ch, block.t, block.values[:, j], float(lows[j]), float(highs[j]))
             if fault is not None:
                 return fault
         if "p_act" in block.channels:
             return self._check_leak(block, holding)
         return None
 
-    def _plainly_good(self, ch: str, v: np.ndarray) -> bool:
-        """Every reading finite, off the rails and within the limits. This runs on every
-        block, so it looks at the block's extremes only (a NaN makes them NaN, and NaN
-        compares false); ``_broken_rule`` finds which rule is broken, and where, only for the
-        rare block that breaks one."""
+    def _plainly_good(self, ch: str, v_min: float, v_max: float) -> bool:
+        """Every reading finite, off the rails and within the limits, from the block's
+        extremes (a NaN makes them NaN, and NaN compares false); ``_broken_rule`` finds
+        which rule is broken, and where, only for the rare block that breaks one."""
         rail_lo, rail_hi = self.rails.get(ch, (-np.inf, np.inf))
-        v_min, v_max = float(v.min()), float(v.max())
         return rail_lo < v_min and v_max < rail_hi and self.min_pa <= v_min and v_max <= self.max_pa
 
-    def _check_channel(self, ch: str, t: np.ndarray, v: np.ndarray) -> Fault | None:
-        fault = None if self._plainly_good(ch, v) else self._broken_rule(ch, t, v)
+    def _check_channel(self, ch: str, t: np.ndarray, v: np.ndarray, v_min: float, v_max: float) -> Fault | None:
+        fault = None if self._plainly_good(ch, v_min, v_max) else self._broken_rule(ch, t, v)
         if fault is None and self.stuck_check.get(ch, True):
             return self._check_stuck(ch, t, v)
         return fault
@@ -129,25 +156,28 @@ class Supervisor:
         if self._hold_t0 is None:
             self._hold_t0 = float(block.t[0])
         # keep 1.5 s, in block means (enough for three half-second slopes)
-        self._hold.append((float(block.t.mean()), float(p.mean())))
-        while self._hold and self._hold[-1][0] - self._hold[0][0] > 1.5:
-            self._hold.popleft()
-        if self._hold[-1][0] - self._hold_t0 < 1.5:
+        self._hold.append(float(block.t.mean()), float(p.mean()))
+        tt, pp = self._hold.arrays()
+        if tt[-1] - self._hold_t0 < 1.5:
             return None
-        tt, pp = np.array(self._hold).T
         sign = 1.0 if self.vacuum else -1.0  # towards atmosphere
+        # the three half-second windows, newest first: a hold without a leak fails the newest
+        # and the older two are never fitted (any window that fails decides)
+        bounds = np.searchsorted(tt, [tt[-1] - 1.5 + 0.5 * k for k in range(3)]
+                                 + [tt[-1] - 1.0 + 0.5 * k + 1e-9 for k in range(3)])
         slopes, limits = [], []
-        for k in range(3):
-            sel = (tt >= tt[-1] - 1.5 + 0.5 * k) & (tt < tt[-1] - 1.0 + 0.5 * k + 1e-9)
-            if sel.sum() < 4:
+        for k in (2, 1, 0):
+            a, b = bounds[k], bounds[3 + k]
+            if b - a < 4:
                 return None
-            slope, se = _slope(tt[sel], pp[sel])
-            slopes.append(slope * sign / KPA)
+            slope, se = _slope(tt[a:b], pp[a:b])
             # a slope within noise of zero is no evidence of a leak, however steep the
             # noise makes it look: the limit rises to three standard errors
-            limits.append(max(self.cfg.leak_kpa_per_s, 3.0 * se / KPA))
-        if all(r > lim for r, lim in zip(slopes, limits)):
-            rate, limit = min(slopes), max(limits)
-            return Fault(FaultKind.LEAK, "p_act", float(block.t_end),
-                         f"held pressure falls {rate:.2f} kPa/s towards atmosphere (limit {limit:.2f} kPa/s)")
-        return None
+            limit = max(self.cfg.leak_kpa_per_s, 3.0 * se / KPA)
+            if not slope * sign / KPA > limit:
+                return None
+            slopes.append(slope * sign / KPA)
+            limits.append(limit)
+        rate, limit = min(slopes), max(limits)
+        return Fault(FaultKind.LEAK, "p_act", float(block.t_end),
+                     f"held pressure falls {rate:.2f} kPa/s towards atmosphere (limit {limit:.2f} kPa/s)")

@@ -28,6 +28,16 @@ def test_smoothing_keeps_a_quadratic_and_cuts_white_noise():
     assert sd == pytest.approx(np.sqrt(gain), rel=0.02)
 
 
+@pytest.mark.parametrize("n, span", [(21, 21), (22, 21), (500, 3), (500, 21), (14_300, 41)])
+def test_smoothing_is_scipys_savgol_filter_in_interp_mode(n, span):
+    """features.smooth is written out only to spare every process scipy.signal's import."""
+    from scipy.signal import savgol_filter
+
+    x = np.cumsum(np.random.default_rng(n).normal(0, 100.0, n))
+    expected = savgol_filter(x, span, 2, mode="interp")
+    np.testing.assert_allclose(F.smooth(x, span), expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+
+
 def test_sensor_offset_is_the_mean_just_before_opening():
     t = timebase(0, 20)
     p = np.where(t < 19.0, 5.0, 0.25) + np.where(t >= 20.0, 100.0, 0.0)  # 0.25 in the last second

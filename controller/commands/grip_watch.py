@@ -4,8 +4,11 @@ findings out, in sample time and Pa).
 ContactWatch: the first contact during actuation, live. The actuator pressure (offset
 removed, as the cycle's analysis does) is compared with the free-air reference at the
 same time after opening; contact is a block whose mean dP is beyond the profile's contact
-threshold, at the first sample of that block beyond it. The cycle's own analysis gives
-the precise t_c afterwards (in ``grasp``); this one is for reacting while it happens.
+threshold, at the first sample of that block beyond it. With ``align`` (the profile's
+``align_rise_kpa``) the samples wait until the rise has passed its upper level, and are
+then compared on the reference's timing, as the cycle's analysis does. The cycle's own
+analysis gives the precise t_c afterwards (in ``grasp``); this one is for reacting while
+it happens.
 
 SlipWatch: while held, an abrupt fall of the pressure towards atmosphere (the object
 moved out of the grip and the fingers closed further). A fall of ``drop_pa`` within
@@ -26,13 +29,16 @@ from controller.cycles.analysis import Reference
 
 class ContactWatch:
     def __init__(self, reference: Reference | None, threshold_pa: float, sign: float, offset_s: float,
-                 until_s: float):
+                 until_s: float, align_pa: tuple[float, float] | None = None):
         """``sign``: +1 when contact pushes the pressure up (inflation), -1 for vacuum;
-        ``until_s``: stop looking this long after opening (the last measurement window)."""
+        ``until_s``: stop looking this long after opening (the last measurement window);
+        ``align_pa``: the rise's levels (Pa, oriented) to line up with the reference's."""
         self.reference, self.threshold, self.sign = reference, threshold_pa, sign
-        self.offset_s, self.until_s = offset_s, until_s
+        self.offset_s, self.until_s, self.align = offset_s, until_s, align_pa
         self._before: deque[tuple[np.ndarray, np.ndarray]] = deque()
+        self._rising: list[tuple[np.ndarray, np.ndarray]] = []  # after opening, until the shift is known
         self.offset: float | None = None
+        self.shift: float | None = None if align_pa else 0.0
         self.t_c: float | None = None
         self.done = reference is None
 
@@ -57,18 +63,39 @@ class ContactWatch:
                 return None
         ref = self.reference
         t_rel = t - t_open
-        keep = (t_rel >= 0) & (t_rel <= min(self.until_s, float(ref.t_rel[-1])))
         if t_rel[0] > self.until_s:
             self.done = True
             return None
+        if self.shift is None:
+            t_rel, p = self._aligned(t_rel, p)
+            if t_rel is None:
+                return None
+        t_al = t_rel - self.shift
+        keep = (t_rel >= 0) & (t_rel <= self.until_s) & (t_al >= ref.t_rel[0]) & (t_al <= ref.t_rel[-1])
         if not keep.any():
             return None
-        dp = self.sign * (p[keep] - self.offset - np.interp(t_rel[keep], ref.t_rel, ref.p))
+        dp = self.sign * (p[keep] - self.offset - np.interp(t_al[keep], ref.t_rel, ref.p))
         if float(np.mean(dp)) <= self.threshold:
             return None
-        self.t_c = float(t_rel[keep][int(np.argmax(dp > self.threshold))])
+        self.t_c = float(t_al[keep][int(np.argmax(dp > self.threshold))])
         self.done = True
         return self.t_c
+
+    def _aligned(self, t_rel: np.ndarray, p: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
+        """Holds the samples until the rise has passed the upper level, then sets the shift
+        and returns every held sample; (None, p) while still waiting."""
+        self._rising.append((t_rel, p))
+        t_all = np.concatenate([b[0] for b in self._rising])
+        p_all = np.concatenate([b[1] for b in self._rising])
+        after = t_all >= 0
+        if not (self.sign * (p_all[after] - self.offset) >= self.align[1]).any():
+            return None, p
+        ref = self.reference
+        shift = F.rise_shift(t_all[after], self.sign * (p_all[after] - self.offset), ref.t_rel, self.sign * ref.p,
+                             *self.align)
+        self.shift = 0.0 if shift is None else shift
+        self._rising.clear()
+        return t_all, p_all
 
 
 class SlipWatch:

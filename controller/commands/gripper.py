@@ -136,8 +136,9 @@ class Gripper(Sink):
         self._deadline = float("inf") if timeout_s is None else ctrl.now + timeout_s
         self._sign = -1.0 if seq.p0_pa < 0 else 1.0
         reference = None if store_reference else ctrl.cycles.references.get(reference_key(seq.p0_pa))
+        align = None if prof.align_rise_kpa is None else tuple(v * KPA for v in prof.align_rise_kpa)
         self._contact = ContactWatch(reference, prof.contact_threshold_kpa * KPA, self._sign, prof.offset_s,
-                                     max(w.end_s for w in prof.windows))
+                                     max(w.end_s for w in prof.windows), align)
         self._slip = None
         measured = asyncio.ensure_future(ctrl.measured())
         self._follow = asyncio.get_running_loop().create_task(self._follow_cycle(measured, fut),

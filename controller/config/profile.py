@@ -76,6 +76,12 @@ class SequenceConfig(StrictModel):
     onset_kpa: Real = Field(0.15, gt=0, le=100, description="dP level taken as the first rise (t_c at onset): "
                              "about five times the noise of a smoothed dP")
     smoothing_samples: Integer = Field(21, ge=3, le=1001, description="local quadratic regression span")
+    align_rise_kpa: tuple[Real, Real] | None = Field(
+        None, description="[lo, hi]: before dP is taken, shift each cycle in time so that its rise through "
+        "lo..hi kPa (away from atmosphere, offset removed) lines up with the reference's. Removes the valve "
+        "command's latency, which a polled driver (UR box, Modbus) does not know to better than a few ms and "
+        "which on the first rise is worth tenths of a kPa of dP. Contact below hi is then not seen by dP. "
+        "None: time since the commanded opening, as a hardware-timed cell knows it")
 
     @model_validator(mode="after")
     def _consistent(self) -> SequenceConfig:
@@ -95,6 +101,8 @@ class SequenceConfig(StrictModel):
             raise ValueError("method pressure_flow needs a flow_window to integrate over")
         if self.method == "tank" and self.isolate_s == 0:
             raise ValueError("method tank needs isolate_s > 0 (the tank must be isolated before opening)")
+        if self.align_rise_kpa is not None and not 0 < self.align_rise_kpa[0] < self.align_rise_kpa[1] <= 100:
+            raise ValueError(f"align_rise_kpa must be [lo, hi] with 0 < lo < hi <= 100, got {list(self.align_rise_kpa)}")
         if self.isolate_actuator_at_s is not None and self.isolate_actuator_at_s >= self.actuate_s:
             raise ValueError("isolate_actuator_at_s must come before the end of actuate_s")
         return self

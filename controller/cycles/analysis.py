@@ -89,6 +89,7 @@ class CycleResult:
     t_c_threshold: float | None = None
     t_c2: float | None = None
     t_c_onset: float | None = None  # the first rise of dP out of its noise
+    rise_shift: float | None = None  # s this cycle rose later than the reference (sequence.align_rise_kpa)
     v_eq: float | None = None  # standard m^3 into the actuator over the flow window
     flow_offset: float | None = None
     samples: int = 0
@@ -118,7 +119,7 @@ class CycleResult:
             "is_reference": self.is_reference, "has_reference": self.has_reference,
             "dp_eq_kpa": _kpa(self.dp_eq), "dp_max_kpa": _kpa(self.dp_max), "t_dp_max_s": self.t_dp_max,
             "t_c_slope_s": self.t_c_slope, "t_c_threshold_s": self.t_c_threshold, "t_c2_s": self.t_c2,
-            "t_c_onset_s": self.t_c_onset,
+            "t_c_onset_s": self.t_c_onset, "rise_shift_s": self.rise_shift,
             "v_eq_ml": None if self.v_eq is None else self.v_eq * 1e6,
             "samples": self.samples, "missed": self.missed,
         }
@@ -156,24 +157,42 @@ def analyse(cycle_id: int, p0: float, t_start: float, t_open: float | None, t_en
     res.has_reference = True
     # contact pushes the pressure away from atmosphere: for vacuum, flip so contact is +
     sign = -1.0 if p0 < 0 else 1.0
-    dp = F.delta_p(t_rel, p_rel, reference.t_rel, reference.p)
-    dps = F.smooth(np.nan_to_num(dp, nan=0.0), cfg.smoothing_samples)
-    dps[~np.isfinite(dp)] = np.nan
+    t_al = t_rel  # time since opening, as the reference's opening was timed
+    if cfg.align_rise_kpa is not None:
+        lo, hi = (v * KPA for v in cfg.align_rise_kpa)
+        res.rise_shift = F.rise_shift(t_rel, sign * p_rel, reference.t_rel, sign * reference.p, lo, hi)
+        if res.rise_shift is not None:
+            t_al = t_rel - res.rise_shift
+    dp = F.delta_p(t_al, p_rel, reference.t_rel, reference.p)
+    dps = _smooth_within(dp, cfg.smoothing_samples)
     oriented = sign * dps
     first = cfg.windows[0]
     in_first = (t_rel >= first.start_s) & (t_rel < first.end_s) & np.isfinite(dp)
     if in_first.any():
         res.dp_eq = float(np.mean(dp[in_first]))
-    peak = F.dp_max(t_rel, oriented)
+    peak = F.dp_max(t_al, oriented)
     if peak is not None:
         res.dp_max, res.t_dp_max = sign * peak[0], peak[1]
     threshold = cfg.contact_threshold_kpa * KPA
-    res.t_c_threshold = F.contact_time_threshold(t_rel, oriented, threshold)
-    res.t_c_onset = F.contact_time_threshold(t_rel, oriented, cfg.onset_kpa * KPA)
-    res.t_c_slope = F.contact_time_slope(t_rel, oriented, min_rise=threshold)
+    res.t_c_threshold = F.contact_time_threshold(t_al, oriented, threshold)
+    res.t_c_onset = F.contact_time_threshold(t_al, oriented, cfg.onset_kpa * KPA)
+    res.t_c_slope = F.contact_time_slope(t_al, oriented, min_rise=threshold)
     if res.t_c_slope is not None:
-        res.t_c2 = F.second_contact_time(t_rel, oriented, res.t_c_slope, min_rise=threshold)
+        res.t_c2 = F.second_contact_time(t_al, oriented, res.t_c_slope, min_rise=threshold)
     return res
+
+
+def _smooth_within(dp: np.ndarray, span: int) -> np.ndarray:
+    """dP smoothed over the span the reference covers: the samples outside it (NaN) are left
+    out of the fit, not read as zeros, which at a held object's dP of a few kPa would bend
+    the last span of the curve (an aligned cycle ends up to its shift after the reference)."""
+    out = np.full_like(dp, np.nan)
+    idx = np.flatnonzero(np.isfinite(dp))
+    if len(idx):
+        a, b = idx[0], idx[-1] + 1
+        out[a:b] = F.smooth(np.nan_to_num(dp[a:b], nan=0.0), span)
+        out[~np.isfinite(dp)] = np.nan
+    return out
 
 
 def make_reference(result: CycleResult) -> Reference:

@@ -10,9 +10,9 @@ smoothing by local quadratic regression over 20 samples (Methods, distance sensi
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 
 @dataclass(frozen=True)
@@ -22,17 +22,33 @@ class WindowStats:
     n: int
 
 
+@lru_cache(maxsize=16)
+def _quadratic_fit_rows(span: int) -> np.ndarray:
+    """Least-squares quadratic over ``span`` points: row k gives the fitted value at point k."""
+    x = np.arange(span, dtype=float) - span // 2
+    design = np.vander(x, 3, increasing=True)
+    return design @ np.linalg.pinv(design)
+
+
 def smooth(x: np.ndarray, span: int = 21) -> np.ndarray:
     """Local quadratic regression over ``span`` samples (Savitzky-Golay, polyorder 2).
 
     The paper used MATLAB's loess with a 20-point span; Savitzky-Golay is the same local
-    quadratic least-squares fit without loess's tricube weights, on an odd span.
+    quadratic least-squares fit without loess's tricube weights, on an odd span. This is
+    scipy.signal.savgol_filter(x, span, 2, mode="interp") (tests/test_features.py holds
+    the two equal): written out because importing scipy.signal costs every daemon and CLI
+    start about 0.7 s of CPU (docs/architecture.md, "The test suite").
     """
     x = np.asarray(x, dtype=float)
     span = int(span) | 1  # odd
     if len(x) < span:
         return x.copy()
-    return savgol_filter(x, window_length=span, polyorder=2, mode="interp")
+    rows, half = _quadratic_fit_rows(span), span // 2
+    out = np.convolve(x, rows[half][::-1], mode="same")
+    # the first and last half-spans: the quadratic through the first (last) span, read there
+    out[:half] = rows[:half] @ x[:span]
+    out[-half:] = rows[span - half:] @ x[-span:]
+    return out
 
 
 def _between(t: np.ndarray, lo: float, hi: float) -> np.ndarray:
@@ -92,6 +108,31 @@ def delta_p(t_rel: np.ndarray, p: np.ndarray, ref_t_rel: np.ndarray, ref_p: np.n
     """
     ref = np.interp(t_rel, ref_t_rel, ref_p, left=np.nan, right=np.nan)
     return np.asarray(p, dtype=float) - ref
+
+
+def crossing_time(t: np.ndarray, y: np.ndarray, level: float) -> float | None:
+    """First time ``y`` reaches ``level`` from below (linear interpolation between samples)."""
+    above = y >= level
+    if not above.any():
+        return None
+    k = int(np.argmax(above))
+    if k == 0 or y[k] == y[k - 1]:
+        return float(t[k])
+    return float(t[k - 1] + (level - y[k - 1]) * (t[k] - t[k - 1]) / (y[k] - y[k - 1]))
+
+
+def rise_shift(t_rel: np.ndarray, p: np.ndarray, ref_t_rel: np.ndarray, ref_p: np.ndarray, lo: float, hi: float,
+               levels: int = 5) -> float | None:
+    """How much later than the reference's this cycle rose through ``lo..hi`` (both oriented
+    so that the rise is upwards, offsets removed): the mean over ``levels`` levels of the
+    difference of crossing times. None when either curve does not reach ``hi``."""
+    shifts = []
+    for level in np.linspace(lo, hi, levels):
+        t_meas, t_ref = crossing_time(t_rel, p, level), crossing_time(ref_t_rel, ref_p, level)
+        if t_meas is None or t_ref is None:
+            return None
+        shifts.append(t_meas - t_ref)
+    return float(np.mean(shifts))
 
 
 def contact_time_threshold(t_rel: np.ndarray, dp: np.ndarray, threshold: float) -> float | None:

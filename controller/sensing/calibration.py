@@ -22,7 +22,6 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import Field, JsonValue, model_validator
-from scipy import optimize
 
 from common.errors import ConfigError, FluidsenseError
 from common.files import MB, check_name, decode_utf8, nested_within, read_bounded
@@ -138,7 +137,11 @@ class Calibration:
             return None
         mid = 0.5 * (lo + hi)
         k = min(crossings, key=lambda i: abs(grid[i] - mid))
-        return float(optimize.brentq(lambda v: float(self.predict(v)) - measured, grid[k], grid[k + 1]))
+        # the curve is a polynomial: its root in that grid cell, from all of its roots
+        roots = np.roots(np.subtract(self.coeffs, [0.0] * (len(self.coeffs) - 1) + [measured]))
+        real = roots.real[np.abs(roots.imag) <= 1e-9 * (1.0 + np.abs(roots.real))]
+        a, b = grid[k], grid[k + 1]
+        return float(min(real, key=lambda r: max(a - r, r - b, 0.0)))
 
     def invert(self, measured: float, n_measurements: int = 1, coverage: float = 0.95) -> Inversion:
         """Target for a measured feature (the mean of ``n_measurements`` cycles, edge

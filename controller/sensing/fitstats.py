@@ -19,7 +19,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 
 @dataclass(frozen=True)
@@ -69,4 +69,6 @@ def prediction_sd(fs: FitStats, x0: float, n_measurements: int = 1) -> float:
 def t_quantile(coverage: float, dof: int) -> float:
     """Two-sided quantile of Student's t for ``coverage`` (normal when dof is unknown)."""
     q = 0.5 + coverage / 2
-    return float(stats.t.ppf(q, dof)) if dof > 0 else float(stats.norm.ppf(q))
+    # scipy.stats' t.ppf and norm.ppf are these functions; scipy.special imports in a third
+    # of the time (every daemon and CLI start pays it)
+    return float(special.stdtrit(dof, q)) if dof > 0 else float(special.ndtri(q))

@@ -6,7 +6,12 @@ config/cell-{ur,modbus}-sim.yaml --json``, a fresh input order each run) against
 motion stack and a GUI looks like this), and counts the runs that sorted correctly; a
 failed run is reported with the fault its output names. With ``--idle-s S`` it also
 runs an idle real-time daemon on the simulated cell for S seconds under the same load and
-counts the faults it latched (there should be none: nothing happens).
+counts the faults it latched (there should be none: nothing happens). With
+``--empty-grips N`` it also grips nothing N times through each driver with the gripper
+profile (config/cell-gripper-modbus-sim.yaml's gripper; ur: the same wiring through the
+ur-rtde driver), once as shipped and once with the rise alignment switched off
+(``sequence.align_rise_kpa: null``), after one free-air reference, and counts the grips
+that reported an object: the valve's command latency on a busy PC against the dP threshold.
 """
 
 from __future__ import annotations
@@ -34,6 +39,8 @@ def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("--load", type=int, default=2, help="busy processes beside the cell (default 2)")
     p.add_argument("--idle-s", type=float, default=0.0, help="then an idle real-time daemon for this long (default 0)")
     p.add_argument("--seed", type=int, default=1, help="seed of the input orders")
+    p.add_argument("--empty-grips", type=int, default=0,
+                   help="then this many grips of nothing per driver, with and without rise alignment (default 0)")
     p.add_argument("--json", action="store_true")
 
 
@@ -139,7 +146,68 @@ def _idle(seconds: float) -> dict[str, Any]:
             "block_proc_us_p99_last": None if last is None else last["block_proc_us"]["p99"]}
 
 
-def run_bench(runs: int, drivers: list[str], load: int, idle_s: float, seed: int) -> dict[str, Any]:
+def _gripper_cell(tmp: Path, kind: str, host: str, align: bool) -> Path:
+    """The shipped gripper cell (modbus), or its wiring through the ur-rtde driver (ur), with
+    or without the profile's rise alignment."""
+    import yaml
+
+    from ..app import REPO_ROOT
+
+    config = REPO_ROOT / "config"
+    gripper = yaml.safe_load((config / "cell-gripper-modbus-sim.yaml").read_text())
+    data = gripper if kind == "modbus" else yaml.safe_load((config / "cell-ur-sim.yaml").read_text())
+    data["driver"].update(host=host, wiring=gripper["driver"]["wiring"])
+    profile = yaml.safe_load((config / gripper["profile"]).read_text())
+    if not align:
+        profile["sequence"]["align_rise_kpa"] = None
+    (tmp / "profile.yaml").write_text(yaml.safe_dump(profile))
+    data.update(profile=str(tmp / "profile.yaml"),
+                gripper={"calibrations": [str(config / c) for c in gripper["gripper"]["calibrations"]]},
+                publisher={"pub": f"ipc://{tmp}/pub", "cmd": f"ipc://{tmp}/cmd"}, recording={"enabled": False})
+    path = tmp / "cell.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def _empty_grips(kind: str, grips: int, align: bool) -> dict[str, Any]:
+    """A free-air reference, then ``grips`` grips of nothing: how many read as an object."""
+    import numpy as np
+
+    from simulator.controlbox.process import EmulatorProcess, free_loopback
+
+    from ..app import REPO_ROOT
+    from ..client import Gripper
+
+    out: dict[str, Any] = {"driver": kind, "align": align, "grips": grips, "objects": 0, "dp_max_kpa": []}
+    with tempfile.TemporaryDirectory(prefix="fluidsense-bench-grips-") as d:
+        cell = _gripper_cell(Path(d), kind, free_loopback(), align)
+        box = EmulatorProcess(command=[sys.executable, "-m", "fluidsense.cli", "simcell", "--config", str(cell)])
+        box.start(timeout_s=60)
+        daemon = subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "run", "--config", str(cell)],
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=REPO_ROOT)
+        try:
+            with Gripper(f"ipc://{d}/cmd", f"ipc://{d}/pub", timeout_s=120) as g:
+                while g.status()["state"] == "connecting":
+                    time.sleep(0.5)  # a bench waiting for the daemon's connection, nothing measured
+                g.measure(store_reference=True)
+                g.scene({"kind": "none"})
+                for _ in range(grips):
+                    grasp = g.grip()
+                    out["objects"] += bool(grasp.object)
+                    out["dp_max_kpa"].append(grasp.features["dp_max_kpa"])
+                    g.release()
+        finally:
+            daemon.terminate()
+            daemon.wait(60)
+            box.stop()
+            box.__exit__(None, None, None)
+    dp = np.abs(np.array([v for v in out["dp_max_kpa"] if v is not None]))
+    out["dp_max_kpa"] = {"p50": round(float(np.median(dp)), 3), "max": round(float(dp.max()), 3)} if len(dp) else None
+    return out
+
+
+def run_bench(runs: int, drivers: list[str], load: int, idle_s: float, seed: int,
+              empty_grips: int = 0) -> dict[str, Any]:
     import numpy as np
 
     from .timing import _burn
@@ -152,16 +220,19 @@ def run_bench(runs: int, drivers: list[str], load: int, idle_s: float, seed: int
     try:
         sorting = [_sorting(kind, runs, rng) for kind in drivers]
         idle = _idle(idle_s) if idle_s > 0 else None
+        grips = [_empty_grips(kind, empty_grips, align) for kind in drivers for align in (True, False)] \
+            if empty_grips > 0 else []
     finally:
         for b in burners:
             b.terminate()
             b.join()
-    return {"load_processes": load, "cpus": os.cpu_count(), "sorting": sorting, "idle": idle,
+    return {"load_processes": load, "cpus": os.cpu_count(), "sorting": sorting, "idle": idle, "empty_grips": grips,
             "wall_s": round(time.monotonic() - t0, 1)}
 
 
 def run(args: argparse.Namespace) -> int:
-    res = run_bench(args.runs, [d for d in args.drivers.split(",") if d], args.load, args.idle_s, args.seed)
+    res = run_bench(args.runs, [d for d in args.drivers.split(",") if d], args.load, args.idle_s, args.seed,
+                    args.empty_grips)
     if args.json:
         print(json.dumps(res, indent=1))
         return 0
@@ -178,4 +249,8 @@ def run(args: argparse.Namespace) -> int:
               f"{i['missed_samples']} samples missed")
         for f in i["faults"][:5]:
             print(f"  {f['kind']} at t={f['t_s']:.1f} s: {f['detail']}")
+    for e in res["empty_grips"]:
+        dp = e["dp_max_kpa"] or {"p50": float("nan"), "max": float("nan")}
+        print(f"empty grips through {e['driver']}, rise alignment {'on' if e['align'] else 'off'}: "
+              f"{e['objects']}/{e['grips']} read as an object; |dP_max| median {dp['p50']:.3f} kPa, max {dp['max']:.3f} kPa")
     return 0

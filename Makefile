@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test install clean wheel wheelhouse-check lint-imports report speed-accuracy stability timing faults fuzz busy soak firmware firmware-host
+.PHONY: demo test install clean wheel wheelhouse-check lint-imports report speed-accuracy stability timing faults fuzz busy grips soak firmware firmware-host
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -70,6 +70,12 @@ fuzz: $(STAMP)
 busy: $(STAMP)
 	mkdir -p docs/performance
 	$(BIN)/fluidsense bench tasks --runs 10 --load 2 --idle-s 600 --json > docs/performance/busy.json
+
+# Empty grips on a busy robot PC, with and without the rise alignment (docs/physics.md
+# "Timing the valve"): 20 per driver and setting beside two busy processes (~12 minutes).
+grips: $(STAMP)
+	mkdir -p docs/performance
+	$(BIN)/fluidsense bench tasks --runs 0 --load 2 --empty-grips 20 --json > docs/performance/empty-grips.json
 
 # Soak figures of docs/soak.md: 8 hours of sample time in virtual time (~10 minutes).
 soak: $(STAMP)

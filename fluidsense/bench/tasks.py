@@ -218,7 +218,7 @@ def run_bench(runs: int, drivers: list[str], load: int, idle_s: float, seed: int
         b.start()
     t0 = time.monotonic()
     try:
-        sorting = [_sorting(kind, runs, rng) for kind in drivers]
+        sorting = [_sorting(kind, runs, rng) for kind in drivers] if runs > 0 else []
         idle = _idle(idle_s) if idle_s > 0 else None
         grips = [_empty_grips(kind, empty_grips, align) for kind in drivers for align in (True, False)] \
             if empty_grips > 0 else []

@@ -8,9 +8,11 @@ still becomes a fault within one block. After a loss every read raises
 ``LinkLostError`` until a reconnection succeeds (drivers/reconnect.py: attempts in a task
 of their own with back-off, because reopening links and starting a sampler process takes
 longer than the controller waits for one block; under load, more than its 0.5 s, and
-attempts cut off by that wait never succeeded). A successful one restarts the sampler and
-reopens the links, and sample time carries on from the first connection's origin, the gap
-reported as missed slots.
+attempts cut off by that wait never succeeded). The links stay open until an attempt
+starts, so that the safe state the controller writes on the loss still reaches a box whose
+link is up (only the sampler died, or a stop signal to the process group reached it
+first). A successful attempt restarts the sampler and reopens the links, and sample time
+carries on from the first connection's origin, the gap reported as missed slots.
 
 Each connection, the first one included, then runs the backend's ``on_connect`` steps
 before any sample is delivered: the valves go to their safe positions and are read back
@@ -80,7 +82,7 @@ class PolledCellSource(SampleSource):
         self._origin: float | None = None  # CLOCK_MONOTONIC of sample time 0
         self._seq = 0
         self._t_last: float | None = None
-        self._reconnector = Reconnector(name, reconnect, self._connect)
+        self._reconnector = Reconnector(name, reconnect, self._reconnect)
         #: run after the links open, before the sampler starts, at every connection
         self.on_connect: list[Callable[[], Awaitable[None]]] = []
 
@@ -140,8 +142,20 @@ class PolledCellSource(SampleSource):
         return dataclasses.replace(block, seq=self._seq, t=t, missed=missed)
 
     async def _lose(self, exc: LinkLostError) -> None:
+        """Only the sampler goes now: a link that is still up (the sampler died, or a stop
+        signal reached it first) carries the safe state the controller writes next. What
+        is left is closed when the reconnection starts."""
         self._reconnector.lose(exc)
+        sampler, self.sampler = self.sampler, None
+        if sampler is not None:
+            try:
+                await sampler.stop()
+            except Exception as err:  # noqa: BLE001 - lost already; the reconnection starts afresh
+                log.error("%s: stopping the sampler: %s", self.name, err)
+
+    async def _reconnect(self) -> None:
         await self._close_all()
+        await self._connect()
 
     async def _close_all(self) -> None:
         """The sampler and every link at once: each waits on its own peer (ur_rtde's

@@ -334,6 +334,47 @@ def test_sorting_task_through_both_drivers_at_once_on_a_busy_machine(tmp_path, b
             assert by_size[40] < by_size[100], kind
 
 
+def _child_pids(pid: int, module: str) -> list[int]:
+    """Processes whose parent is ``pid`` and that run ``python -m module``."""
+    found = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+            with open(f"/proc/{entry}/cmdline", "rb") as f:
+                argv = f.read().split(b"\0")
+        except OSError:
+            continue
+        if ppid == pid and module.encode() in argv:
+            found.append(int(entry))
+    return found
+
+
+def test_a_sampler_that_dies_mid_cycle_is_a_fault_vented_through_the_link_still_up(tmp_path):
+    """The sampler process dies while the gripper is inflated; the ur_rtde worker, its link
+    to the box, is fine. The fault's vent must go through that link and be confirmed by the
+    box's read-back, not wait for the box watchdog (the loss once closed every link before
+    the controller could vent, and a stop signal to the process group hit the same race)."""
+    with free_simcell(tmp_path, "ur", profile="sorting-gripper-quick.yaml") as (box, cell):
+        daemon = Daemon(cell)
+        try:
+            daemon.wait_welcome()
+            assert "cycle_id" in daemon.request({"cmd": "cycle"})
+            while daemon.next_message("state", timeout_s=30)[1]["to"] != "actuate":
+                pass
+            box.wait_for(lambda s: s["digital_outputs"] & 0b10, 2.0, "gripper connected")
+            (sampler,) = _child_pids(daemon.proc.pid, "drivers.sampler.process")
+            os.kill(sampler, signal.SIGKILL)
+            _, fault = daemon.next_message("fault", timeout_s=30)
+            assert fault["kind"] == "link_lost" and "sampler" in fault["detail"], fault
+            assert fault["vented"] is True, fault  # written and read back through the worker
+            assert box.state()["digital_outputs"] & 0b10 == 0
+        finally:
+            assert daemon.close() == 0, daemon.stderr_now()
+
+
 def test_a_stop_signal_to_the_whole_process_group_still_vents_through_the_ur_driver(tmp_path):
     """Ctrl-C and a service manager's stop reach every process of the daemon's group,
     ur_rtde's worker included: the daemon must still vent through it, then exit 0."""

@@ -40,12 +40,16 @@ def committed_sa():
 
 
 def test_speed_accuracy_reproduces_one_scene_and_says_it_against_the_floor(committed_sa):
-    res = SA.run_bench(trials=committed_sa["trials"], seed=committed_sa["seed"], only=("gripper-cylinder", "fast"),
+    """The committed run's first CHECK_TRIALS trials of one scene, recomputed: the same
+    cells, in the same order, as the committed 200 (its ``check`` rows come from them)."""
+    check = committed_sa["check"]
+    assert (check["scene"], check["circuit"], check["trials"]) == (*SA.CHECK_PAIR, SA.CHECK_TRIALS)
+    res = SA.run_bench(trials=SA.CHECK_TRIALS, seed=committed_sa["seed"], only=SA.CHECK_PAIR,
                        response_s=committed_sa["response_s"])
     fresh = SA._round(res["rows"])
-    committed = [r for r in committed_sa["rows"] if r["scene"] == "gripper-cylinder" and r["circuit"] == "fast"]
-    assert len(fresh) == len(committed) == len(SA.DECISION_TIMES) * 5
-    for a, b in zip(fresh, committed):
+    assert SA._round(res["check"]["rows"]) == fresh  # a run of CHECK_TRIALS trials is its own check
+    assert len(fresh) == len(check["rows"]) == len(SA.DECISION_TIMES) * 5
+    for a, b in zip(fresh, check["rows"]):
         assert all(_close(a[k], b[k]) for k in b), (a, b)
     floor = committed_sa["floors"]["gripper-cylinder fast"]
     assert all(_close(res["floors"]["gripper-cylinder fast"][k], floor[k]) for k in floor)

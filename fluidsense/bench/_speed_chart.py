@@ -25,7 +25,9 @@ T_LIM = (0.04, 7.0)
 
 def write(out_dir: Path, res: dict[str, Any]) -> None:
     out_dir.mkdir(parents=True, exist_ok=True)
+    check = res.get("check")
     rounded = {**res, "rows": _round(res["rows"]), "wall_s": None,
+               "check": None if check is None else {**check, "rows": _round(check["rows"])},
                "floors": {k: {a: round(b, 4) for a, b in v.items()} for k, v in res["floors"].items()}}
     (out_dir / "results.json").write_text(json.dumps(rounded, indent=1, sort_keys=True) + "\n")
     _chart(out_dir, rounded)

@@ -156,14 +156,33 @@ def _sorting(pairs: list[tuple[float, float]], spacing: float) -> float | None:
     return ok / n if n else None
 
 
+#: the suite's check (tests/test_speed_stability.py): this pair's rows over its first
+#: CHECK_TRIALS trials are kept beside the full rows; a run of CHECK_TRIALS trials gives
+#: them again exactly (each pair has its own seeded cell, and its trials come in order),
+#: at a fifth of the cost of the whole pair
+CHECK_PAIR, CHECK_TRIALS = ("gripper-cylinder", "fast"), 40
+
+
+def _pair_rows(scene: str, circuit: str, cal, test) -> list[dict[str, Any]]:
+    from controller.sensing.decision import METHODS
+
+    rows = []
+    for method in METHODS:
+        for td in DECISION_TIMES:
+            ev = _evaluate(cal, test, method, td)
+            pairs = ev.pop("estimates")
+            rows.append({"scene": scene, "circuit": circuit, "method": method, "decision_time_s": td, **ev,
+                         "sorting_10mm": _sorting(pairs, 10.0), "sorting_20mm": _sorting(pairs, 20.0)})
+    return rows
+
+
 def run_bench(trials: int = 200, cal_cycles: int = 6, seed: int = SEED,
               only: tuple[str, str] | None = None, response_s: float | None = None) -> dict[str, Any]:
     """All scenes and circuits, or ``only`` one (scene, circuit): its rows are the same
-    either way (each pair has its own seeded cell)."""
-    from controller.sensing.decision import METHODS
-
+    either way (each pair has its own seeded cell). ``check``: CHECK_PAIR's rows over its
+    first CHECK_TRIALS trials, when the run has that many."""
     lag = _response_s(response_s)
-    rows, floors, t0 = [], {}, time.perf_counter()
+    rows, floors, check, t0 = [], {}, None, time.perf_counter()
     for scene, (pname, target, cal_targets, (lo, hi)) in SCENES.items():
         rng = np.random.default_rng(seed)
         test_targets = [round(float(x), 3) for x in rng.uniform(lo, hi, trials)]
@@ -173,13 +192,12 @@ def run_bench(trials: int = 200, cal_cycles: int = 6, seed: int = SEED,
             prof = _profile(pname, resistor, lag)
             floors[f"{scene} {circuit}"] = floor(scene, circuit, lag)
             cal, test = asyncio.run(_collect(prof, target, cal_targets, test_targets, cal_cycles, seed))
-            for method in METHODS:
-                for td in DECISION_TIMES:
-                    ev = _evaluate(cal, test, method, td)
-                    pairs = ev.pop("estimates")
-                    rows.append({"scene": scene, "circuit": circuit, "method": method, "decision_time_s": td, **ev,
-                                 "sorting_10mm": _sorting(pairs, 10.0), "sorting_20mm": _sorting(pairs, 20.0)})
-    return {"rows": rows, "floors": floors, "seed": seed, "trials": trials, "wall_s": time.perf_counter() - t0,
+            rows += _pair_rows(scene, circuit, cal, test)
+            if (scene, circuit) == CHECK_PAIR and trials >= CHECK_TRIALS:
+                check = {"scene": scene, "circuit": circuit, "trials": CHECK_TRIALS,
+                         "rows": _pair_rows(scene, circuit, cal, test[:CHECK_TRIALS])}
+    return {"rows": rows, "floors": floors, "check": check, "seed": seed, "trials": trials,
+            "wall_s": time.perf_counter() - t0,
             "resistors_pa_s_per_m3": CIRCUITS, "response_s": lag, "early_half_width_mm": EARLY_HALF_WIDTH_MM,
             "settled_kpa": SETTLED_KPA}
 

@@ -173,7 +173,9 @@ def test_io_outputs_reach_the_model_and_are_read_back_by_receive_and_modbus(star
     assert state["analog_outputs"][1] == {"value": pytest.approx(5.0), "domain": "VOLTAGE"}
     assert state["analog_outputs"][0] == {"value": pytest.approx(0.008), "domain": "CURRENT"}
 
-    eventually(lambda: r.getDigitalOutState(3), what="digital out 3 on RTDE")
+    # the receive client may still be reading packages sent before the last write was
+    # applied (a busy machine): wait for the one sent after the speed slider, the last of them
+    eventually(lambda: r.getSpeedScaling() == pytest.approx(0.5), what="speed slider on RTDE")
     assert r.getActualDigitalOutputBits() == (1 << 3) | (1 << 17)
     assert r.getStandardAnalogOutput1() == pytest.approx(5.0)
     assert r.getStandardAnalogOutput0() == pytest.approx(8.0)  # mA

@@ -246,6 +246,42 @@ def test_a_move_is_judged_arrived_or_stopped_on_the_control_stream_not_a_late_st
         asyncio.run(asyncio.wait_for(body(), 60))
 
 
+def test_a_modbus_request_cancelled_in_flight_does_not_take_the_next_ones_reply(tmp_path):
+    """A read cancelled while the box has not answered (Ctrl-C, a stop, a timeout) still
+    owns its transaction: its late reply must not answer the next request. Abandoned, the
+    reply arrived while the safe-state write waited for its own, pymodbus refused both
+    ('request ask for transaction_id=11 but got id=10') and the vent after a Ctrl-C failed.
+    The box is frozen (SIGSTOP) so that the first reply is late for certain."""
+    from drivers.modbus.backend import ModbusConnection
+
+    with free_simcell(tmp_path, "modbus") as (box, cell):
+        cfg = load_cell_config(cell).driver
+        general_purpose = 128
+
+        async def body():
+            link = ModbusConnection(cfg)
+            await link.open()
+            try:
+                await link.write(general_purpose, 0)
+                os.kill(box.proc.pid, signal.SIGSTOP)
+                try:
+                    pending = asyncio.ensure_future(link.read(cfg.registers.digital_outputs))
+                    done, _ = await asyncio.wait({pending}, timeout=0.2)  # sent, unanswered
+                    assert not done
+                    pending.cancel()
+                    following = asyncio.ensure_future(link.write(general_purpose, 1234))
+                    await asyncio.wait({following}, timeout=0.05)
+                finally:
+                    os.kill(box.proc.pid, signal.SIGCONT)
+                await following
+                assert await link.read(general_purpose) == [1234]
+                link.check()
+            finally:
+                await link.close()
+
+        asyncio.run(asyncio.wait_for(body(), 60))
+
+
 @pytest.mark.parametrize("kind, no_data_s", [*((k, None) for k in KINDS), ("modbus", 0.05)])
 def test_link_loss_is_a_fault_and_the_driver_reconnects_on_one_clock(kind, no_data_s, tmp_path):
     """The box dies (SIGKILL): a fault within a second, the cell vented as far as software

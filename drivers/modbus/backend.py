@@ -58,17 +58,34 @@ class ModbusConnection(Connection):
             raise self._lost
 
     async def _request(self, what: str, call):
+        """One transaction at a time, each run to its reply even when its caller is
+        cancelled (Ctrl-C, a stop, a timeout): abandoned in flight, its late reply would
+        answer the next request, and pymodbus drops both. The safe state written right
+        after a Ctrl-C once failed that way ('request ask for transaction_id=11 but got
+        id=10')."""
         self.check()
-        async with self._lock:
-            try:
-                reply = await call()
-            except (ModbusException, OSError, asyncio.TimeoutError) as exc:
-                self._lost = LinkLostError(f"{self.name}: {what}: {exc}")
-                log.error("%s", self._lost)
-                raise self._lost from exc
+        await self._lock.acquire()
+
+        async def run():  # pymodbus raises 'Not connected' before its coroutine: keep it in the task
+            return await call()
+        transaction = asyncio.ensure_future(run())
+        transaction.add_done_callback(lambda t: self._finished(what, t))
+        try:
+            reply = await asyncio.shield(transaction)
+        except (ModbusException, OSError, asyncio.TimeoutError) as exc:
+            raise (self._lost or LinkLostError(f"{self.name}: {what}: {exc}")) from exc
         if reply.isError():
             raise DriverError(f"{self.name}: {what} refused: {reply}")
         return reply
+
+    def _finished(self, what: str, transaction: asyncio.Future) -> None:
+        """Whoever waited (or not, if cancelled): the next transaction may go, and a failed
+        one loses the link."""
+        self._lock.release()
+        exc = None if transaction.cancelled() else transaction.exception()
+        if isinstance(exc, (ModbusException, OSError, asyncio.TimeoutError)) and self._lost is None:
+            self._lost = LinkLostError(f"{self.name}: {what}: {exc}")
+            log.error("%s", self._lost)
 
     async def read(self, address: int, count: int = 1) -> list[int]:
         reply = await self._request(f"read {address}+{count}", lambda: self.client.read_holding_registers(

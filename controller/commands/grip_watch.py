@@ -13,8 +13,9 @@ it happens.
 SlipWatch: while held, an abrupt fall of the pressure towards atmosphere (the object
 moved out of the grip and the fingers closed further). A fall of ``drop_pa`` within
 ``within_s`` is a slip (a leak is a slow decay, which the supervisor faults on); it is
-reported once the pressure has settled again, with the settled level, so that a size can
-be estimated from it and one slip is one report.
+reported once the pressure has settled again (steady over half of ``within_s`` of
+samples without a gap), with the settled level, so that a size can be estimated from it
+and one slip is one report.
 """
 
 from __future__ import annotations
@@ -98,6 +99,9 @@ class ContactWatch:
         return t_all, p_all
 
 
+MIN_GAP_S = 0.05  # blocks come every 10 ms (10 samples at 1 kHz); 50 ms without one is a gap
+
+
 class SlipWatch:
     def __init__(self, drop_pa: float, within_s: float, sign: float, level_pa: float):
         """``level_pa``: the held pressure when the grip settled (raw, as the samples read)."""
@@ -105,17 +109,29 @@ class SlipWatch:
         self.level = sign * level_pa  # oriented: contact pushes it up
         self._hist: deque[tuple[float, float]] = deque()  # (t, oriented block mean)
         self._fall: tuple[float, float] | None = None  # (detected at, level before)
+        self.gap = max(MIN_GAP_S, 0.2 * within_s)
 
     def feed(self, t: float, p: float) -> dict[str, float] | None:
         """A block's mean time and pressure (Pa); a settled slip as ``{at_s, drop_pa,
         level_pa}`` (level: the raw pressure it settled at)."""
+        if self._hist and t - self._hist[-1][0] > self.gap:
+            # samples missing (a stalled stream on a busy PC, whose backlog then arrives
+            # later, stamped later): what the pressure did meanwhile is unknown, so no
+            # steady stretch may span the gap. Spanning it, the bottom of the dip after a
+            # slip once passed for the settled level.
+            self._hist.clear()
         self._hist.append((t, self.sign * p))
         while self._hist and self._hist[-1][0] - self._hist[0][0] > self.within:
             self._hist.popleft()
         span = self._hist[-1][0] - self._hist[0][0]
         values = np.array([v for _, v in self._hist])
         recent = float(values[-3:].mean())  # a few blocks: a level, not a noisy sample
-        steady = float(values.max() - values.min()) < self.drop / 3
+        # steady: no trend, the window's later half level with its earlier half. (The range
+        # of the block means, used before, grows with their number and their noise: with
+        # the sensor's noise it was rarely below drop / 3, and a slip waited for the
+        # 10 x within_s fallback.)
+        half = len(values) // 2
+        steady = len(values) >= 6 and abs(float(values[half:].mean() - values[:half].mean())) < self.drop / 6
         if self._fall is None:
             if len(values) >= 3 and self.level - recent > self.drop:
                 self._fall = (self._hist[-3][0] if len(values) >= 3 else t, self.level)
@@ -126,6 +142,7 @@ class SlipWatch:
         if not (span >= 0.5 * self.within and steady) and t - self._fall[0] < 10 * self.within:
             return None
         at, before = self._fall
-        self.level, self._fall = recent, None
+        level = float(values[half:].mean()) if steady else recent
+        self.level, self._fall = level, None
         self._hist.clear()
-        return {"at_s": at, "drop_pa": before - recent, "level_pa": self.sign * recent}
+        return {"at_s": at, "drop_pa": before - level, "level_pa": self.sign * level}

@@ -155,10 +155,8 @@ def contact_truth(actuator, scene, p_atm: float, p_gauge: float, t_since_set: fl
     if not isinstance(actuator, BendingActuator) or not isinstance(scene, (PlateScene, ProfileScene)):
         return {}
     law = volume_law(actuator, scene, p_atm, t_since_set)
-    if len(law.p_gauge) < 3:  # touching from the start: contact at atmospheric pressure
-        p_contact, v_contact = 0.0, float(law.volume_at(0.0))
-    else:
-        p_contact, v_contact = float(law.p_gauge[1]), float(law.volume[1])
+    # touching from the start: contact at atmospheric pressure
+    p_contact = 0.0 if len(law.p_gauge) < 3 else float(law.p_gauge[1])
     above = max(p_gauge - p_contact, 0.0)
     out = {"tip_force_n": actuator.force_area_mm2 * MM * MM * above}
     if isinstance(scene, PlateScene):

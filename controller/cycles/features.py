@@ -111,14 +111,18 @@ def delta_p(t_rel: np.ndarray, p: np.ndarray, ref_t_rel: np.ndarray, ref_p: np.n
 
 
 def crossing_time(t: np.ndarray, y: np.ndarray, level: float) -> float | None:
-    """First time ``y`` reaches ``level`` from below (linear interpolation between samples)."""
-    above = y >= level
+    """First time ``y`` reaches ``level`` from below (linear interpolation between samples;
+    NaN samples never reach it). None if it never does."""
+    above = np.isfinite(y) & (y >= level)
     if not above.any():
         return None
     k = int(np.argmax(above))
-    if k == 0 or y[k] == y[k - 1]:
-        return float(t[k])
-    return float(t[k - 1] + (level - y[k - 1]) * (t[k] - t[k - 1]) / (y[k] - y[k - 1]))
+    if k == 0:
+        return float(t[0])
+    t0, t1, y0, y1 = t[k - 1], t[k], y[k - 1], y[k]
+    if not np.isfinite(y0) or y1 == y0:
+        return float(t1)
+    return float(t0 + (level - y0) * (t1 - t0) / (y1 - y0))
 
 
 def rise_shift(t_rel: np.ndarray, p: np.ndarray, ref_t_rel: np.ndarray, ref_p: np.ndarray, lo: float, hi: float,
@@ -140,17 +144,7 @@ def contact_time_threshold(t_rel: np.ndarray, dp: np.ndarray, threshold: float) 
 
     ``dp`` should already be smoothed. None if it never does.
     """
-    ok = np.isfinite(dp)
-    above = ok & (dp >= threshold)
-    if not above.any():
-        return None
-    k = int(np.argmax(above))
-    if k == 0:
-        return float(t_rel[0])
-    t0, t1, y0, y1 = t_rel[k - 1], t_rel[k], dp[k - 1], dp[k]
-    if not np.isfinite(y0) or y1 == y0:
-        return float(t1)
-    return float(t0 + (threshold - y0) * (t1 - t0) / (y1 - y0))
+    return crossing_time(t_rel, dp, threshold)
 
 
 def dp_max(t_rel: np.ndarray, dp: np.ndarray) -> tuple[float, float] | None:

@@ -30,6 +30,7 @@ import zmq
 
 from common.errors import ConfigError
 
+from ..child import exit_now
 from . import realtime, wire
 from .loop import Block, SlotLoop, SpinClock
 from .poller import load_poller
@@ -238,11 +239,4 @@ def _close(poller: Any) -> None:
 
 
 if __name__ == "__main__":
-    code = main()
-    # everything is closed and flushed by now: skip the interpreter's teardown, in which
-    # ur_rtde's interfaces wait another 0.5 s each for threads they already stopped (a
-    # daemon's stop waits for this process)
-    logging.shutdown()
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)
+    exit_now(main())

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import time
 
+from ..child import keep_until_exit
 from ..sampler.poller import NoNewSample, Poller
 
 _INPUTS = ("getStandardAnalogInput0", "getStandardAnalogInput1")
@@ -54,9 +55,4 @@ class RtdeAnalogPoller(Poller):
     def close(self) -> None:
         if self.receive is not None:
             self.receive.disconnect()
-            # kept, not destroyed: ur_rtde's destructor would wait another 0.5 s for the
-            # thread just stopped, and the sampler process ends with os._exit right after
-            _DISCONNECTED.append(self.receive)
-
-
-_DISCONNECTED: list = []
+            keep_until_exit(self.receive)  # its destructor would wait 0.5 s (drivers/child.py)

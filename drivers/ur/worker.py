@@ -25,7 +25,6 @@ signal that reached the whole process group, then closes its input.
 from __future__ import annotations
 
 import json
-import logging
 import math
 import os
 import select
@@ -34,6 +33,8 @@ import sys
 import threading
 import time
 from typing import Any
+
+from drivers.child import exit_now, keep_until_exit
 
 #: a finished move within this of its target arrived (UR's own blend-free tolerance is finer)
 ARRIVED_M, ARRIVED_RAD = 1e-3, 1e-2
@@ -193,7 +194,7 @@ class Worker:
     def close(self) -> None:
         """Disconnects every interface, at once: each disconnect waits about 0.5 s for its
         receiving thread, without holding the GIL, and a daemon stopping waits for this.
-        The interfaces are then kept until the process ends (``os._exit``, below): their
+        The interfaces are then kept until the process ends (drivers/child.py): their
         destructors would wait as long again, one after the other."""
         ifaces = [iface for iface in (self.control, self.io, self.receive) if iface is not None]
         threads = [threading.Thread(target=_disconnect, args=(iface,)) for iface in ifaces]
@@ -201,11 +202,7 @@ class Worker:
             t.start()
         for t in threads:
             t.join()
-        DISCONNECTED.extend(ifaces)
-
-
-#: disconnected interfaces, never destroyed (see Worker.close)
-DISCONNECTED: list[Any] = []
+        keep_until_exit(*ifaces)
 
 
 def _disconnect(iface) -> None:
@@ -264,11 +261,4 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    code = main(sys.argv[1:])
-    # everything is closed and flushed by now: skip the interpreter's teardown, in which
-    # ur_rtde's interfaces wait another 0.5 s each for threads they already stopped (a
-    # daemon's stop waits for this process)
-    logging.shutdown()
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)
+    exit_now(main(sys.argv[1:]))

@@ -388,6 +388,14 @@ def _child_pids(pid: int, module: str) -> list[int]:
     return found
 
 
+def _inflate(daemon: Daemon, box) -> None:
+    """Start a cycle and return once the box shows the gripper connected to the tank."""
+    assert "cycle_id" in daemon.request({"cmd": "cycle"})
+    while daemon.next_message("state", timeout_s=30)[1]["to"] != "actuate":
+        pass
+    box.wait_for(lambda s: s["digital_outputs"] & 0b10, 2.0, "gripper connected")
+
+
 def test_a_sampler_that_dies_mid_cycle_is_a_fault_vented_through_the_link_still_up(tmp_path):
     """The sampler process dies while the gripper is inflated; the ur_rtde worker, its link
     to the box, is fine. The fault's vent must go through that link and be confirmed by the
@@ -397,10 +405,7 @@ def test_a_sampler_that_dies_mid_cycle_is_a_fault_vented_through_the_link_still_
         daemon = Daemon(cell)
         try:
             daemon.wait_welcome()
-            assert "cycle_id" in daemon.request({"cmd": "cycle"})
-            while daemon.next_message("state", timeout_s=30)[1]["to"] != "actuate":
-                pass
-            box.wait_for(lambda s: s["digital_outputs"] & 0b10, 2.0, "gripper connected")
+            _inflate(daemon, box)
             (sampler,) = _child_pids(daemon.proc.pid, "drivers.sampler.process")
             os.kill(sampler, signal.SIGKILL)
             _, fault = daemon.next_message("fault", timeout_s=30)
@@ -418,10 +423,7 @@ def test_a_stop_signal_to_the_whole_process_group_still_vents_through_the_ur_dri
         daemon = Daemon(cell, new_session=True)
         try:
             daemon.wait_welcome()
-            assert "cycle_id" in daemon.request({"cmd": "cycle"})
-            while daemon.next_message("state", timeout_s=30)[1]["to"] != "actuate":
-                pass
-            box.wait_for(lambda s: s["digital_outputs"] & 0b10, 2.0, "gripper connected")
+            _inflate(daemon, box)
             os.killpg(daemon.proc.pid, signal.SIGTERM)
             assert daemon.proc.wait(30) == 0, daemon.stderr_now()
             # the 3/2 valve de-energised: the gripper vents (and the box saw it happen)

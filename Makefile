@@ -4,10 +4,13 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+# the studies (lab/: benches, report, fuzz, the serial board) run from the checkout, beside the
+# installed package; they are not in the wheel
+LAB := $(BIN)/python -m lab
 
 .PHONY: demo test install clean wheel wheelhouse-check lint-imports report speed-accuracy stability timing faults fuzz busy grips soak firmware firmware-host
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[test]'
@@ -34,53 +37,53 @@ firmware-host:
 
 # Regenerates docs/reproduction (the paper's numbers beside ours; a few minutes).
 report: $(STAMP)
-	$(BIN)/fluidsense report --out docs/reproduction
+	$(LAB) report --out docs/reproduction
 
 # Regenerates docs/speed-accuracy (accuracy against decision time, every method; ~2 minutes).
 speed-accuracy: $(STAMP)
-	$(BIN)/fluidsense bench speed-accuracy --out docs/speed-accuracy
+	$(LAB) bench speed-accuracy --out docs/speed-accuracy
 
 # Regenerates docs/stability (perturbations, failures, mitigations; ~4 minutes).
 stability: $(STAMP)
-	$(BIN)/fluidsense bench stability --out docs/stability
+	$(LAB) bench stability --out docs/stability
 
 # 1 kHz timing figures of docs/performance.md (TIMING_S seconds per run; 600 in the doc).
 TIMING_S ?= 600
 timing: $(STAMP)
 	mkdir -p docs/performance
-	$(BIN)/fluidsense bench sim --json > docs/performance/sim.json
-	$(BIN)/fluidsense bench timing --source sim --seconds $(TIMING_S) --json > docs/performance/timing-sim.json
-	$(BIN)/fluidsense bench timing --source modbus --seconds $(TIMING_S) --json > docs/performance/timing-modbus.json
-	$(BIN)/fluidsense bench timing --source serial --seconds $(TIMING_S) --json > docs/performance/timing-serial.json
-	$(BIN)/fluidsense bench sampler --seconds 60 --json > docs/performance/sampler.json
+	$(LAB) bench sim --json > docs/performance/sim.json
+	$(LAB) bench timing --source sim --seconds $(TIMING_S) --json > docs/performance/timing-sim.json
+	$(LAB) bench timing --source modbus --seconds $(TIMING_S) --json > docs/performance/timing-modbus.json
+	$(LAB) bench timing --source serial --seconds $(TIMING_S) --json > docs/performance/timing-serial.json
+	$(LAB) bench sampler --seconds 60 --json > docs/performance/sampler.json
 
 # Fault-injection figures of docs/safety.md: in-process faults, then what only the box can
 # vent (killed daemon, pulled cable, SIGTERM) against fluidsense simcell (~10 minutes).
 faults: $(STAMP)
 	mkdir -p docs/safety
-	$(BIN)/fluidsense bench faults --box-runs 5 --json > docs/safety/faults.json
+	$(LAB) bench faults --box-runs 5 --json > docs/safety/faults.json
 
 # Hostile input figures of docs/safety.md: command messages and config files (~5 minutes).
 fuzz: $(STAMP)
 	mkdir -p docs/safety
-	$(BIN)/fluidsense bench fuzz --messages 10000 --files 20000 --json > docs/safety/fuzz.json
+	$(LAB) bench fuzz --messages 10000 --files 20000 --json > docs/safety/fuzz.json
 
 # The busy robot PC of docs/performance.md: the README's sorting task through ur and modbus
 # beside two busy processes, 10 runs each, then an idle daemon for 10 minutes (~1 hour).
 busy: $(STAMP)
 	mkdir -p docs/performance
-	$(BIN)/fluidsense bench tasks --runs 10 --load 2 --idle-s 600 --json > docs/performance/busy.json
+	$(LAB) bench tasks --runs 10 --load 2 --idle-s 600 --json > docs/performance/busy.json
 
 # Empty grips on a busy robot PC, with and without the rise alignment (docs/physics.md
 # "Timing the valve"): 20 per driver and setting beside two busy processes (~12 minutes).
 grips: $(STAMP)
 	mkdir -p docs/performance
-	$(BIN)/fluidsense bench tasks --runs 0 --load 2 --empty-grips 20 --json > docs/performance/empty-grips.json
+	$(LAB) bench tasks --runs 0 --load 2 --empty-grips 20 --json > docs/performance/empty-grips.json
 
 # Soak figures of docs/soak.md: 8 hours of sample time in virtual time (~10 minutes).
 soak: $(STAMP)
 	mkdir -p docs/soak
-	$(BIN)/fluidsense bench soak --virtual-hours 8 --json > docs/soak/soak-8h.json
+	$(LAB) bench soak --virtual-hours 8 --json > docs/soak/soak-8h.json
 
 # The project as a wheel (dist/), configs, profiles and tasks inside it as package data.
 wheel: $(STAMP)

@@ -17,7 +17,7 @@ import stat
 from pathlib import Path
 from typing import BinaryIO
 
-from common.errors import ConfigError, FluidsenseError
+from fluidsense.common.errors import ConfigError, FluidsenseError
 
 MB = 2**20
 # A shipped config or profile is a few KB; 1 MB leaves room for long comments and wiring

@@ -14,10 +14,9 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
+from fluidsense.common.models import Real, StrictModel
+from fluidsense.common.units import KPA, LITRE, ML, MM, P_ATM, SLPM
 from pydantic import Field, model_validator
-
-from common.models import Real, StrictModel
-from common.units import KPA, LITRE, ML, MM, P_ATM, SLPM
 
 PositiveFloat = Annotated[Real, Field(gt=0)]
 Resistance = Annotated[Real, Field(gt=0, le=1e12)]

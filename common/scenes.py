@@ -9,9 +9,8 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
+from fluidsense.common.models import Real, StrictModel
 from pydantic import Field, model_validator
-
-from common.models import Real, StrictModel
 
 # Shore hardness -> modulus at 100 % strain (kPa): Smooth-On Ecoflex data sheets; OOO-34
 # estimated from OOO-35 (17 kPa) as in the paper's Table 1 caption.

@@ -9,9 +9,8 @@ from __future__ import annotations
 
 from typing import Annotated
 
+from fluidsense.common.models import Real, StrictModel
 from pydantic import Field, model_validator
-
-from common.models import Real, StrictModel
 
 Pose = Annotated[tuple[Real, Real, Real, Real, Real, Real], Field(description="x, y, z (m), rx, ry, rz (rad)")]
 

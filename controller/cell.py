@@ -11,9 +11,9 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from common.errors import FaultError, NotSupportedError
-from common.faults import Fault
-from drivers.backend import Backend
+from fluidsense.common.errors import FaultError, NotSupportedError
+from fluidsense.common.faults import Fault
+from fluidsense.drivers.backend import Backend
 
 
 class ArmAccess:

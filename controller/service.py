@@ -17,10 +17,10 @@ from __future__ import annotations
 import asyncio
 from typing import Any
 
-from common.errors import CommandError, FaultError, SequenceError
-from common.faults import Fault, FaultKind
-from common.samples import SampleBlock
-from drivers.backend import Backend
+from fluidsense.common.errors import CommandError, FaultError, SequenceError
+from fluidsense.common.faults import Fault, FaultKind
+from fluidsense.common.samples import SampleBlock
+from fluidsense.drivers.backend import Backend
 
 from .cell import ArmAccess, SceneAccess
 from .commands.dispatch import Dispatcher

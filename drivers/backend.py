@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
-from common.errors import DriverError
+from fluidsense.common.errors import DriverError
 
 from .base import (
     Arm,

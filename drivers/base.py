@@ -18,9 +18,13 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-
-from common.errors import CommandError, DriverError, NotSupportedError, SafetyError
-from common.samples import SampleBlock, SampleClock
+from fluidsense.common.errors import (
+    CommandError,
+    DriverError,
+    NotSupportedError,
+    SafetyError,
+)
+from fluidsense.common.samples import SampleBlock, SampleClock
 
 log = logging.getLogger(__name__)
 

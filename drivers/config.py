@@ -7,11 +7,10 @@ from __future__ import annotations
 import importlib
 from typing import Annotated, Literal
 
+from fluidsense.common.hardware import Hardware
+from fluidsense.common.models import Integer, Real, StrictModel
+from fluidsense.common.scenes import EmptyScene, Scene
 from pydantic import Field
-
-from common.hardware import Hardware
-from common.models import Integer, Real, StrictModel
-from common.scenes import EmptyScene, Scene
 
 from .backend import Backend
 from .daqmx.config import NiDaqDriverConfig
@@ -58,12 +57,12 @@ AnyDriverConfig = (SimDriverConfig | UrDriverConfig | ModbusDriverConfig | Seria
 DriverConfig = Annotated[AnyDriverConfig, Field(discriminator="kind")]
 
 _BACKEND_MODULES = {
-    "sim": "drivers.sim",
-    "ur": "drivers.ur.backend",
-    "modbus": "drivers.modbus.backend",
-    "serial": "drivers.serial.backend",
-    "nidaqmx": "drivers.daqmx.backend",
-    "replay": "drivers.replay",
+    "sim": "fluidsense.drivers.sim",
+    "ur": "fluidsense.drivers.ur.backend",
+    "modbus": "fluidsense.drivers.modbus.backend",
+    "serial": "fluidsense.drivers.serial.backend",
+    "nidaqmx": "fluidsense.drivers.daqmx.backend",
+    "replay": "fluidsense.drivers.replay",
 }
 
 

@@ -4,10 +4,9 @@ is common/wiring.py: the emulated box reads it too."""
 
 from __future__ import annotations
 
+from fluidsense.common.models import Host, Integer, Port, Real, StrictModel
+from fluidsense.common.wiring import CONTROLLER_HZ, Wiring  # noqa: F401 - the drivers' configs take them from here
 from pydantic import Field
-
-from common.models import Host, Integer, Port, Real, StrictModel
-from common.wiring import CONTROLLER_HZ, Wiring  # noqa: F401 - the drivers' configs take them from here
 
 from .sampler.config import SamplerOptions  # noqa: F401 - drivers' configs take it from here
 

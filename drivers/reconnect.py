@@ -13,7 +13,7 @@ import asyncio
 import logging
 from collections.abc import Awaitable, Callable
 
-from common.errors import LinkLostError
+from fluidsense.common.errors import LinkLostError
 
 from .io import Reconnect
 

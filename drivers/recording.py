@@ -26,14 +26,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from fluidsense.common.errors import RecordingError
+from fluidsense.common.files import nested_within, one_line, open_regular
+from fluidsense.common.samples import SampleBlock
 from mcap.exceptions import EndOfFile, InvalidMagic
 from mcap.records import Channel, Chunk, Footer, Message, Metadata
 from mcap.stream_reader import StreamReader
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
-
-from common.errors import RecordingError
-from common.files import nested_within, one_line, open_regular
-from common.samples import SampleBlock
 
 from .chunks import MAX_CHUNK_BYTES, ChunkError, chunk_records
 from .recording_schema import CONFIG, SAMPLES, SCHEMAS, event_schema

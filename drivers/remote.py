@@ -28,9 +28,9 @@ import dataclasses
 import logging
 from collections.abc import Awaitable, Callable
 
-from common.errors import LinkLostError
-from common.samples import SampleBlock
-from drivers.base import SampleSource, ValveBank
+from fluidsense.common.errors import LinkLostError
+from fluidsense.common.samples import SampleBlock
+from fluidsense.drivers.base import SampleSource, ValveBank
 
 from .io import Reconnect, SamplerOptions
 from .reconnect import Reconnector

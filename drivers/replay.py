@@ -15,11 +15,11 @@ import math
 from pathlib import Path
 from typing import Any
 
-from common.errors import EndOfRecording, RecordingError
-from common.hardware import Hardware
-from common.samples import SampleBlock
-from drivers.backend import Backend
-from drivers.base import SampleSource, ValveBank
+from fluidsense.common.errors import EndOfRecording, RecordingError
+from fluidsense.common.hardware import Hardware
+from fluidsense.common.samples import SampleBlock
+from fluidsense.drivers.backend import Backend
+from fluidsense.drivers.base import SampleSource, ValveBank
 
 from .recording import SAMPLES, Record, RecordingReader
 

@@ -8,8 +8,13 @@ import asyncio
 import json
 from typing import Any
 
-from common.errors import DeviceTimeoutError, DriverError, LinkLostError, NotSupportedError
-from drivers.base import SceneControl
+from fluidsense.common.errors import (
+    DeviceTimeoutError,
+    DriverError,
+    LinkLostError,
+    NotSupportedError,
+)
+from fluidsense.drivers.base import SceneControl
 
 
 class RemoteScene(SceneControl):

@@ -21,11 +21,10 @@ import threading
 
 import rclpy
 from control_msgs.action import GripperCommand
+from fluidsense.client import GripEnded, Gripper, Refused, Slip
 from rclpy.action import ActionServer
 from rclpy.node import Node
 from std_msgs.msg import Float64
-
-from fluidsense.client import Gripper, GripEnded, Refused, Slip
 
 
 class FluidsenseGripper(Node):

@@ -10,9 +10,15 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from common.errors import ConfigError
-from common.hardware import BendingActuator, GripperActuator, LinearActuator, MuscleActuator, SuctionCup
-from common.scenes import (
+from fluidsense.common.errors import ConfigError
+from fluidsense.common.hardware import (
+    BendingActuator,
+    GripperActuator,
+    LinearActuator,
+    MuscleActuator,
+    SuctionCup,
+)
+from fluidsense.common.scenes import (
     CylinderScene,
     EmptyScene,
     PlateScene,
@@ -23,8 +29,8 @@ from common.scenes import (
     StopperScene,
     WallScene,
 )
-from common.units import KPA, ML, MM
-from simulator.gas import VolumeLaw
+from fluidsense.common.units import KPA, ML, MM
+from fluidsense.simulator.gas import VolumeLaw
 
 # Far breakpoint: beyond it a law extrapolates with its last slope, so any value works
 # as long as it is above every pressure a profile allows.

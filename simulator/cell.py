@@ -10,12 +10,24 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from fluidsense.common.hardware import (
+    ACTUATE,
+    SUPPLY,
+    VENT,
+    FlowControlledCircuit,
+    Hardware,
+    TankCircuit,
+)
+from fluidsense.common.scenes import EmptyScene, PullScene
+from fluidsense.common.units import KPA
 
-from common.hardware import ACTUATE, SUPPLY, VENT, FlowControlledCircuit, Hardware, TankCircuit
-from common.scenes import EmptyScene, PullScene
-from common.units import KPA
-
-from .actuators import contact_pressure, contact_truth, is_dynamic, update_step, volume_law
+from .actuators import (
+    contact_pressure,
+    contact_truth,
+    is_dynamic,
+    update_step,
+    volume_law,
+)
 from .arm import ArmModel
 from .gas import ATMOSPHERE, REGULATOR, FlowSource, Network, Pipe, VolumeLaw
 from .plant import Plant

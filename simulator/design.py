@@ -25,10 +25,10 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from common.units import KPA, LITRE
-from simulator.actuators import volume_law
-from simulator.equilibrium import equilibrium
-from simulator.resolution import SceneAt, evaluate
+from fluidsense.common.units import KPA, LITRE
+from fluidsense.simulator.actuators import volume_law
+from fluidsense.simulator.equilibrium import equilibrium
+from fluidsense.simulator.resolution import SceneAt, evaluate
 
 Z95 = 1.96
 MAX_WINDOW_S = 10.0  # the paper's longest window (the plate: the last 10 s of 60)

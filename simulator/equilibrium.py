@@ -8,9 +8,8 @@ search instead of an integration, which is what the design tool sweeps need.
 
 from __future__ import annotations
 
+from fluidsense.simulator.gas import VolumeLaw
 from scipy import optimize
-
-from simulator.gas import VolumeLaw
 
 
 def equilibrium(p0_gauge: float, v_tank: float, law: VolumeLaw, p_atm: float) -> float:

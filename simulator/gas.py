@@ -20,8 +20,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-
-from common.units import P_ATM
+from fluidsense.common.units import P_ATM
 
 REGULATOR = -1  # node index of the regulator output (a pressure source)
 ATMOSPHERE = -2  # node index of the atmosphere

@@ -16,9 +16,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from fluidsense.simulator.gas import Network, VolumeLaw
 from scipy.integrate import solve_ivp
-
-from simulator.gas import Network, VolumeLaw
 
 log = logging.getLogger(__name__)
 

@@ -15,12 +15,11 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
-
-from common.hardware import LinearActuator
-from common.scenes import EmptyScene, WallScene
-from common.units import KPA, LITRE, MM
-from simulator.actuators import volume_law
-from simulator.equilibrium import eq11_resolution, equilibrium
+from fluidsense.common.hardware import LinearActuator
+from fluidsense.common.scenes import EmptyScene, WallScene
+from fluidsense.common.units import KPA, LITRE, MM
+from fluidsense.simulator.actuators import volume_law
+from fluidsense.simulator.equilibrium import eq11_resolution, equilibrium
 
 SceneAt = Callable[[float], Any]  # target value -> scene
 

@@ -3,9 +3,8 @@
 from __future__ import annotations
 
 import numpy as np
-
-from common.hardware import FlowSensor, Sensor
-from common.units import KPA, SLPM
+from fluidsense.common.hardware import FlowSensor, Sensor
+from fluidsense.common.units import KPA, SLPM
 
 
 class SensorModel:

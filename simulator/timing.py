@@ -12,10 +12,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
-from common.hardware import ACTUATE, SUPPLY, Hardware, TankCircuit
-from common.scenes import EmptyScene
-from common.units import KPA
+from fluidsense.common.hardware import ACTUATE, SUPPLY, Hardware, TankCircuit
+from fluidsense.common.scenes import EmptyScene
+from fluidsense.common.units import KPA
 
 from .actuators import volume_law
 from .cell import _network

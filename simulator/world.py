@@ -14,8 +14,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from common.scenes import CylinderScene, EmptyScene
-from common.world import WorldObject, WorldSpec
+from fluidsense.common.scenes import CylinderScene, EmptyScene
+from fluidsense.common.world import WorldObject, WorldSpec
 
 log = logging.getLogger(__name__)
 

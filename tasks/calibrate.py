@@ -11,19 +11,18 @@ from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from pydantic import TypeAdapter
-
-from common.errors import FluidsenseError, JobStopped
-from common.scenes import TARGETS, EmptyScene, Scene
-from controller.sensing.calibration import (
+from fluidsense.common.errors import FluidsenseError, JobStopped
+from fluidsense.common.scenes import TARGETS, EmptyScene, Scene
+from fluidsense.controller.sensing.calibration import (
     FEATURES,
     NEEDS_REFERENCE,
     Calibration,
     CalibrationError,
     feature_value,
 )
-from controller.sensing.estimate import Estimate, si_unit
-from controller.service import Controller
+from fluidsense.controller.sensing.estimate import Estimate, si_unit
+from fluidsense.controller.service import Controller
+from pydantic import TypeAdapter
 
 from .journal import CycleJournal
 from .stopping import fault_dict, stopped_message

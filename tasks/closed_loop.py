@@ -14,13 +14,12 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-
-from common.errors import FluidsenseError
-from common.units import KPA
-from common.world import WorldObject, WorldSlot, WorldSpec
-from controller.cycles.analysis import CycleResult
-from controller.sensing.calibration import Calibration, feature_value
-from controller.service import Controller
+from fluidsense.common.errors import FluidsenseError
+from fluidsense.common.units import KPA
+from fluidsense.common.world import WorldObject, WorldSlot, WorldSpec
+from fluidsense.controller.cycles.analysis import CycleResult
+from fluidsense.controller.sensing.calibration import Calibration, feature_value
+from fluidsense.controller.service import Controller
 
 from .config import PickingTask, RipenessTask, SortingTask
 

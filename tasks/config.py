@@ -6,12 +6,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Literal
 
+from fluidsense.common.models import Integer, Real, StrictModel
+from fluidsense.common.world import Pose, WorldObject
+from fluidsense.controller.config import load_model
+from fluidsense.controller.config.loading import referenced_file
 from pydantic import Field, RootModel, model_validator
-
-from common.models import Integer, Real, StrictModel
-from common.world import Pose, WorldObject
-from controller.config import load_model
-from controller.config.loading import referenced_file
 
 
 class Motion(StrictModel):

@@ -7,12 +7,12 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from common.errors import FluidsenseError, SequenceError
-from common.scenes import EmptyScene
-from controller.config import CellConfig, Profile
-from controller.cycles.analysis import CycleResult
-from controller.service import Controller
-from drivers.config import SimDriverConfig, build_backend
+from fluidsense.common.errors import FluidsenseError, SequenceError
+from fluidsense.common.scenes import EmptyScene
+from fluidsense.controller.config import CellConfig, Profile
+from fluidsense.controller.cycles.analysis import CycleResult
+from fluidsense.controller.service import Controller
+from fluidsense.drivers.config import SimDriverConfig, build_backend
 
 from .calibrate import scene_with
 

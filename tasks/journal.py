@@ -15,8 +15,8 @@ import os
 from pathlib import Path
 from typing import Any
 
-from common.errors import ConfigError
-from common.files import decode_utf8, read_bounded
+from fluidsense.common.errors import ConfigError
+from fluidsense.common.files import decode_utf8, read_bounded
 
 MAX_BYTES = 16 * 2**20  # ~100 bytes a cycle: far more cycles than any calibration has
 KIND = "fluidsense calibration cycles"

@@ -5,8 +5,8 @@ from __future__ import annotations
 import logging
 from typing import Any
 
-from common.errors import CommandError, JobStopped
-from controller.service import Controller
+from fluidsense.common.errors import CommandError, JobStopped
+from fluidsense.controller.service import Controller
 
 from .closed_loop import TASKS
 from .stopping import fault_dict, stopped_message

@@ -13,11 +13,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from fluidsense.common.errors import CommandError, FluidsenseError
+from fluidsense.common.scenes import CylinderScene, EmptyScene
+from fluidsense.controller.service import Controller
 from scipy import stats
-
-from common.errors import CommandError, FluidsenseError
-from common.scenes import CylinderScene, EmptyScene
-from controller.service import Controller
 
 
 @dataclass

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from controller.service import Controller
+from fluidsense.controller.service import Controller
 
 
 def fault_dict(ctrl: Controller) -> dict[str, Any] | None:

@@ -7,13 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fluidsense.bench.accuracy import study
+from lab.bench.accuracy import study
 
 
 @pytest.fixture(scope="module")
 def gripper():
     # seeds 500.. are used by no other test or fixture. 42 trials: the suite's scale (the
-    # bench's default is 20 sessions of 5, `fluidsense bench accuracy`)
+    # bench's default is 20 sessions of 5, `python -m lab bench accuracy`)
     return study("gripper", sessions=7, per_session=6, cal_seed=4242, first_seed=500)
 
 

@@ -3,7 +3,7 @@
 The contract runs over every backend: the simulated cell in-process, the ur-rtde
 and Modbus drivers against ``fluidsense simcell`` (an emulated UR control box in its
 own process, backed by the simulated plant), and the serial driver against
-``fluidsense simserial`` (the firmware's host board on a pty, fed by the simulated plant).
+``python -m lab simserial`` (the firmware's host board on a pty, fed by the simulated plant).
 """
 
 from __future__ import annotations
@@ -13,14 +13,12 @@ import contextlib
 
 import numpy as np
 import pytest
-
-from common.errors import CommandError, DriverError, SafetyError
-from common.hardware import Hardware
-from common.scenes import CylinderScene
-from controller.config import load_cell_config
-from drivers.config import SimDriverConfig, build_backend
-
-from .conftest import free_simcell, sim_config
+from fluidsense.common.errors import CommandError, DriverError, SafetyError
+from fluidsense.common.hardware import Hardware
+from fluidsense.common.scenes import CylinderScene
+from fluidsense.controller.config import load_cell_config
+from fluidsense.drivers.config import SimDriverConfig, build_backend
+from support.harness import free_simcell, sim_config
 
 BACKENDS = ["sim", "ur", "modbus", "serial"]
 
@@ -32,7 +30,7 @@ def make_backend(tmp_path):
             if kind == "sim":
                 cell = sim_config(tmp_path)
             elif kind == "serial":
-                from .serial_helpers import SimSerialProcess, serial_config
+                from support.serial import SimSerialProcess, serial_config
 
                 cell = serial_config(tmp_path)
                 boxes.callback(SimSerialProcess(cell).stop)

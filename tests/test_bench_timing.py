@@ -1,4 +1,4 @@
-"""`fluidsense bench timing` as a user runs it: a real daemon in real time, a real ZeroMQ
+"""`python -m lab bench timing` as a user runs it: a real daemon in real time, a real ZeroMQ
 subscriber in another process. Only what does not depend on how busy the machine is gets
 asserted: the simulated source is hardware-timed (exact timestamps), so every slot of the
 grid must arrive exactly once whatever the load; latency and CPU are reported, not judged
@@ -15,8 +15,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
-
-from .conftest import REPO
+from support.harness import REPO
 
 
 @pytest.fixture
@@ -31,7 +30,7 @@ def short_tmp():
 def test_sim_source_accounts_for_every_slot_and_cleans_up(short_tmp):
     tmp_path = short_tmp
     env = {**os.environ, "TMPDIR": str(tmp_path)}  # the bench's own directory goes here
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "bench", "timing", "--seconds", "2", "--json"],
+    out = subprocess.run([sys.executable, "-m", "lab", "bench", "timing", "--seconds", "2", "--json"],
                          cwd=REPO, env=env, capture_output=True, text=True, timeout=180)
     assert out.returncode == 0, out.stderr
     res = json.loads(out.stdout)
@@ -56,7 +55,7 @@ def test_serial_source_accounts_for_every_slot_and_reports_the_link(short_tmp):
     evaluates its inputs at the tick), every slot missing at the subscriber is one the
     board skipped or a frame the link lost, and both sides' counts are reported."""
     env = {**os.environ, "TMPDIR": str(tmp_path)}
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "bench", "timing", "--source", "serial",
+    out = subprocess.run([sys.executable, "-m", "lab", "bench", "timing", "--source", "serial",
                           "--seconds", "2", "--json"], cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     res = json.loads(out.stdout)

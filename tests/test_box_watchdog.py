@@ -15,19 +15,21 @@ import signal
 import time
 
 import pytest
-
-from common.errors import FaultError
-from controller.config import load_cell_config
-from controller.service import Controller
-from drivers.config import build_backend
-from drivers.ur.watchdog import runstate_program, safe_levels, watchdog_program
-from simulator.controlbox.box import ControlBox, IdleProgram, RuntimeState
-from simulator.controlbox.config import ControlBoxConfig
-from simulator.controlbox.kinematic import KinematicModel
-from simulator.controlbox.scriptport import ScriptServer
-from simulator.controlbox.watchdog import WatchdogProgram
-
-from .conftest import CONFIG, Daemon, free_simcell
+from fluidsense.common.errors import FaultError
+from fluidsense.controller.config import load_cell_config
+from fluidsense.controller.service import Controller
+from fluidsense.drivers.config import build_backend
+from fluidsense.drivers.ur.watchdog import (
+    runstate_program,
+    safe_levels,
+    watchdog_program,
+)
+from fluidsense.simulator.controlbox.box import ControlBox, IdleProgram, RuntimeState
+from fluidsense.simulator.controlbox.config import ControlBoxConfig
+from fluidsense.simulator.controlbox.kinematic import KinematicModel
+from fluidsense.simulator.controlbox.scriptport import ScriptServer
+from fluidsense.simulator.controlbox.watchdog import WatchdogProgram
+from support.harness import CONFIG, Daemon, free_simcell
 
 TIMEOUT_S = 0.5
 REGISTER = 200
@@ -172,7 +174,7 @@ def test_a_link_lost_without_a_box_watchdog_vents_as_the_first_act_when_it_retur
                 writes = _journal_after(after, up["t"])
                 # the first output the box received after the link returned was the safe state,
                 # and nothing left it until the gripper had vented (how fast it vents, on the
-                # box's clock: fluidsense bench faults, scenario link_back)
+                # box's clock: python -m lab bench faults, scenario link_back)
                 assert writes and writes[0][1] & 0b11 == 0b01 and writes[0][2] == "modbus"
                 assert all(w[1] & 0b11 == 0b01 for w in writes), writes
                 ctrl.reset()
@@ -243,17 +245,16 @@ def test_fluidsense_watchdog_prints_what_the_driver_installs(tmp_path):
     import sys
 
     import yaml
-
-    from .conftest import REPO, write_cell
+    from support.harness import REPO, write_cell
 
     data = yaml.safe_load((CONFIG / "cell-modbus-sim.yaml").read_text())
     data["driver"]["arm"] = None
     data["profile"] = str(CONFIG / "profiles" / "sorting-gripper.yaml")
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "watchdog", "--config", str(write_cell(tmp_path, data))],
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "watchdog", "--config", str(write_cell(tmp_path, data))],
                          capture_output=True, text=True, timeout=60, cwd=REPO)
     assert out.returncode == 0, out.stderr
     program = WatchdogProgram.from_source(out.stdout)
     assert program.vent == LEVELS and program.register == REGISTER and program.timeout_s == TIMEOUT_S
-    refused = subprocess.run([sys.executable, "-m", "fluidsense.cli", "watchdog", "--config", str(CONFIG / "cell-sim.yaml")],
+    refused = subprocess.run([sys.executable, "-m", "fluidsense", "watchdog", "--config", str(CONFIG / "cell-sim.yaml")],
                              capture_output=True, text=True, timeout=60, cwd=REPO)
     assert refused.returncode == 2 and "driver.kind" in refused.stderr and "Traceback" not in refused.stderr

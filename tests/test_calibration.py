@@ -8,12 +8,10 @@ import sys
 
 import numpy as np
 import pytest
-
-from common.errors import ConfigError
-from common.scenes import PlateScene
-from controller.sensing.calibration import Calibration, CalibrationError
-
-from .conftest import REPO, profile_controller
+from fluidsense.common.errors import ConfigError
+from fluidsense.common.scenes import PlateScene
+from fluidsense.controller.sensing.calibration import Calibration, CalibrationError
+from support.harness import REPO, profile_controller
 
 
 def synthetic(slope=-0.04, sd=0.03, n_per=7, seed=0, fit="linear", curve=0.0):
@@ -91,7 +89,7 @@ def test_file_round_trip_and_bad_files(tmp_path):
 def test_tank_method_distance_accuracy_on_held_out_heights():
     """Issue criterion: tank method, default noise, heights not used in calibration:
     the 95 % error stays within +-2.5 mm (paper: +-1.7 mm)."""
-    from tasks.calibrate import calibrate
+    from fluidsense.tasks.calibrate import calibrate
 
     rng = np.random.default_rng(11)
     held_out = rng.uniform(1, 39, 16)
@@ -117,7 +115,7 @@ def test_tank_method_distance_accuracy_on_held_out_heights():
 
 def test_calibrate_and_sense_commands(tmp_path):
     out = tmp_path / "wall.json"
-    cal = subprocess.run([sys.executable, "-m", "fluidsense.cli", "calibrate", "--profile", "linear-actuator",
+    cal = subprocess.run([sys.executable, "-m", "fluidsense", "calibrate", "--profile", "linear-actuator",
                           "--values", "0,10,20,30", "--cycles", "3", "--out", str(out), "--json"],
                          cwd=REPO, capture_output=True, text=True, timeout=300)
     assert cal.returncode == 0, cal.stderr
@@ -125,7 +123,7 @@ def test_calibrate_and_sense_commands(tmp_path):
     assert data["target"] == "distance_mm" and data["feature"] == "p_eq" and len(data["x"]) == 8
     assert data["profile"] == "linear-actuator" and data["window"]["start_s"] == 15.0
     assert data["residual_sd"] > 0 and data["date"]
-    sense = subprocess.run([sys.executable, "-m", "fluidsense.cli", "sense", "-k", str(out), "--scene", "wall",
+    sense = subprocess.run([sys.executable, "-m", "fluidsense", "sense", "-k", str(out), "--scene", "wall",
                             "--set", "distance_mm=17.5", "--seed", "4", "--json"],
                            cwd=REPO, capture_output=True, text=True, timeout=300)
     assert sense.returncode == 0, sense.stderr
@@ -133,7 +131,7 @@ def test_calibrate_and_sense_commands(tmp_path):
     lo, hi = res["interval95"]
     assert res["unit"] == "mm" and lo < res["estimate"] < hi
     assert abs(res["estimate"] - 17.5) < 2.0 and res["truth"] == 17.5
-    bad = subprocess.run([sys.executable, "-m", "fluidsense.cli", "sense", "-k", str(out), "--scene", "wall",
+    bad = subprocess.run([sys.executable, "-m", "fluidsense", "sense", "-k", str(out), "--scene", "wall",
                           "--set", "distance=3"], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "distance" in bad.stderr
 

@@ -17,15 +17,14 @@ import threading
 import pytest
 import yaml
 from pymodbus.client import ModbusTcpClient
-
-from .conftest import REPO, free_loopback, free_simcell, sim_config, write_cell
+from support.harness import REPO, free_loopback, free_simcell, sim_config, write_cell
 
 MODBUS_PORT = 5020  # the emulated box's Modbus server for both kinds (simcell's default, the modbus config's)
 OUTPUTS, SET_MASK = 1, 2  # the UR box's Modbus registers: output bits (read), set mask (write)
 
 
 def check(cell, *extra: str, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "fluidsense.cli", "check", "--config", str(cell), "--seconds", "1",
+    return subprocess.run([sys.executable, "-m", "fluidsense", "check", "--config", str(cell), "--seconds", "1",
                            *extra], capture_output=True, text=True, timeout=timeout, cwd=REPO,
                           stdin=subprocess.DEVNULL)
 
@@ -132,7 +131,7 @@ def test_swapped_valve_entries_answer_as_the_other_valve(tmp_path):
 
 @pytest.mark.parametrize("kind", ["ur", "modbus"])
 def test_no_box_is_a_timeout_naming_the_address(kind, tmp_path):
-    from .conftest import simcell_config
+    from support.harness import simcell_config
 
     host = free_loopback()
     r = check(simcell_config(tmp_path, kind, host), "--timeout", "5")
@@ -143,7 +142,7 @@ def test_no_box_is_a_timeout_naming_the_address(kind, tmp_path):
 
 def test_silent_modbus_server_is_a_timeout(tmp_path):
     """A box that accepts the connection and never answers."""
-    from .conftest import simcell_config
+    from support.harness import simcell_config
 
     host = free_loopback([MODBUS_PORT])
     data = yaml.safe_load(simcell_config(tmp_path, "modbus", host).read_text())
@@ -160,7 +159,7 @@ def test_silent_modbus_server_is_a_timeout(tmp_path):
 
 
 def test_bad_config_is_exit_2_with_file_and_field(tmp_path):
-    from .conftest import simcell_config
+    from support.harness import simcell_config
 
     data = yaml.safe_load(simcell_config(tmp_path, "modbus", "127.0.0.1").read_text())
     data["driver"]["wiring"]["valves"]["supply"]["output"] = 99
@@ -194,7 +193,7 @@ def test_sim_driver_miswired_sensor_is_flagged(tmp_path):
 def test_ctrl_c_while_pulsing_ends_vented(tmp_path):
     with free_simcell(tmp_path, "modbus") as (_, cell):
         host = yaml.safe_load(cell.read_text())["driver"]["host"]
-        proc = subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "check", "--config", str(cell), "--seconds",
+        proc = subprocess.Popen([sys.executable, "-m", "fluidsense", "check", "--config", str(cell), "--seconds",
                                  "1", "--actuate", "--yes", "--pulse-s", "2"], stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True, cwd=REPO, stdin=subprocess.DEVNULL)
         try:

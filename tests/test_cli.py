@@ -6,8 +6,7 @@ import subprocess
 import sys
 
 import pytest
-
-from .conftest import REPO
+from support.harness import REPO
 
 
 @pytest.mark.parametrize("command, expected", [
@@ -18,7 +17,7 @@ from .conftest import REPO
     (["cmd"], ["status", "cycle", "abort", "reset", "scene", "task", "shutdown", "--endpoint"]),
 ])
 def test_help(command, expected):
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", *command, "--help"], cwd=REPO,
+    out = subprocess.run([sys.executable, "-m", "fluidsense", *command, "--help"], cwd=REPO,
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0
     for word in expected:
@@ -26,7 +25,7 @@ def test_help(command, expected):
 
 
 def test_cmd_without_a_daemon_times_out_with_a_clear_error(tmp_path):
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "cmd", "status", "--endpoint",
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "cmd", "status", "--endpoint",
                           f"ipc://{tmp_path}/nobody", "--timeout", "0.2"], cwd=REPO,
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 3
@@ -37,9 +36,9 @@ def test_building_the_command_line_loads_none_of_the_heavy_libraries():
     """`fluidsense --help` and every command's parser come up without numpy, pydantic,
     scipy, pyzmq or the configs: those load in the command that uses them (the CLI once took
     4 s to say its help on a busy machine; docs/cli.md has the measurement)."""
-    probe = ("import sys, fluidsense.cli as c; p = c.build_parser([]); p.format_help(); "
+    probe = ("import sys, fluidsense.cli as c; p = c.build_parser(); p.format_help(); "
              "print(sorted(m for m in ('numpy', 'pydantic', 'scipy', 'zmq', 'yaml', 'tqdm', 'matplotlib', "
-             "'controller.config', 'fluidsense.app') if m in sys.modules))")
+             "'fluidsense.controller.config', 'fluidsense.daemon.app') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", probe], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]"
@@ -48,7 +47,7 @@ def test_building_the_command_line_loads_none_of_the_heavy_libraries():
 def test_output_to_a_closed_pipe_ends_quietly():
     """`fluidsense cmd status | head -1`: the reader went away before the output came (here
     before the demo prints its result): no traceback, exit 0."""
-    demo = subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "demo", "--json", "--cycles", "3"], cwd=REPO,
+    demo = subprocess.Popen([sys.executable, "-m", "fluidsense", "demo", "--json", "--cycles", "3"], cwd=REPO,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     demo.stdout.close()  # gone before the demo has anything to say
     err = demo.stderr.read().decode()

@@ -8,11 +8,9 @@ from pathlib import Path
 
 import pytest
 import yaml
-
-from common.errors import ConfigError
-from controller.config import load_cell_config, load_profile
-
-from .conftest import CONFIG, PROFILE, REPO, sim_config
+from fluidsense.common.errors import ConfigError
+from fluidsense.controller.config import load_cell_config, load_profile
+from support.harness import CONFIG, PROFILE, REPO, sim_config
 
 
 def write(tmp_path: Path, name: str, data) -> Path:
@@ -111,7 +109,7 @@ def test_yaml_is_loaded_safely(tmp_path):
 def test_run_with_a_bad_config_exits_before_binding_or_moving_anything(tmp_path):
     data = cell(tmp_path, **{"driver.block_size": -1})
     path = write(tmp_path, "bad.yaml", data)
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "run", "--config", str(path)],
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "run", "--config", str(path)],
                          cwd=REPO, capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
     assert f"{path}: driver.block_size: " in out.stderr
@@ -238,7 +236,7 @@ def test_files_a_config_names_must_exist(tmp_path):
 def test_run_with_a_bad_port_binds_nothing_and_records_nothing(tmp_path):
     data = cell(tmp_path, **{"publisher.cmd": "tcp://127.0.0.1:99999"})
     path = write(tmp_path, "bad-port.yaml", data)
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "run", "--config", str(path)], cwd=tmp_path,
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "run", "--config", str(path)], cwd=tmp_path,
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
     assert out.stderr.splitlines() == [f"fluidsense: error: {path}: publisher.cmd: 'tcp://127.0.0.1:99999': the port "

@@ -8,15 +8,14 @@ from pathlib import Path
 
 import annotated_types as at
 import pytest
+from fluidsense.common.errors import ConfigError
+from fluidsense.common.models import StrictModel
+from fluidsense.controller.config import validate
 
-from common.errors import ConfigError
-from common.models import StrictModel
-from controller.config import validate
-
-MODULES = ["common.hardware", "common.scenes", "common.world", "drivers.config", "drivers.sampler.config",
-           "drivers.io", "common.wiring", "drivers.ur.config", "drivers.modbus.config", "drivers.serial.config",
-           "drivers.daqmx.config",
-           "controller.config", "controller.commands.server", "controller.sensing.calibration", "tasks.config"]
+MODULES = ["fluidsense.common.hardware", "fluidsense.common.scenes", "fluidsense.common.world", "fluidsense.drivers.config", "fluidsense.drivers.sampler.config",
+           "fluidsense.drivers.io", "fluidsense.common.wiring", "fluidsense.drivers.ur.config", "fluidsense.drivers.modbus.config", "fluidsense.drivers.serial.config",
+           "fluidsense.drivers.daqmx.config",
+           "fluidsense.controller.config", "fluidsense.controller.commands.server", "fluidsense.controller.sensing.calibration", "fluidsense.tasks.config"]
 for m in MODULES:
     importlib.import_module(m)
 
@@ -37,8 +36,8 @@ EXAMPLES = {
     "WorldObject": {"name": "o", "diameter_mm": 60},
     "WorldSlot": {"name": "s", "pose": [0, 0, 0, 0, 0, 0]},
     "WorldSpec": {"slots": [{"name": "s", "pose": [0, 0, 0, 0, 0, 0]}]},
-    "PollerSpec": {"factory": "drivers.sampler.synthetic:SyntheticPoller"},
-    "SamplerConfig": {"poller": {"factory": "drivers.sampler.synthetic:SyntheticPoller"}, "channels": ["p_act"]},
+    "PollerSpec": {"factory": "fluidsense.drivers.sampler.synthetic:SyntheticPoller"},
+    "SamplerConfig": {"poller": {"factory": "fluidsense.drivers.sampler.synthetic:SyntheticPoller"}, "channels": ["p_act"]},
     "StatusCmd": {"cmd": "status"}, "CycleCmd": {"cmd": "cycle"}, "AbortCmd": {"cmd": "abort"},
     "ResetCmd": {"cmd": "reset"}, "SceneCmd": {"cmd": "scene", "scene": {"kind": "none"}},
     "TaskCmd": {"cmd": "task", "file": "x.yaml"}, "ShutdownCmd": {"cmd": "shutdown"},
@@ -89,8 +88,7 @@ EXAMPLES = {
 def curve_keys(tmp_path_factory):
     """CurveKeys checks its files at load: a private server key and a client key to let in."""
     import zmq
-
-    from controller.config.curve import write_key_file
+    from fluidsense.controller.config.curve import write_key_file
 
     keys = tmp_path_factory.mktemp("curve")
     (keys / "clients").mkdir()
@@ -101,11 +99,14 @@ def curve_keys(tmp_path_factory):
                              "clients_dir": str(keys / "clients")}
 
 
+CONFIGURED = tuple(f"fluidsense.{part}." for part in ("common", "drivers", "controller", "tasks"))
+
+
 def all_models():
     seen, todo = [], list(StrictModel.__subclasses__())
     while todo:
         cls = todo.pop()
-        if cls not in seen and cls.__module__.split(".")[0] in ("common", "drivers", "controller", "tasks") \
+        if cls not in seen and cls.__module__.startswith(CONFIGURED) \
                 and not cls.__name__.startswith("_"):  # private bases are never configured alone
             seen.append(cls)
         todo.extend(cls.__subclasses__())

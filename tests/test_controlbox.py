@@ -15,48 +15,13 @@ import time
 
 import numpy as np
 import pytest
+from fluidsense.common.errors import DriverError, LinkLostError
+from fluidsense.simulator.controlbox.process import EmulatorProcess
 from pymodbus.client import AsyncModbusTcpClient
+from support.controlbox import MODBUS_PORT, PORTS, RawRtde, free_host
+from support.ur_client import UrClient
 
-from common.errors import DriverError, LinkLostError
-from simulator.controlbox.process import EmulatorProcess
-
-from .conftest import free_loopback
-from .ur_client import UrClient
-
-MODBUS_PORT = 5020  # 502 needs privileges; the emulator's port is configurable
-PORTS = (30004, 29999, 30003, MODBUS_PORT)
 START = [0.3, -0.2, 0.4, 0.0, 3.1416, 0.0]  # KinematicModel's default pose
-
-
-def free_host() -> str:
-    return free_loopback(PORTS)
-
-
-@pytest.fixture
-def start_box():
-    started: list[EmulatorProcess] = []
-
-    def start(*args: str, model: str | None = None) -> EmulatorProcess:
-        for _ in range(5):
-            box = EmulatorProcess(free_host(), modbus_port=MODBUS_PORT, model=model, args=args)
-            try:
-                box.start(timeout_s=30)
-            except LinkLostError:
-                if "cannot listen" in box.log():  # lost a race for the address: next one
-                    continue
-                raise
-            started.append(box)
-            return box
-        raise RuntimeError("could not start the emulator on a free address")
-
-    yield start
-    for box in started:
-        killed = box.proc.poll() is not None and box.proc.returncode == -signal.SIGKILL
-        code = box.stop()
-        box.__exit__(None, None, None)
-        # every box ends cleanly: exit 0 on SIGTERM, nothing crashed on the way
-        assert killed or code == 0, box.log()
-        assert "Traceback" not in box.log(), box.log()
 
 
 @pytest.fixture
@@ -423,35 +388,6 @@ def test_dashboard_shutdown_ends_the_emulator_cleanly(start_box):
 
 # -- RTDE protocol details (a raw socket) ---------------------------------------------------------------
 
-class RawRtde:
-    def __init__(self, host: str):
-        self.sock = socket.create_connection((host, 30004), timeout=10)
-
-    def send(self, kind: str, payload: bytes = b"") -> None:
-        self.sock.sendall(struct.pack(">HB", 3 + len(payload), ord(kind)) + payload)
-
-    def recv(self) -> tuple[str, bytes]:
-        size, kind = struct.unpack(">HB", self._exactly(3))
-        return chr(kind), self._exactly(size - 3)
-
-    def ask(self, kind: str, payload: bytes = b"") -> bytes:
-        self.send(kind, payload)
-        while True:
-            got, body = self.recv()
-            if got == kind:
-                return body
-
-    def _exactly(self, n: int) -> bytes:
-        data = b""
-        while len(data) < n:
-            chunk = self.sock.recv(n - len(data))
-            if not chunk:
-                raise ConnectionError("closed")
-            data += chunk
-        return data
-
-    def close(self) -> None:
-        self.sock.close()
 
 
 def test_rtde_handshake_data_and_refused_variables(start_box):
@@ -519,7 +455,7 @@ def test_a_port_in_use_stops_the_emulator_before_ready():
 
 
 def test_a_model_factory_backs_the_box(start_box, clients):
-    box = start_box(model="tests.controlbox_models:loopback")
+    box = start_box(model="tests.support.controlbox_models:loopback")
     io = clients("io", box.host)
     r = clients("receive", box.host)
     assert io.setStandardDigitalOut(5, True)
@@ -540,7 +476,7 @@ def test_a_model_factory_backs_the_box(start_box, clients):
 
 
 def test_a_factory_that_returns_no_model_is_refused():
-    box = EmulatorProcess(free_host(), modbus_port=MODBUS_PORT, model="tests.controlbox_models:not_a_model")
+    box = EmulatorProcess(free_host(), modbus_port=MODBUS_PORT, model="tests.support.controlbox_models:not_a_model")
     with pytest.raises(LinkLostError):
         box.start(timeout_s=30)
     assert box.proc.returncode == 2 and "not a ControlBoxModel" in box.log()

@@ -7,14 +7,13 @@ import math
 
 import numpy as np
 import pytest
-
-from common.errors import CommandError, SafetyError
-from simulator.controlbox.box import ControlBox, IdleProgram, RuntimeState
-from simulator.controlbox.config import AnalogScale, ControlBoxConfig
-from simulator.controlbox.kinematic import KinematicModel
-from simulator.controlbox.model import AnalogDomain, RobotMode, SafetyMode
-from simulator.controlbox.motion import LineMove, Trapezoid
-from simulator.controlbox.urscript import RtdeControlScript, split_programs
+from fluidsense.common.errors import CommandError, SafetyError
+from fluidsense.simulator.controlbox.box import ControlBox, IdleProgram, RuntimeState
+from fluidsense.simulator.controlbox.config import AnalogScale, ControlBoxConfig
+from fluidsense.simulator.controlbox.kinematic import KinematicModel
+from fluidsense.simulator.controlbox.model import AnalogDomain, RobotMode, SafetyMode
+from fluidsense.simulator.controlbox.motion import LineMove, Trapezoid
+from fluidsense.simulator.controlbox.urscript import RtdeControlScript, split_programs
 
 START = (0.3, -0.2, 0.4, 0.0, 3.1416, 0.0)
 

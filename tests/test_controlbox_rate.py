@@ -2,7 +2,7 @@
 a real box does (500 Hz e-Series, 125 Hz CB3): its Modbus input registers and RTDE inputs
 hold their value between controller cycles, so a client polling faster reads repeats.
 
-Analog input 0 of ``tests.controlbox_models:ramp`` is a ramp of the box's own time, so each
+Analog input 0 of ``tests.support.controlbox_models:ramp`` is a ramp of the box's own time, so each
 value read tells when the box sampled it; counts are taken against the box's clock (the sim
 control channel's ``t``, RTDE ``timestamp``), never against the wall clock.
 """
@@ -14,10 +14,9 @@ import struct
 
 import pytest
 from pymodbus.client import ModbusTcpClient
-
-from .conftest import free_simcell
-from .controlbox_models import RAMP_V_PER_S
-from .test_controlbox import MODBUS_PORT, RawRtde, start_box  # noqa: F401 - start_box is a fixture
+from support.controlbox import MODBUS_PORT, RawRtde
+from support.controlbox_models import RAMP_V_PER_S
+from support.harness import free_simcell
 
 GENERATIONS = [("e-series", 500.0), ("cb3", 125.0)]
 WRAP_S = 10.0 / RAMP_V_PER_S  # the ramp starts again at 0 V after this long
@@ -31,7 +30,7 @@ def ramp_cycle(volts: float, hz: float) -> float:
 
 @pytest.mark.parametrize("controller, hz", GENERATIONS)
 def test_modbus_inputs_change_at_most_once_per_control_cycle(start_box, controller, hz):
-    box = start_box("--controller", controller, model="tests.controlbox_models:ramp")
+    box = start_box("--controller", controller, model="tests.support.controlbox_models:ramp")
     client = ModbusTcpClient(box.host, port=MODBUS_PORT, timeout=5, retries=0)
     assert client.connect(), "modbus connect failed"
     try:
@@ -61,7 +60,7 @@ def test_modbus_inputs_change_at_most_once_per_control_cycle(start_box, controll
 
 @pytest.mark.parametrize("controller, hz", GENERATIONS)
 def test_rtde_sends_at_most_the_control_rate_with_the_inputs_of_its_cycle(start_box, controller, hz):
-    box = start_box("--controller", controller, model="tests.controlbox_models:ramp")
+    box = start_box("--controller", controller, model="tests.support.controlbox_models:ramp")
     rtde = RawRtde(box.host)
     try:
         assert rtde.ask("V", struct.pack(">H", 2)) == b"\x01"

@@ -9,21 +9,19 @@ import sys
 
 import numpy as np
 import pytest
-
-from common.errors import FaultError, SafetyError
-from common.scenes import CylinderScene, EmptyScene
-
-from .conftest import REPO
+from fluidsense.common.errors import FaultError, SafetyError
+from fluidsense.common.scenes import CylinderScene, EmptyScene
+from support.harness import REPO
 
 
 def true_contact_time(diameter_mm: float) -> float:
     """When the plant's true actuator pressure reaches the contact pressure, seconds after
     the valve was commanded open (valve delay included), from the plant alone."""
-    from common.hardware import GripperActuator, TankCircuit
-    from common.units import P_ATM
-    from simulator.actuators import volume_law
-    from simulator.gas import Network, Pipe, VolumeLaw
-    from simulator.plant import Plant
+    from fluidsense.common.hardware import GripperActuator, TankCircuit
+    from fluidsense.common.units import P_ATM
+    from fluidsense.simulator.actuators import volume_law
+    from fluidsense.simulator.gas import Network, Pipe, VolumeLaw
+    from fluidsense.simulator.plant import Plant
 
     act, c = GripperActuator(), TankCircuit()
     law = volume_law(act, CylinderScene(diameter_mm=diameter_mm), P_ATM)
@@ -108,7 +106,7 @@ def test_demo_json_rises_with_diameter_at_the_papers_slope():
     """`fluidsense demo --json` (the paper's Fig. 1f protocol): P_eq rises monotonically
     from 40 to 100 mm with a slope within 30 % of 0.04 kPa/mm; D = 20 barely touches."""
     # three cycles per object instead of six (the first dropped): `make demo` runs six
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "demo", "--json", "--cycles", "3"], cwd=REPO,
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "demo", "--json", "--cycles", "3"], cwd=REPO,
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     data = json.loads(out.stdout)
@@ -126,11 +124,10 @@ def test_demo_json_rises_with_diameter_at_the_papers_slope():
 @pytest.mark.parametrize("batch_s, samples", [(0.01, 10), (0.1, 100)])
 def test_pressure_batches_hold_as_many_samples_as_their_length_says(tmp_path, batch_s, samples):
     """At 1 kHz in blocks of 10, a 10 ms batch is one block: n samples cover n periods."""
-    from controller.config import load_cell_config
-    from controller.service import Controller
-    from drivers.config import build_backend
-
-    from .conftest import sim_config
+    from fluidsense.controller.config import load_cell_config
+    from fluidsense.controller.service import Controller
+    from fluidsense.drivers.config import build_backend
+    from support.harness import sim_config
 
     cfg = load_cell_config(sim_config(tmp_path))
     cfg = cfg.model_copy(update={"publisher": cfg.publisher.model_copy(update={"pressure_batch_s": batch_s})})
@@ -166,9 +163,9 @@ def test_a_polled_sources_jitter_does_not_hold_a_batch_for_a_second_block(tmp_pa
     """A polled source stamps each read when it starts: the first sample of a block can be
     a few microseconds later than its slot while the last is on time. A 10 ms batch is
     still one block of 10 (it once waited for a second block, doubling the latency)."""
-    from common.samples import SampleBlock
-    from controller.config import PublisherConfig
-    from controller.telemetry.fanout import Telemetry
+    from fluidsense.common.samples import SampleBlock
+    from fluidsense.controller.config import PublisherConfig
+    from fluidsense.controller.telemetry.fanout import Telemetry
 
     sent = []
 

@@ -18,16 +18,24 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from nidaqmx.constants import AcquisitionType, LineGrouping, OverwriteMode, TerminalConfiguration
+from fluidsense.common.errors import (
+    ConfigError,
+    DeviceTimeoutError,
+    LinkLostError,
+    SafetyError,
+)
+from fluidsense.controller.config import load_cell_config
+from fluidsense.drivers.daqmx.backend import BufferOverflowError, build
+from nidaqmx.constants import (
+    AcquisitionType,
+    LineGrouping,
+    OverwriteMode,
+    TerminalConfiguration,
+)
 from nidaqmx.error_codes import DAQmxErrors
 from nidaqmx.errors import DaqNotFoundError
-
-from common.errors import ConfigError, DeviceTimeoutError, LinkLostError, SafetyError
-from controller.config import load_cell_config
-from drivers.daqmx.backend import BufferOverflowError, build
-
-from .conftest import CONFIG, REPO
-from .daqmx_fake import FakeRig, daq_error
+from support.daqmx_fake import FakeRig, daq_error
+from support.harness import CONFIG, REPO
 
 EXAMPLE = CONFIG / "cell-nidaqmx.yaml"
 
@@ -76,7 +84,7 @@ def test_a_config_the_driver_cannot_use_is_refused_at_load(tmp_path, driver, fie
 
 def test_the_cli_refuses_a_bad_nidaqmx_config_with_one_line_and_exit_2(tmp_path):
     path = _config(tmp_path, rate_hz=0)
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "run", "--config", str(path)], cwd=REPO,
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "run", "--config", str(path)], cwd=REPO,
                          capture_output=True, text=True, timeout=60, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     assert out.returncode == 2, out.stderr
     assert f"{path}: driver.rate_hz:" in out.stderr and "Traceback" not in out.stderr

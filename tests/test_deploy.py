@@ -13,12 +13,15 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
-
-from controller.config import load_cell_config
-from controller.telemetry.replay import replay_file
-from fluidsense.notify import LoopWatchdog, Notifier, keep_alive, watchdog_interval
-
-from .conftest import REPO, run, sim_config
+from fluidsense.controller.config import load_cell_config
+from fluidsense.controller.telemetry.replay import replay_file
+from fluidsense.daemon.notify import (
+    LoopWatchdog,
+    Notifier,
+    keep_alive,
+    watchdog_interval,
+)
+from support.harness import REPO, run, sim_config
 
 UNIT = REPO / "config" / "systemd" / "fluidsense.service"
 UNIT_CONFIG = REPO / "config" / "systemd" / "cell.yaml"
@@ -287,7 +290,7 @@ def test_a_daemon_started_before_the_robot_is_connecting_then_ready_when_it_come
     """The robot PC boots before the robot (or the cable is out): the daemon binds its
     sockets, answers status with 'connecting' and why, tells systemd what it waits for,
     and reports READY only once the box is there and samples flow."""
-    from .conftest import Daemon, free_simcell
+    from support.harness import Daemon, free_simcell
 
     sock = notify_socket(tmp_path / "notify")
     quick = {"arm": None, "reconnect": {"first_s": 0.2, "max_s": 0.5, "connect_timeout_s": 5.0}}
@@ -317,7 +320,7 @@ def test_a_daemon_started_before_the_robot_is_connecting_then_ready_when_it_come
 def test_sigterm_while_connecting_exits_0(tmp_path):
     """Stopping a daemon that is still waiting for its robot: the attempt in progress is
     abandoned (Python 3.11's wait_for could swallow that cancel and retry for ever)."""
-    from .conftest import Daemon, free_simcell
+    from support.harness import Daemon, free_simcell
 
     quick = {"arm": None, "reconnect": {"first_s": 0.05, "max_s": 0.1, "connect_timeout_s": 5.0}}
     with free_simcell(tmp_path, "modbus", profile="sorting-gripper-quick.yaml", driver=quick) as (box, cell):

@@ -21,16 +21,14 @@ import time
 import numpy as np
 import pytest
 import yaml
-
-from common.errors import ConfigError, DriverError, SafetyError
-from common.wiring import Linear, Mpx, Ratiometric, RegulatorWiring
-from controller.config import load_cell_config
-from controller.service import Controller
-from drivers.config import build_backend
-from simulator.controlbox.model import AnalogDomain
-from simulator.controlbox.plant import PlantModel
-
-from .conftest import CONFIG, REPO, Daemon, free_simcell, write_cell
+from fluidsense.common.errors import ConfigError, DriverError, SafetyError
+from fluidsense.common.wiring import Linear, Mpx, Ratiometric, RegulatorWiring
+from fluidsense.controller.config import load_cell_config
+from fluidsense.controller.service import Controller
+from fluidsense.drivers.config import build_backend
+from fluidsense.simulator.controlbox.model import AnalogDomain
+from fluidsense.simulator.controlbox.plant import PlantModel
+from support.harness import CONFIG, REPO, Daemon, free_simcell, write_cell
 
 KINDS = ["ur", "modbus"]
 
@@ -128,7 +126,7 @@ def test_a_modbus_config_asking_more_than_the_boxs_refresh_is_refused(tmp_path):
     assert load_cell_config(write_cell(tmp_path, data)).driver.rate_hz == 125
     data["driver"].update(rate_hz=1000, controller="io-module")
     assert load_cell_config(write_cell(tmp_path, data)).driver.rate_hz == 1000
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "run", "--config", str(path)], cwd=REPO,
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "run", "--config", str(path)], cwd=REPO,
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and f"{path}: driver.rate_hz: 1000 Hz" in out.stderr and "Traceback" not in out.stderr
 
@@ -146,7 +144,7 @@ def test_wiring_that_does_not_match_the_profile_is_refused(tmp_path):
 
 
 def test_simcell_refuses_a_config_without_a_control_box():
-    res = subprocess.run([sys.executable, "-m", "fluidsense.cli", "simcell", "--config", str(CONFIG / "cell-sim.yaml")],
+    res = subprocess.run([sys.executable, "-m", "fluidsense", "simcell", "--config", str(CONFIG / "cell-sim.yaml")],
                          capture_output=True, text=True, timeout=60, cwd=REPO)
     assert res.returncode == 2
     assert "driver.kind" in res.stderr and "'sim'" in res.stderr
@@ -252,7 +250,7 @@ def test_a_modbus_request_cancelled_in_flight_does_not_take_the_next_ones_reply(
     reply arrived while the safe-state write waited for its own, pymodbus refused both
     ('request ask for transaction_id=11 but got id=10') and the vent after a Ctrl-C failed.
     The box is frozen (SIGSTOP) so that the first reply is late for certain."""
-    from drivers.modbus.backend import ModbusConnection
+    from fluidsense.drivers.modbus.backend import ModbusConnection
 
     with free_simcell(tmp_path, "modbus") as (box, cell):
         cfg = load_cell_config(cell).driver
@@ -303,7 +301,7 @@ def test_link_loss_is_a_fault_and_the_driver_reconnects_on_one_clock(kind, no_da
                 t_kill = ctrl.now
                 await _until(lambda: ctrl.fault is not None, 10, "a fault")
                 assert ctrl.fault.kind in ("link_lost", "no_data")
-                assert ctrl.fault.t >= t_kill  # how soon: fluidsense bench faults (box scenarios)
+                assert ctrl.fault.t >= t_kill  # how soon: python -m lab bench faults (box scenarios)
                 box.start(timeout_s=30)
                 missed_before = ctrl.loop.missed
                 await _until(lambda: ctrl.now > t_kill + 3.0 and ctrl.loop.missed > missed_before, 60, "reconnection")
@@ -331,7 +329,7 @@ async def _until(predicate, timeout_s: float, what: str) -> None:
 @pytest.fixture
 def busy_machine():
     """Two processes that keep both CPUs busy at normal priority, as a robot PC's motion
-    stack and GUI do (fluidsense bench tasks measures the same at full scale)."""
+    stack and GUI do (python -m lab bench tasks measures the same at full scale)."""
     burners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
     yield
     for b in burners:
@@ -347,7 +345,7 @@ def test_sorting_task_through_both_drivers_at_once_on_a_busy_machine(tmp_path, b
     faulted on overrun or no_data.) At the suite's scale: the ur and the Modbus runs at
     the same time (each is a load on the other as well), two cylinders each, the smaller
     first, so each run also shifts the placed one along to make room (four grips, against
-    seven for the README's four); `fluidsense bench tasks --load 2` runs all four, one
+    seven for the README's four); `python -m lab bench tasks --load 2` runs all four, one
     driver at a time, ten times per driver."""
     with contextlib.ExitStack() as stack:
         runs = {}
@@ -358,7 +356,7 @@ def test_sorting_task_through_both_drivers_at_once_on_a_busy_machine(tmp_path, b
             task_file = tmp_path / f"sorting-{kind}.yaml"
             task_file.write_text(yaml.safe_dump(task))
             runs[kind] = stack.enter_context(subprocess.Popen(
-                [sys.executable, "-m", "fluidsense.cli", "task", "run", str(task_file), "--order", "40,100", "--json"],
+                [sys.executable, "-m", "fluidsense", "task", "run", str(task_file), "--order", "40,100", "--json"],
                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO))
         for kind, proc in runs.items():
             out, err = proc.communicate(timeout=600)
@@ -406,7 +404,7 @@ def test_a_sampler_that_dies_mid_cycle_is_a_fault_vented_through_the_link_still_
         try:
             daemon.wait_welcome()
             _inflate(daemon, box)
-            (sampler,) = _child_pids(daemon.proc.pid, "drivers.sampler.process")
+            (sampler,) = _child_pids(daemon.proc.pid, "fluidsense.drivers.sampler.process")
             os.kill(sampler, signal.SIGKILL)
             _, fault = daemon.next_message("fault", timeout_s=30)
             assert fault["kind"] == "link_lost" and "sampler" in fault["detail"], fault

@@ -5,15 +5,19 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from common.hardware import BendingActuator, GripperActuator, Hardware, TankCircuit
-from common.scenes import CylinderScene, EmptyScene, PlateScene
-from common.units import KPA, LITRE, P_ATM
-from simulator.actuators import volume_law
-from simulator.equilibrium import equilibrium
-from simulator.gas import Network, Pipe, VolumeLaw
-from simulator.plant import Plant
-from simulator.timing import step_response, window_mean
+from fluidsense.common.hardware import (
+    BendingActuator,
+    GripperActuator,
+    Hardware,
+    TankCircuit,
+)
+from fluidsense.common.scenes import CylinderScene, EmptyScene, PlateScene
+from fluidsense.common.units import KPA, LITRE, P_ATM
+from fluidsense.simulator.actuators import volume_law
+from fluidsense.simulator.equilibrium import equilibrium
+from fluidsense.simulator.gas import Network, Pipe, VolumeLaw
+from fluidsense.simulator.plant import Plant
+from fluidsense.simulator.timing import step_response, window_mean
 
 
 def _bending(resistor: float, response_s: float = 0.05) -> Hardware:
@@ -82,8 +86,8 @@ def test_a_window_before_contact_cannot_separate_objects_after_contact_it_can():
 
 
 def test_timing_section_is_a_ledger_and_keeps_its_disagreements(tmp_path):
-    from fluidsense.report.common import ledger_counts
-    from fluidsense.report.sections.timing import timing
+    from lab.report.common import ledger_counts
+    from lab.report.sections.timing import timing
 
     sec = timing(tmp_path, 1)
     rows = {r["quantity"]: r for r in sec.rows}
@@ -107,7 +111,7 @@ def test_timing_section_is_a_ledger_and_keeps_its_disagreements(tmp_path):
 
 
 def test_a_row_must_say_what_kind_it_is():
-    from fluidsense.report.common import Section
+    from lab.report.common import Section
 
     sec = Section("x", "x")
     with pytest.raises(ValueError, match="kind"):

@@ -12,11 +12,9 @@ import sys
 
 import pytest
 import yaml
-
 from fluidsense.client import Gripper
-
-from .conftest import REPO, Daemon, free_simcell
-from .test_gripper import drain
+from support.gripper import drain
+from support.harness import REPO, Daemon, free_simcell
 
 EXAMPLES = REPO / "examples"
 sys.path.insert(0, str(EXAMPLES))

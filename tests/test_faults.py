@@ -5,20 +5,19 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from fluidsense.common.errors import FaultError
+from fluidsense.common.samples import SampleBlock
+from fluidsense.common.scenes import CylinderScene
+from fluidsense.controller.config import load_profile
+from fluidsense.controller.safety.supervisor import Supervisor
+from support.harness import CONFIG, run
 
-from common.errors import FaultError
-from common.samples import SampleBlock
-from common.scenes import CylinderScene
-from controller.config import load_profile
-from controller.safety.supervisor import Supervisor
-from fluidsense.bench import faults as bench
-
-from .conftest import CONFIG, run
+from lab.bench import faults as bench
 
 
 def _cell():
-    from controller.service import Controller
-    from drivers.config import build_backend
+    from fluidsense.controller.service import Controller
+    from fluidsense.drivers.config import build_backend
 
     cfg = bench._cfg(seed=3)
     return Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware))
@@ -105,8 +104,8 @@ def test_a_stalled_loop_is_an_overrun_vented_at_once_and_latched_once_and_the_co
     import asyncio
     import time
 
-    from controller.service import Controller, Sink
-    from drivers.config import build_backend
+    from fluidsense.controller.service import Controller, Sink
+    from fluidsense.drivers.config import build_backend
 
     class Stall(Sink):
         at: float | None = None

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from controller.cycles import features as F
+from fluidsense.controller.cycles import features as F
 
 FS = 1000.0
 

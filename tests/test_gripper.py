@@ -11,12 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-
-from controller.commands.grip_watch import SlipWatch
 from fluidsense.client import AsyncGripper, GripEnded, Gripper, Refused
-
-from .conftest import REPO, sim_config
-from .test_zmq import check
+from fluidsense.controller.commands.grip_watch import SlipWatch
+from support.gripper import grip_a_60_mm_cylinder, slip_to_40_mm
+from support.harness import REPO, sim_config
 
 CALIBRATION = REPO / "config" / "calibrations" / "pneunet-gripper-p_eq.json"
 
@@ -29,48 +27,10 @@ def gripper_config(tmp_path, calibrated: bool = True, **gripper):
     return path
 
 
-def drain(g: Gripper, until: str, cycle_id: int) -> list:
-    """Events up to and including ``until`` of the cycle, each checked against the document;
-    when ``until`` does not come, the failure says the daemon's last grasp and fault."""
-    seen = []
-    while True:
-        ev = g.next_event(60)
-        if ev is None:
-            status = g.status()
-            raise AssertionError(f"no {until} of cycle {cycle_id}; got {[e.topic for e in seen]}; last grasp: "
-                                 f"{status.get('last_grasp')}; fault: {status.get('fault')}")
-        check(ev.topic, ev.data)
-        seen.append(ev)
-        if ev.topic == until and ev.data["cycle_id"] == cycle_id:
-            return seen
 
 
-def grip_a_60_mm_cylinder(g: Gripper, t_c_max_s: float) -> int:
-    """A free-air reference, then a grip on a 60 mm cylinder: contact within ``t_c_max_s``,
-    then the grasp, sized within 2 mm, and the gripper holding. Returns the grip's cycle."""
-    drain(g, "released", g.measure(store_reference=True, wait=False))
-    g.scene({"kind": "cylinder", "diameter_mm": 60})
-    cycle = g.grip(wait=False)
-    events = drain(g, "grasp", cycle)
-    assert [e.topic for e in events] == ["contact", "grasp"]
-    contact, grasp = events
-    assert 0 < contact.data["t_c_s"] < t_c_max_s and contact.data["at_s"] < grasp.data["at_s"]
-    assert grasp.data["object"] is True and grasp.data["in_range"] is True
-    (est,) = grasp.data["estimates"]
-    assert est["quantity"] == "diameter" and est["status"] == "ok"
-    assert est["value_mm"] == pytest.approx(60, abs=2) and est["lo_mm"] < 60 < est["hi_mm"]
-    status = g.status()
-    assert status["holding"] is True and status["object"] is True and status["state"] == "hold"
-    return cycle
 
 
-def slip_to_40_mm(g: Gripper, cycle: int) -> None:
-    """The held object slips to a thinner part between the fingers: one slip, still an
-    object, the new size."""
-    g.scene({"kind": "cylinder", "diameter_mm": 40})
-    (slip,) = [e for e in drain(g, "slip", cycle) if e.topic == "slip"]
-    assert slip.data["drop_kpa"] > 0.5 and slip.data["object"] is True, (slip.data["p_kpa"], slip.data["estimates"])
-    assert slip.data["estimates"][0]["value_mm"] == pytest.approx(40, abs=3), (slip.data["p_kpa"], slip.data["estimates"])
 
 
 def _slip_blocks(tau_s: float, stall_s: float, seed: int):
@@ -222,7 +182,7 @@ def test_a_calibration_of_another_profile_stops_the_daemon_before_it_starts(tmp_
     data = yaml.safe_load(path.read_text())
     data["gripper"]["calibrations"] = ["other.json"]  # relative to the cell config
     path.write_text(yaml.safe_dump(data))
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "run", "--config", str(path)], cwd=REPO,
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "run", "--config", str(path)], cwd=REPO,
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "Traceback" not in out.stderr
     assert f"{path}: gripper.calibrations.0: " in out.stderr and "calibrates profile 'sorting-gripper'" in out.stderr

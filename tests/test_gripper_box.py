@@ -14,11 +14,9 @@ from __future__ import annotations
 
 import pytest
 import yaml
-
 from fluidsense.client import Gripper
-
-from .conftest import CONFIG, Daemon, free_simcell
-from .test_gripper import grip_a_60_mm_cylinder, slip_to_40_mm
+from support.gripper import grip_a_60_mm_cylinder, slip_to_40_mm
+from support.harness import CONFIG, Daemon, free_simcell
 
 GRIPPER_CELL = yaml.safe_load((CONFIG / "cell-gripper-modbus-sim.yaml").read_text())
 # the ur-rtde driver on the same box wiring (arm and box watchdog through ur_rtde's script)

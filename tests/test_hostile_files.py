@@ -21,19 +21,18 @@ from pathlib import Path
 
 import pytest
 import yaml
-from hypothesis import HealthCheck, given, settings
-
-from common.errors import ConfigError
-from common.files import YAML_MAX_BYTES
-from common.models import StrictModel
-from controller.config import load_cell_config, load_profile, validate
-from controller.config.yamlfile import MAX_DEPTH, MAX_NODES
-from controller.sensing.calibration import MAX_FILE_BYTES, Calibration
 from fluidsense import cli
-from fluidsense.bench import fuzz_files
-from tasks.config import SortingTask, load_task
+from fluidsense.common.errors import ConfigError
+from fluidsense.common.files import YAML_MAX_BYTES
+from fluidsense.common.models import StrictModel
+from fluidsense.controller.config import load_cell_config, load_profile, validate
+from fluidsense.controller.config.yamlfile import MAX_DEPTH, MAX_NODES
+from fluidsense.controller.sensing.calibration import MAX_FILE_BYTES, Calibration
+from fluidsense.tasks.config import SortingTask, load_task
+from hypothesis import HealthCheck, given, settings
+from support.harness import CONFIG, REPO, sim_config
 
-from .conftest import CONFIG, REPO, sim_config
+from lab.bench import fuzz_files
 
 
 def cell_data(tmp_path: Path) -> dict:
@@ -57,7 +56,7 @@ def refused(load, path: Path) -> str:
 
 def fluidsense(*args: str, cwd: Path = REPO, timeout: float = 60) -> subprocess.CompletedProcess:
     """The real CLI in a subprocess; a hang fails the test through the timeout."""
-    return subprocess.run([sys.executable, "-m", "fluidsense.cli", *args], cwd=cwd, capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "fluidsense", *args], cwd=cwd, capture_output=True, text=True,
                           timeout=timeout)
 
 
@@ -248,9 +247,9 @@ def test_a_date_shaped_name_stays_a_string(tmp_path):
     assert load_profile(path).name == "2024-13-45"
 
 
-FILE_MODULES = ["common.hardware", "common.scenes", "common.world", "drivers.config", "drivers.sampler.config",
-                "drivers.io", "common.wiring", "drivers.ur.config", "drivers.modbus.config", "controller.config",
-                "controller.sensing.calibration", "tasks.config"]
+FILE_MODULES = ["fluidsense.common.hardware", "fluidsense.common.scenes", "fluidsense.common.world", "fluidsense.drivers.config", "fluidsense.drivers.sampler.config",
+                "fluidsense.drivers.io", "fluidsense.common.wiring", "fluidsense.drivers.ur.config", "fluidsense.drivers.modbus.config", "fluidsense.controller.config",
+                "fluidsense.controller.sensing.calibration", "fluidsense.tasks.config"]
 
 
 def _numbers(schema) -> list[dict]:
@@ -397,7 +396,7 @@ def test_help_shows_the_exit_codes():
 def test_the_cli_maps_errors_to_exit_codes(monkeypatch, capsys, raised, code):
     """The command is replaced by one that raises (a mock of a command, not of the
     mapping under test): the exit code comes from fluidsense.cli alone."""
-    import fluidsense.commands.replay as replay_command
+    import fluidsense.cli.subcommands.replay as replay_command
 
     def fail(args):
         raise raised

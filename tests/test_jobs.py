@@ -11,16 +11,14 @@ import sys
 
 import pytest
 import yaml
-
-from common.errors import CommandError, ConfigError, JobStopped
-from common.scenes import CylinderScene
-from controller.config import CellConfig, load_profile
-from drivers.config import SimDriverConfig
-from fluidsense import app
-from tasks.calibrate import calibrate
-from tasks.journal import CycleJournal, journal_path
-
-from .conftest import CONFIG, REPO, free_simcell, write_cell
+from fluidsense.common.errors import CommandError, ConfigError, JobStopped
+from fluidsense.common.scenes import CylinderScene
+from fluidsense.controller.config import CellConfig, load_profile
+from fluidsense.daemon import app
+from fluidsense.drivers.config import SimDriverConfig
+from fluidsense.tasks.calibrate import calibrate
+from fluidsense.tasks.journal import CycleJournal, journal_path
+from support.harness import CONFIG, REPO, free_simcell, write_cell
 
 
 def _cell(seed: int = 2) -> CellConfig:
@@ -88,8 +86,8 @@ def test_a_journal_cut_off_mid_line_resumes_from_the_last_whole_cycle(tmp_path):
 
 
 def test_a_task_stopped_by_a_fault_reports_it_with_what_it_did():
-    from tasks.config import load_task
-    from tasks.runner import run_task
+    from fluidsense.tasks.config import load_task
+    from fluidsense.tasks.runner import run_task
 
     task = load_task(CONFIG / "tasks" / "sorting.yaml")
     cfg = _cell()
@@ -124,7 +122,7 @@ def test_a_task_run_stopped_by_a_fault_exits_4_with_the_partial_summary(tmp_path
         task.update(cell=str(cell), motion={"speed_m_s": 1.0, "acc_m_s2": 3.0, "approach_m": 0.05})
         task_file = tmp_path / "sorting.yaml"
         task_file.write_text(yaml.safe_dump(task))
-        run = subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "task", "run", str(task_file),
+        run = subprocess.Popen([sys.executable, "-m", "fluidsense", "task", "run", str(task_file),
                                 "--order", "60,100,80,40", "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                text=True, cwd=REPO)
         box.wait_for(lambda s: s["digital_outputs"] & 0b10, 120, "the first grip")
@@ -142,7 +140,7 @@ def test_calibrating_a_real_cell_without_a_terminal_is_refused_before_anything_s
     data["driver"]["host"] = "127.0.0.254"  # nothing there: the refusal must come first
     data["profile"] = str(CONFIG / "profiles" / "sorting-gripper.yaml")
     cell = write_cell(tmp_path, data)
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "calibrate", "--config", str(cell),
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "calibrate", "--config", str(cell),
                           "--out", str(tmp_path / "cal.json")], stdin=subprocess.DEVNULL, capture_output=True,
                          text=True, timeout=60, cwd=REPO)
     assert out.returncode == 2
@@ -151,7 +149,7 @@ def test_calibrating_a_real_cell_without_a_terminal_is_refused_before_anything_s
 
 
 def test_the_operator_is_asked_in_words_and_a_scripted_run_must_name_each_target(tmp_path):
-    from fluidsense.commands.calibrate import Operator, place_text
+    from fluidsense.cli.subcommands.calibrate import Operator, place_text
 
     assert place_text(CylinderScene(diameter_mm=40)) == "place the 40 mm cylinder between the fingers"
     lines = tmp_path / "placed.txt"
@@ -171,7 +169,7 @@ def test_calibrate_cli_keeps_its_journal_and_resumes(tmp_path):
     """The CLI end to end on the simulated cell: a finished run leaves its journal; a
     second run refuses to overwrite it; --resume with nothing left to run fits at once."""
     out = tmp_path / "cal.json"
-    base = [sys.executable, "-m", "fluidsense.cli", "calibrate", "--profile", "sorting-gripper-quick",
+    base = [sys.executable, "-m", "fluidsense", "calibrate", "--profile", "sorting-gripper-quick",
             "--scene", "cylinder", "--set", "diameter_mm=40", "--target", "diameter_mm", "--values", "40,60,80", "--cycles", "2",
             "--drop-first", "1", "--out", str(out), "--json"]
     first = subprocess.run(base, capture_output=True, text=True, timeout=300, cwd=REPO)

@@ -11,13 +11,11 @@ import struct
 import numpy as np
 import pytest
 import yaml
+from fluidsense.controller.telemetry.live import parse_listen
+from fluidsense.controller.telemetry.live_bridge import LIVE_TOPICS
+from fluidsense.drivers.recording_schema import event_schema
+from support.harness import Daemon, sim_config
 from websockets.sync.client import connect
-
-from controller.telemetry.live import parse_listen
-from controller.telemetry.live_bridge import LIVE_TOPICS
-from drivers.recording_schema import event_schema
-
-from .conftest import Daemon, sim_config
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 MESSAGE_DATA = 0x01

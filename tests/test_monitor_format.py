@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import pytest
-
-from fluidsense.monitor import format_message
+from fluidsense.cli.monitor import format_message
 
 
 @pytest.mark.parametrize(("vented", "word"), [(True, "(vented)"), (False, "(NOT VENTED)"),

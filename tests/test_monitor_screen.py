@@ -12,9 +12,8 @@ import subprocess
 import sys
 import time
 
-from fluidsense.screen import View, render, sparkline
-
-from .conftest import REPO, sim_config
+from fluidsense.cli.screen import View, render, sparkline
+from support.harness import REPO, sim_config
 
 ANSI = re.compile(r"\x1b\[[0-9;]*[A-Za-z]")
 
@@ -47,7 +46,7 @@ def test_monitor_in_a_terminal_shows_state_pressure_and_the_last_result(tmp_path
     d = daemon_factory(cfg)
     d.wait_welcome()
     master, slave = pty.openpty()
-    mon = subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "monitor", "--config", str(cfg)], cwd=REPO,
+    mon = subprocess.Popen([sys.executable, "-m", "fluidsense", "monitor", "--config", str(cfg)], cwd=REPO,
                            stdin=slave, stdout=slave, stderr=subprocess.PIPE, env={**os.environ, "TERM": "xterm"})
     os.close(slave)
     raw = ""
@@ -78,11 +77,11 @@ def test_monitor_in_a_terminal_shows_state_pressure_and_the_last_result(tmp_path
 
 def test_cmd_and_monitor_name_the_endpoint_when_nothing_answers(tmp_path):
     nobody = f"ipc://{tmp_path}/nobody"
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "cmd", "status", "--endpoint", nobody,
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "cmd", "status", "--endpoint", nobody,
                           "--timeout", "0.2"], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert out.returncode == 3
     assert nobody in out.stderr and "may not be running" in out.stderr and "Traceback" not in out.stderr
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "monitor", "--log", "--endpoint", nobody,
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "monitor", "--log", "--endpoint", nobody,
                           "--timeout", "0.2"], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert out.returncode == 1
     assert nobody in out.stderr and "may not be running" in out.stderr

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from common.hardware import GripperActuator, LinearActuator
-from common.scenes import CylinderScene, EmptyScene, WallScene
-from common.units import KPA, LITRE, ML, P_ATM
-from simulator.actuators import volume_law
-from simulator.equilibrium import eq10_pressure, eq11_resolution
-from simulator.gas import ATMOSPHERE, Network, Pipe, VolumeLaw
-from simulator.plant import Plant
+from fluidsense.common.hardware import GripperActuator, LinearActuator
+from fluidsense.common.scenes import CylinderScene, EmptyScene, WallScene
+from fluidsense.common.units import KPA, LITRE, ML, P_ATM
+from fluidsense.simulator.actuators import volume_law
+from fluidsense.simulator.equilibrium import eq10_pressure, eq11_resolution
+from fluidsense.simulator.gas import ATMOSPHERE, Network, Pipe, VolumeLaw
+from fluidsense.simulator.plant import Plant
 
 
 def tank_and_actuator(law: VolumeLaw, v_tank: float, p0_gauge: float, r: float = 1e8) -> Plant:

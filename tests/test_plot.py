@@ -8,13 +8,11 @@ import sys
 
 import numpy as np
 import pytest
-
-from common.scenes import CylinderScene
-from drivers.recording import RecordingReader
-from fluidsense.plot import plot_cycles, read_cycles
-
-from .conftest import REPO
-from .test_recording import record, the_file
+from fluidsense.cli.plot import plot_cycles, read_cycles
+from fluidsense.common.scenes import CylinderScene
+from fluidsense.drivers.recording import RecordingReader
+from support.harness import REPO
+from support.recording import record, the_file
 
 
 @pytest.fixture(scope="module")
@@ -64,12 +62,12 @@ def test_the_plotted_data_are_the_recordings(recorded, tmp_path):
 
 def test_plot_command_one_cycle_and_a_missing_one(recorded, tmp_path):
     out = tmp_path / "c2.png"
-    ok = subprocess.run([sys.executable, "-m", "fluidsense.cli", "plot", str(recorded), "--cycle", "2", "--out",
+    ok = subprocess.run([sys.executable, "-m", "fluidsense", "plot", str(recorded), "--cycle", "2", "--out",
                          str(out)], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert ok.returncode == 0 and out.stat().st_size > 1000, ok.stderr
-    bad = subprocess.run([sys.executable, "-m", "fluidsense.cli", "plot", str(recorded), "--cycle", "9", "--out",
+    bad = subprocess.run([sys.executable, "-m", "fluidsense", "plot", str(recorded), "--cycle", "9", "--out",
                           str(tmp_path / "x.png")], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and "no cycle 9" in bad.stderr and not (tmp_path / "x.png").exists()
-    notfile = subprocess.run([sys.executable, "-m", "fluidsense.cli", "plot", str(tmp_path / "none.mcap"), "--out",
+    notfile = subprocess.run([sys.executable, "-m", "fluidsense", "plot", str(tmp_path / "none.mcap"), "--out",
                               str(tmp_path / "y.png")], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert notfile.returncode == 2 and "Traceback" not in notfile.stderr

@@ -8,19 +8,17 @@ import asyncio
 
 import numpy as np
 import pytest
-
-from common.scenes import PlateScene
-from controller.config import SequenceConfig
-from controller.cycles import features as F
-from controller.cycles.sequencer import Sequencer, State
-
-from .conftest import CONFIG
+from fluidsense.common.scenes import PlateScene
+from fluidsense.controller.config import SequenceConfig
+from fluidsense.controller.cycles import features as F
+from fluidsense.controller.cycles.sequencer import Sequencer, State
+from support.harness import CONFIG
 
 
 def _run(profile: str, body, seed: int = 3, residual_kpa: float = 0.0, **sequence):
-    from controller.config import CellConfig, load_profile
-    from drivers.config import Perturbations, SimDriverConfig
-    from fluidsense import app
+    from fluidsense.controller.config import CellConfig, load_profile
+    from fluidsense.daemon import app
+    from fluidsense.drivers.config import Perturbations, SimDriverConfig
 
     prof = load_profile(CONFIG / "profiles" / f"{profile}.yaml")
     if sequence:

@@ -6,10 +6,9 @@ from __future__ import annotations
 import threading
 
 import pytest
-
-from common.errors import RecordingError
-from controller.telemetry.fanout import Sink
-from controller.telemetry.queued import QueuedSink
+from fluidsense.common.errors import RecordingError
+from fluidsense.controller.telemetry.fanout import Sink
+from fluidsense.controller.telemetry.queued import QueuedSink
 
 
 class Gate(Sink):

@@ -18,31 +18,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-
-from common.errors import ConfigError, EndOfRecording, RecordingError
-from common.scenes import CylinderScene, EmptyScene
-from controller.config import CellConfig, load_cell_config
-from controller.service import Sink
-from controller.telemetry.queued import QueuedSink
-from controller.telemetry.recording import new_path
-from controller.telemetry.replay import CycleReplay, comparable, replay_file
-from drivers.recording import RecordingReader, RecordingWriter
-from drivers.recording_schema import CONFIG, SAMPLES
-from fluidsense import app, cli
-
-from .conftest import PROFILE, REPO, sim_config
-from .test_zmq import fast_profile
-
-
-def cell(tmp_path: Path, **recording) -> CellConfig:
-    cfg = load_cell_config(sim_config(tmp_path, clock="virtual"))
-    return cfg.model_copy(update={"recording": cfg.recording.model_copy(update=recording)})
-
-
-def the_file(tmp_path: Path) -> Path:
-    files = sorted((tmp_path / "runs").glob("*.mcap"))
-    assert len(files) == 1, files
-    return files[0]
+from fluidsense import cli
+from fluidsense.common.errors import ConfigError, EndOfRecording, RecordingError
+from fluidsense.common.scenes import CylinderScene, EmptyScene
+from fluidsense.controller.config import CellConfig, load_cell_config
+from fluidsense.controller.service import Sink
+from fluidsense.controller.telemetry.queued import QueuedSink
+from fluidsense.controller.telemetry.recording import new_path
+from fluidsense.controller.telemetry.replay import CycleReplay, comparable, replay_file
+from fluidsense.daemon import app
+from fluidsense.drivers.recording import RecordingReader, RecordingWriter
+from fluidsense.drivers.recording_schema import CONFIG, SAMPLES
+from support.events import fast_profile
+from support.harness import PROFILE, REPO, sim_config
+from support.recording import cell, record, the_file
 
 
 async def varied_cycles(ctrl) -> list:
@@ -76,15 +65,6 @@ def recording_sink(ctrl) -> QueuedSink:
     return sink
 
 
-def record(tmp_path: Path, body, cfg: CellConfig | None = None, **recording):
-    """Run ``body(controller)`` on a virtual-time controller that records (as the daemon)."""
-    cfg = cfg or cell(tmp_path, **recording)
-
-    async def main():
-        async with app.controller(cfg, record=True) as ctrl:
-            return await body(ctrl)
-
-    return asyncio.run(main())
 
 
 @pytest.fixture(scope="module")
@@ -349,7 +329,7 @@ def _copy_with(src: Path, dst: Path, change) -> None:
 
 
 def test_cli_replay_json_and_exit_codes(tmp_path, good_file):
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "replay", str(good_file), "--json"], cwd=REPO,
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "replay", str(good_file), "--json"], cwd=REPO,
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout)
@@ -363,14 +343,14 @@ def test_cli_replay_json_and_exit_codes(tmp_path, good_file):
 
     tampered = tmp_path / "tampered.mcap"
     _copy_with(good_file, tampered, nudge)
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "replay", str(tampered)], cwd=REPO,
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "replay", str(tampered)], cwd=REPO,
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 1, out.stderr
     assert "differs in: p_eq_kpa" in out.stdout and "cycles [2] differ" in out.stdout
 
     garbled = tmp_path / "garbled.mcap"
     _flip(garbled, good_file)
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "replay", str(garbled)], cwd=REPO,
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "replay", str(garbled)], cwd=REPO,
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and out.stdout == ""
     assert len(out.stderr.splitlines()) == 1 and out.stderr.startswith(f"fluidsense: error: {garbled}: garbled")
@@ -461,7 +441,7 @@ def test_a_nearly_full_disk_stops_the_recording_and_says_so(tmp_path, monkeypatc
 
     async def body(ctrl):
         await ctrl.wait(5.0)
-        monkeypatch.setattr("controller.telemetry.recording.shutil.disk_usage",
+        monkeypatch.setattr("fluidsense.controller.telemetry.recording.shutil.disk_usage",
                             lambda p: real(p)._replace(free=10 * 2**20))
         await ctrl.run_cycle()
         return ctrl.telemetry.sinks
@@ -476,9 +456,9 @@ def test_a_nearly_full_disk_stops_the_recording_and_says_so(tmp_path, monkeypatc
 
 
 def test_run_record_and_no_record_flags(tmp_path, monkeypatch):
-    from fluidsense import app
     from fluidsense.cli import build_parser
-    from fluidsense.commands import run as run_cmd
+    from fluidsense.cli.subcommands import run as run_cmd
+    from fluidsense.daemon import app
 
     seen = []
 
@@ -529,7 +509,7 @@ def test_replay_driver_feeds_the_recorded_blocks_to_a_controller(tmp_path, good_
         assert got.seq == want.seq and np.array_equal(got.t, want.t) and np.array_equal(got.values, want.values)
 
     async def drain():
-        from drivers.replay import ReplaySource
+        from fluidsense.drivers.replay import ReplaySource
 
         async with ReplaySource(good_file) as src:
             n = 0
@@ -650,7 +630,7 @@ def _rewrite_samples(src: Path, dst: Path, change) -> None:
         w.write_config(reader.config, {})
         for rec in reader.records():
             if rec.topic == SAMPLES:
-                from drivers.recording import block_payload
+                from fluidsense.drivers.recording import block_payload
 
                 w._add(SAMPLES, rec.t_s, json.dumps(change(block_payload(rec.data))).encode(), {})
         w.close()
@@ -692,7 +672,7 @@ def test_deeply_nested_json_in_an_event_is_refused(tmp_path, good_file, depth, r
 def test_replay_refuses_a_fifo_or_a_directory_without_blocking(tmp_path, kind):
     path = tmp_path / "run.mcap"
     os.mkfifo(path) if kind == "fifo" else path.mkdir()
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "replay", str(path)], cwd=REPO,
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "replay", str(path)], cwd=REPO,
                          capture_output=True, text=True, timeout=30)
     assert out.returncode == 2 and out.stdout == ""
     assert out.stderr.splitlines() == [f"fluidsense: error: {path}: cannot read: not a regular file "
@@ -709,7 +689,7 @@ def test_cli_replay_of_a_bomb_exits_2_with_one_line_and_little_memory(tmp_path, 
     replaying the good file it was cut from."""
     path = tmp_path / "bomb.mcap"
     _with_chunk(path, good_file, BOMBS["zstd lie"][0]())
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "replay", str(path)], cwd=REPO,
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "replay", str(path)], cwd=REPO,
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and out.stdout == ""
     assert len(out.stderr.splitlines()) == 1 and out.stderr.startswith(f"fluidsense: error: {path}: garbled near byte")

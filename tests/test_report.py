@@ -1,14 +1,13 @@
-"""The committed reproduction report is what `fluidsense report` produces."""
+"""The committed reproduction report is what `python -m lab report` produces."""
 
 from __future__ import annotations
 
 import json
 
 import pytest
+from support.harness import REPO
 
-from fluidsense.report import generate
-
-from .conftest import REPO
+from lab.report import generate
 
 COMMITTED = REPO / "docs" / "reproduction"
 

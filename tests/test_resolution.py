@@ -8,17 +8,15 @@ import sys
 
 import numpy as np
 import pytest
-
-from common.hardware import GripperActuator, LinearActuator
-from common.scenes import CylinderScene, WallScene
-from common.units import KPA, LITRE, ML, P_ATM
-from simulator.actuators import volume_law
-from simulator.equilibrium import eq2_resolution, equilibrium
-from simulator.gas import Network, Pipe, VolumeLaw
-from simulator.plant import Plant
-from simulator.resolution import linear_sweep, resolution_at, search
-
-from .conftest import REPO
+from fluidsense.common.hardware import GripperActuator, LinearActuator
+from fluidsense.common.scenes import CylinderScene, WallScene
+from fluidsense.common.units import KPA, LITRE, ML, P_ATM
+from fluidsense.simulator.actuators import volume_law
+from fluidsense.simulator.equilibrium import eq2_resolution, equilibrium
+from fluidsense.simulator.gas import Network, Pipe, VolumeLaw
+from fluidsense.simulator.plant import Plant
+from fluidsense.simulator.resolution import linear_sweep, resolution_at, search
+from support.harness import REPO
 
 SWEEPS = {
     "l0_mm": np.linspace(20, 1500, 12),
@@ -82,7 +80,7 @@ def test_design_search_picks_the_best_feasible_and_the_plant_agrees():
 
 
 def test_design_command(tmp_path):
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "design", "--profile", "pneunet-gripper", "--json"],
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "design", "--profile", "pneunet-gripper", "--json"],
                          cwd=REPO, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     data = json.loads(out.stdout)
@@ -98,7 +96,7 @@ def test_design_for_a_requirement_takes_the_lowest_p0_that_meets_it_and_says_why
     import json as _json
 
     def design(*extra):
-        out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "design", "--profile", "pneunet-gripper",
+        out = subprocess.run([sys.executable, "-m", "fluidsense", "design", "--profile", "pneunet-gripper",
                               "--tanks", "0.1,0.3,1.0", "--json", *extra], cwd=REPO, capture_output=True,
                              text=True, timeout=120)
         return out.returncode, _json.loads(out.stdout)
@@ -111,6 +109,6 @@ def test_design_for_a_requirement_takes_the_lowest_p0_that_meets_it_and_says_why
     assert rc == 1 and tight["recommended"] is None and "noise" in tight["why_none"]
     rc, early = design("--resolution-mm", "4", "--decide-by-s", "0.05")
     assert rc == 1 and "settle" in early["why_none"]
-    bad = subprocess.run([sys.executable, "-m", "fluidsense.cli", "design", "--profile", "pneunet-gripper",
+    bad = subprocess.run([sys.executable, "-m", "fluidsense", "design", "--profile", "pneunet-gripper",
                           "--resolution-mm", "1"], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "together" in bad.stderr

@@ -8,13 +8,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from common.errors import ConfigError
-from common.units import KPA
-from controller.commands.grip_watch import ContactWatch
-from controller.config import SequenceConfig, validate
-from controller.cycles import features as F
-from controller.cycles.analysis import Reference, analyse
+from fluidsense.common.errors import ConfigError
+from fluidsense.common.units import KPA
+from fluidsense.controller.commands.grip_watch import ContactWatch
+from fluidsense.controller.config import SequenceConfig, validate
+from fluidsense.controller.cycles import features as F
+from fluidsense.controller.cycles.analysis import Reference, analyse
 
 FS = 500.0
 T_OPEN = 3.0

@@ -6,16 +6,14 @@ from __future__ import annotations
 import asyncio
 
 import pytest
-
-from common.errors import CommandError, FaultError
-from common.scenes import CylinderScene
-from controller.config import CellConfig, load_cell_config, load_profile
-from controller.cycles.sequencer import State
-from controller.service import Controller, Sink
-from controller.telemetry.publisher import NullPublisher
-from drivers.config import SimDriverConfig, build_backend
-
-from .conftest import CONFIG, sim_config
+from fluidsense.common.errors import CommandError, FaultError
+from fluidsense.common.scenes import CylinderScene
+from fluidsense.controller.config import CellConfig, load_cell_config, load_profile
+from fluidsense.controller.cycles.sequencer import State
+from fluidsense.controller.service import Controller, Sink
+from fluidsense.controller.telemetry.publisher import NullPublisher
+from fluidsense.drivers.config import SimDriverConfig, build_backend
+from support.harness import CONFIG, sim_config
 
 #: a hang fails the test instead of the suite; nothing below waits on wall time otherwise
 HANG_S = 60.0
@@ -139,7 +137,7 @@ def test_a_failing_command_handler_vents_and_answers_with_the_reason():
         cfg = _cfg()
         ctrl = Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware), Probe())
         async with ctrl:
-            from controller.commands.server import SceneCmd
+            from fluidsense.controller.commands.server import SceneCmd
 
             async def broken(scene, t):
                 raise Boom("injected in the scene device")
@@ -182,8 +180,8 @@ def _daemon_cfg(tmp_path) -> CellConfig:
 def test_a_sample_loop_that_dies_stops_the_daemon_vented_with_status_1(tmp_path, monkeypatch):
     """The loop's own guard fails too (the latch itself raises): the loop task ends, and
     the daemon must notice, vent on the way out and exit 1 for systemd to restart it."""
-    from controller.safety.latch import SafetyLatch
-    from fluidsense import app
+    from fluidsense.controller.safety.latch import SafetyLatch
+    from fluidsense.daemon import app
 
     built = {}
 
@@ -210,8 +208,8 @@ def test_a_sample_loop_that_dies_stops_the_daemon_vented_with_status_1(tmp_path,
 
 
 def test_a_command_socket_that_dies_stops_the_daemon_with_status_1(tmp_path, monkeypatch):
-    from controller.commands.server import CommandServer
-    from fluidsense import app
+    from fluidsense.controller.commands.server import CommandServer
+    from fluidsense.daemon import app
 
     async def broken_serve(self):
         await asyncio.sleep(0)
@@ -231,7 +229,7 @@ def test_sigterm_ends_the_daemon_vented_in_every_state(state, tmp_path, monkeypa
     import signal
     import time as _time
 
-    from fluidsense import app
+    from fluidsense.daemon import app
 
     built = {}
 

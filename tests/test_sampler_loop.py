@@ -8,14 +8,13 @@ import errno
 import logging
 
 import pytest
+from fluidsense.common.errors import ConfigError
+from fluidsense.drivers.sampler import realtime
+from fluidsense.drivers.sampler.loop import Block, SlotLoop, SpinClock
+from fluidsense.drivers.sampler.poller import NoNewSample
+from fluidsense.drivers.sampler.synthetic import SyntheticPoller
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from common.errors import ConfigError
-from drivers.sampler import realtime
-from drivers.sampler.loop import Block, SlotLoop, SpinClock
-from drivers.sampler.poller import NoNewSample
-from drivers.sampler.synthetic import SyntheticPoller
 
 P = 1_000_000  # ns: 1 kHz
 T0 = 5_000_000_000
@@ -322,7 +321,7 @@ def test_a_refused_setting_logs_one_line_saying_what_and_why(monkeypatch, caplog
     monkeypatch.setattr(realtime.os, "sched_setscheduler", refuse)
     monkeypatch.setattr(realtime.os, "sched_setaffinity", refuse)
     monkeypatch.setattr(realtime, "freeze_gc", lambda: realtime._result(True, "skipped in this test"))
-    with caplog.at_level(logging.WARNING, logger="drivers.sampler.realtime"):
+    with caplog.at_level(logging.WARNING, logger="fluidsense.drivers.sampler.realtime"):
         report = realtime.apply(40, "auto")
     assert not report["sched_fifo"]["applied"] and not report["affinity"]["applied"]
     lines = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
@@ -334,7 +333,7 @@ def test_a_refused_setting_logs_one_line_saying_what_and_why(monkeypatch, caplog
 
 def test_settings_not_requested_are_not_warned_about(caplog, monkeypatch):
     monkeypatch.setattr(realtime, "freeze_gc", lambda: realtime._result(True, "skipped in this test"))
-    with caplog.at_level(logging.WARNING, logger="drivers.sampler.realtime"):
+    with caplog.at_level(logging.WARNING, logger="fluidsense.drivers.sampler.realtime"):
         report = realtime.apply(None, "none")
     assert report["sched_fifo"] == {"applied": False, "requested": False,
                                     "detail": "not requested (rt_priority: null)"}
@@ -342,9 +341,9 @@ def test_settings_not_requested_are_not_warned_about(caplog, monkeypatch):
 
 
 def test_probe_checks_a_poller_in_this_process():
-    from drivers.sampler.poller import probe
+    from fluidsense.drivers.sampler.poller import probe
 
-    spec = "drivers.sampler.synthetic:SyntheticPoller"
+    spec = "fluidsense.drivers.sampler.synthetic:SyntheticPoller"
     rows = probe(spec, {"channels": 2}, 2, reads=3)
     assert rows == [SyntheticPoller(channels=2).expected(n) for n in range(3)]
     with pytest.raises(ConfigError, match="returned 2 values for 3 channel"):

@@ -16,14 +16,12 @@ import time
 import numpy as np
 import pydantic
 import pytest
+from fluidsense.common.errors import ConfigError, DriverError, LinkLostError
+from fluidsense.drivers.sampler import SampledSource, SamplerConfig
+from fluidsense.drivers.sampler.synthetic import SyntheticPoller
+from support.harness import REPO
 
-from common.errors import ConfigError, DriverError, LinkLostError
-from drivers.sampler import SampledSource, SamplerConfig
-from drivers.sampler.synthetic import SyntheticPoller
-
-from .conftest import REPO
-
-SYNTHETIC = "drivers.sampler.synthetic:SyntheticPoller"
+SYNTHETIC = "fluidsense.drivers.sampler.synthetic:SyntheticPoller"
 
 
 def config(**changes) -> SamplerConfig:
@@ -152,7 +150,7 @@ def test_reads_failing_for_the_link_timeout_mean_link_lost():
 def test_a_bad_poller_spec_or_a_poller_that_cannot_open_fails_setup():
     async def main():
         with pytest.raises(ConfigError, match="no NoSuchPoller"):
-            await SampledSource(config(poller={"factory": "drivers.sampler.synthetic:NoSuchPoller"})).setup()
+            await SampledSource(config(poller={"factory": "fluidsense.drivers.sampler.synthetic:NoSuchPoller"})).setup()
         src = SampledSource(config(channels=["p_act"]))
         async with src:
             with pytest.raises(LinkLostError, match="returned 2 values, the config names 1 channel") as info:
@@ -169,7 +167,7 @@ def test_the_sampler_exits_when_its_parent_dies(tmp_path):
     script = textwrap.dedent(f"""
         import asyncio, sys
         sys.path.insert(0, {str(REPO)!r})
-        from drivers.sampler import SampledSource, SamplerConfig
+        from fluidsense.drivers.sampler import SampledSource, SamplerConfig
         async def main():
             src = SampledSource(SamplerConfig(poller={{"factory": {SYNTHETIC!r}}}, channels=["p"]))
             await src.setup()
@@ -260,9 +258,9 @@ class FakePush:
 def test_blocks_dropped_on_a_full_queue_are_accounted_for_in_the_next_one():
     from array import array
 
-    from drivers.sampler.loop import Block, Counts
-    from drivers.sampler.process import Sender
-    from drivers.sampler.wire import decode
+    from fluidsense.drivers.sampler.loop import Block, Counts
+    from fluidsense.drivers.sampler.process import Sender
+    from fluidsense.drivers.sampler.wire import decode
 
     def block(seq, begin, end, counts, n):
         return Block(seq, begin, end, counts, array("d", [begin / 1e3 + i / 1e3 for i in range(n)]),

@@ -5,14 +5,19 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from fluidsense.common.hardware import BendingActuator
+from fluidsense.common.scenes import (
+    CylinderScene,
+    PlateScene,
+    PullScene,
+    RectangleScene,
+    SampleScene,
+    StopperScene,
+)
+from fluidsense.common.units import P_ATM
+from fluidsense.simulator.actuators import contact_truth
 from scipy import stats
-
-from common.hardware import BendingActuator
-from common.scenes import CylinderScene, PlateScene, PullScene, RectangleScene, SampleScene, StopperScene
-from common.units import P_ATM
-from simulator.actuators import contact_truth
-
-from .conftest import cycles_over, profile_controller
+from support.harness import cycles_over, profile_controller
 
 
 def bench_truth(scene, p_eq_pa):

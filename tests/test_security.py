@@ -15,18 +15,23 @@ import pytest
 import yaml
 import zmq
 import zmq.asyncio
+from fluidsense.cli.monitor import send_command
+from fluidsense.common.errors import ConfigError
+from fluidsense.controller.commands.server import (
+    MAX_DEPTH,
+    MAX_FRAME_BYTES,
+    MAX_REQUEST_BYTES,
+    CommandServer,
+    too_deep,
+)
+from fluidsense.controller.config import load_cell_config
 from hypothesis import HealthCheck, given, settings
+from support.harness import REPO, Daemon, ipc_endpoints, sim_config
 
-from common.errors import ConfigError
-from controller.commands.server import MAX_DEPTH, MAX_FRAME_BYTES, MAX_REQUEST_BYTES, CommandServer, too_deep
-from controller.config import load_cell_config
-from fluidsense.bench.fuzz import Client, answerable, message_strategy
-from fluidsense.monitor import send_command
-
-from .conftest import REPO, Daemon, ipc_endpoints, sim_config
+from lab.bench.fuzz import Client, answerable, message_strategy
 
 # ---------------------------------------------------------------- the fuzz (small budget;
-# `fluidsense bench fuzz` runs the same strategy at 10,000 messages)
+# `python -m lab bench fuzz` runs the same strategy at 10,000 messages)
 FUZZ_EXAMPLES = 300
 
 
@@ -79,7 +84,7 @@ def test_after_fuzzing_the_daemon_runs_never_faulted_and_stops_cleanly(fuzz_targ
             published.append(json.loads(frames[1])["kind"])
     # an internal fault (a request that broke the loop) would have been published, even if
     # a fuzzed reset cleared it since. Whether the loop kept its pace under the fuzz (no
-    # overrun, no missed sample) depends on this machine's load: fluidsense bench fuzz
+    # overrun, no missed sample) depends on this machine's load: python -m lab bench fuzz
     # measures it (docs/safety.md)
     assert "internal" not in published, published
     d.proc.send_signal(signal.SIGTERM)
@@ -157,7 +162,7 @@ def test_a_hostile_message_leaves_a_daemon_that_answers_and_stops_with_0(tmp_pat
 
 def test_the_server_counts_what_it_answered_rejected_and_dropped(tmp_path):
     """CommandServer.stats, on a real socket in front of a virtual-time controller."""
-    from fluidsense import app
+    from fluidsense.daemon import app
 
     cfg = load_cell_config(sim_config(tmp_path))
     endpoint = ipc_endpoints(tmp_path)[1]
@@ -208,7 +213,7 @@ def _keys(path, umask: int | None = None, client: str = "client") -> subprocess.
         if umask is not None:
             os.umask(umask)
 
-    return subprocess.run([sys.executable, "-m", "fluidsense.cli", "keys", str(path), "--client", client], cwd=REPO,
+    return subprocess.run([sys.executable, "-m", "fluidsense", "keys", str(path), "--client", client], cwd=REPO,
                           capture_output=True, text=True, timeout=60, preexec_fn=set_umask)
 
 
@@ -289,7 +294,7 @@ def test_curve_set_ups_nobody_or_anybody_could_use_are_refused_at_load(keys, tmp
 def test_fluidsense_run_refuses_them_with_exit_code_2_and_one_line(keys, tmp_path):
     for curve, field, reason in _refusals(keys, tmp_path)[:3]:
         path, _ = _curve_config(tmp_path, curve)
-        out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "run", "--config", str(path)], cwd=REPO,
+        out = subprocess.run([sys.executable, "-m", "fluidsense", "run", "--config", str(path)], cwd=REPO,
                              capture_output=True, text=True, timeout=60)
         assert out.returncode == 2
         lines = out.stderr.strip().splitlines()
@@ -323,7 +328,7 @@ def test_curve_lets_in_known_clients_only(keys, tmp_path, daemon_factory):
                      curve=(str(stranger / "client.key_secret"), str(keys / "server.key")))
     # the client refuses its own key file when others can read it
     (stranger / "client.key_secret").chmod(0o644)
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "cmd", "status", "--endpoint", endpoint,
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "cmd", "status", "--endpoint", endpoint,
                           "--client-key", str(stranger / "client.key_secret"), "--server-key",
                           str(keys / "server.key")], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "readable by group or others (mode 0644)" in out.stderr

@@ -4,11 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from common.errors import SequenceError
-from common.scenes import CylinderScene
-from controller.config import SequenceConfig, Window
-from controller.cycles.sequencer import Sequencer, SetpointAction, State, ValveAction
+from fluidsense.common.errors import SequenceError
+from fluidsense.common.scenes import CylinderScene
+from fluidsense.controller.config import SequenceConfig, Window
+from fluidsense.controller.cycles.sequencer import (
+    Sequencer,
+    SetpointAction,
+    State,
+    ValveAction,
+)
 
 CFG = SequenceConfig(p0_kpa=63, charge_s=10, isolate_s=10, actuate_s=20, vent_s=10,
                      windows=[Window(name="eq", start_s=4, end_s=5)])

@@ -17,13 +17,11 @@ import socket
 
 import numpy as np
 import pytest
-
-from common.errors import DriverError, LinkLostError
-from controller.config import load_cell_config
-from drivers.config import build_backend
-
-from .conftest import Daemon, profile_controller
-from .serial_helpers import Proxy, SimSerialProcess, serial_config
+from fluidsense.common.errors import DriverError, LinkLostError
+from fluidsense.controller.config import load_cell_config
+from fluidsense.drivers.config import build_backend
+from support.harness import Daemon, profile_controller
+from support.serial import Proxy, SimSerialProcess, serial_config
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -269,9 +267,8 @@ def test_sorting_cycles_through_the_serial_driver_read_sensible_pressures(tmp_pa
         assert d.close() == 0
 
     async def body(ctrl):
+        from fluidsense.common.scenes import Scene
         from pydantic import TypeAdapter
-
-        from common.scenes import Scene
 
         out = []
         for scene in scenes:

@@ -9,15 +9,13 @@ import subprocess
 
 import numpy as np
 import pytest
+from fluidsense.common.errors import ConfigError
+from fluidsense.drivers.serial import protocol as p
+from fluidsense.drivers.serial.clock import Timeline
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from common.errors import ConfigError
-from drivers.serial import protocol as p
-from drivers.serial.clock import Timeline
-
-from .conftest import CONFIG, REPO
-from .serial_helpers import serial_config
+from support.harness import CONFIG, REPO
+from support.serial import serial_config
 
 
 def test_the_firmware_core_passes_its_unit_tests():
@@ -85,7 +83,7 @@ def test_timeline_keeps_sample_time_on_the_device_grid_and_follows_a_drifting_cl
 
 
 def test_config_refusals(tmp_path):
-    from controller.config import load_cell_config
+    from fluidsense.controller.config import load_cell_config
 
     def refused(driver: dict) -> str:
         with pytest.raises(ConfigError) as err:

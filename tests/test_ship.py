@@ -1,6 +1,6 @@
-"""Shipping: the production Dockerfile (no Docker engine runs on these machines, so it is
-read, not built: `make wheelhouse-check` runs its two pip steps on the host) and the wheel,
-built here and run from outside the checkout with its configs as package data."""
+"""Shipping: the production Dockerfile (read here; `make image-check` builds and runs it
+where a container engine is installed) and the wheel, built here and run from outside the
+checkout with its configs as package data."""
 
 from __future__ import annotations
 
@@ -12,10 +12,8 @@ import sys
 import zipfile
 
 import pytest
-
-from controller.config import load_cell_config
-
-from .conftest import REPO
+from fluidsense.controller.config import load_cell_config
+from support.harness import REPO
 
 
 def dockerfile() -> list[tuple[str, str]]:
@@ -78,33 +76,55 @@ def wheel(tmp_path_factory):
     return path
 
 
-def test_the_wheel_carries_the_configs_profiles_and_tasks(wheel):
+PARTS = ("cli", "client", "common", "config", "controller", "daemon", "drivers", "simulator", "tasks")
+
+
+def test_the_wheel_is_one_package_with_its_parts_and_configs_and_no_studies(wheel):
+    """One top-level name (``fluidsense``); every module of the product's folders inside it,
+    the shipped YAML as package data; nothing of lab/, tests/ or setup.py."""
     names = set(zipfile.ZipFile(wheel).namelist())
-    for pattern in ("cell-*.yaml", "profiles/*.yaml", "tasks/*.yaml", "systemd/*"):
-        in_repo = {"config/" + p.relative_to(REPO / "config").as_posix() for p in (REPO / "config").glob(pattern)}
-        assert in_repo and in_repo <= names, in_repo - names
+    assert {n.split("/")[0] for n in names} == {"fluidsense", wheel.name.split("-py3")[0] + ".dist-info"}
+    for part in PARTS:
+        modules = {f"fluidsense/{p.relative_to(REPO).as_posix()}" for p in (REPO / part).rglob("*.py")}
+        assert modules and modules <= names, sorted(modules - names)
+    for pattern in ("cell-*.yaml", "profiles/*.yaml", "tasks/*.yaml", "calibrations/*.json", "systemd/*"):
+        shipped = {"fluidsense/config/" + p.relative_to(REPO / "config").as_posix()
+                   for p in (REPO / "config").glob(pattern)}
+        assert shipped and shipped <= names, shipped - names
+    assert {"fluidsense/__init__.py", "fluidsense/__main__.py"} <= names
+    assert not [n for n in names if n.startswith(("fluidsense/lab/", "fluidsense/tests/")) or n == "fluidsense/setup.py"]
 
 
-def test_the_installed_wheel_runs_outside_the_checkout(wheel, tmp_path):
+def test_the_installed_wheel_runs_outside_the_checkout_beside_a_users_own_modules(wheel, tmp_path):
     """Installed without its dependencies (they are this venv's) into a directory first on
-    the path; run from an empty directory: the package and its configs come from there."""
+    the path, run from a folder that holds a user's own ``common.py`` and ``config.py`` (names
+    a robot workspace is full of): the package, its configs and its client come from the
+    wheel, and the user's modules stay theirs."""
     site, cwd = tmp_path / "site", tmp_path / "elsewhere"
     cwd.mkdir()
+    (cwd / "common.py").write_text("WHO = 'the user'\n")
+    (cwd / "config.py").write_text("WHO = 'the user'\n")
     subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "--quiet", "--target", str(site), str(wheel)],
                    check=True, capture_output=True, timeout=600)
-    probe = ("import fluidsense, json; from fluidsense import app; cfg = app.load(None); "
+    assert sorted(p.name for p in site.iterdir() if not p.name.endswith(".dist-info")) == ["bin", "fluidsense"]
+    env = {"PYTHONPATH": str(site), "PATH": "/usr/bin"}
+    probe = ("import common, config, fluidsense, json; from fluidsense.daemon import app; "
+             "from fluidsense.client import Gripper; cfg = app.load(None); "
              "print(json.dumps([fluidsense.__file__, str(app.default_config_path()), cfg.profile.name, "
-             "str(app.REPO_ROOT / 'config' / 'tasks' / 'sorting.yaml')]))")
-    out = subprocess.run([sys.executable, "-c", probe], cwd=cwd, env={"PYTHONPATH": str(site), "PATH": "/usr/bin"},
-                         capture_output=True, text=True, timeout=120)
+             "str(app.TASKS_DIR / 'sorting.yaml'), common.WHO, config.WHO, Gripper.__module__]))")
+    out = subprocess.run([sys.executable, "-c", probe], cwd=cwd, env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
-    module, config, profile, task = json.loads(out.stdout)
+    module, config, profile, task, common_who, config_who, client = json.loads(out.stdout)
     assert module.startswith(str(site)) and config.startswith(str(site)) and task.startswith(str(site))
-    assert profile and (site / "config" / "tasks" / "sorting.yaml").is_file()
-    demo = subprocess.run([sys.executable, "-m", "fluidsense.cli", "demo", "--help"], cwd=cwd,
-                          env={"PYTHONPATH": str(site), "PATH": "/usr/bin"}, capture_output=True, text=True,
-                          timeout=120)
-    assert demo.returncode == 0 and "usage: fluidsense demo" in demo.stdout
+    assert profile and (site / "fluidsense" / "config" / "tasks" / "sorting.yaml").is_file()
+    assert common_who == config_who == "the user" and client == "fluidsense.client.sync"
+    usage = subprocess.run([sys.executable, "-m", "fluidsense", "--help"], cwd=cwd, env=env, capture_output=True,
+                           text=True, timeout=120)
+    assert usage.returncode == 0 and "usage: fluidsense" in usage.stdout and "bench" not in usage.stdout
+    demo = subprocess.run([sys.executable, "-m", "fluidsense", "demo", "--json", "--cycles", "3"], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert demo.returncode == 0, demo.stderr
+    assert json.loads(demo.stdout)
 
 
 @pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze is not installed")

@@ -9,11 +9,10 @@ import sys
 
 import numpy as np
 import pytest
+from fluidsense.common.samples import SampleBlock
+from support.harness import REPO
 
-from common.samples import SampleBlock
-from fluidsense.bench.soak import SCENES, GapCounter
-
-from .conftest import REPO
+from lab.bench.soak import SCENES, GapCounter
 
 
 def block(seq: int, first_slot: int, n: int = 10, missed: int = 0) -> SampleBlock:
@@ -44,7 +43,7 @@ def test_the_gap_counter_sees_every_kind_of_loss():
 def test_shortened_soak_loses_no_sample_and_reports_its_figures():
     """Twelve virtual minutes, with the publisher's queue small enough that the slow
     subscriber overflows it within the warm-up: PUB drops for it, the pipeline nothing."""
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "bench", "soak", "--virtual-hours", "0.2",
+    out = subprocess.run([sys.executable, "-m", "lab", "bench", "soak", "--virtual-hours", "0.2",
                           "--pub-hwm", "100", "--json"], cwd=REPO, capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]
     rep = json.loads(out.stdout)

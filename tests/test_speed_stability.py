@@ -7,13 +7,12 @@ import json
 
 import numpy as np
 import pytest
+from fluidsense.controller.cycles import features as F
+from support.harness import REPO
 
-from controller.cycles import features as F
-from fluidsense.bench import speed_accuracy as SA
-from fluidsense.bench import stability as ST
-from fluidsense.bench.stability_report import rounded
-
-from .conftest import REPO
+from lab.bench import speed_accuracy as SA
+from lab.bench import stability as ST
+from lab.bench.stability_report import rounded
 
 
 def _close(a, b):

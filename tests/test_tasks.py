@@ -9,15 +9,13 @@ import sys
 import jsonschema
 import pytest
 import yaml
-
-from common.errors import ConfigError
-from controller.config import load_cell_config
-from fluidsense import app
-from tasks.config import cell_path, load_task
-from tasks.runner import run_task
-
-from .conftest import CONFIG, REPO, run, sim_config
-from .test_zmq import SCHEMAS
+from fluidsense.common.errors import ConfigError
+from fluidsense.controller.config import load_cell_config
+from fluidsense.daemon import app
+from fluidsense.tasks.config import cell_path, load_task
+from fluidsense.tasks.runner import run_task
+from support.events import SCHEMAS
+from support.harness import CONFIG, REPO, run, sim_config
 
 TASKS = CONFIG / "tasks"
 
@@ -38,7 +36,7 @@ def run_file(name: str, **kw):
 
 # Every cylinder in every input slot once (a Latin square of cyclic shifts), and the fully
 # reversed order (the most moves for an insertion sort). All 24 orders: the sorting part of
-# fluidsense bench stability (ten orders per perturbation) and `fluidsense task run`.
+# python -m lab bench stability (ten orders per perturbation) and `fluidsense task run`.
 ORDERS = [tuple([40.0, 60.0, 80.0, 100.0][k:] + [40.0, 60.0, 80.0, 100.0][:k]) for k in range(4)] + \
     [(100.0, 80.0, 60.0, 40.0)]
 
@@ -117,7 +115,7 @@ def test_task_file_errors_name_file_and_field(tmp_path):
 
 
 def test_task_command_with_order_and_json():
-    out = subprocess.run([sys.executable, "-m", "fluidsense.cli", "task", "run", str(TASKS / "sorting.yaml"),
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "task", "run", str(TASKS / "sorting.yaml"),
                           "--order", "100,40,60,80", "--json"], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     s = json.loads(out.stdout)

@@ -6,26 +6,17 @@ docs/zmq-schema.md, not from the code.
 
 from __future__ import annotations
 
-import json
 import os
-import re
 import signal
 
-import jsonschema
 import pytest
-import yaml
 import zmq
-
-from .conftest import PROFILE, REPO, sim_config
+from support.events import SCHEMAS, check, fast_profile
+from support.harness import REPO, sim_config
 
 DOC = (REPO / "docs" / "zmq-schema.md").read_text()
-SCHEMAS = {m.group(1): json.loads(m.group(2))
-           for m in re.finditer(r"```json schema=(\w+)\n(.*?)```", DOC, flags=re.S)}
 
 
-def check(topic: str, msg: dict) -> None:
-    assert topic in SCHEMAS, f"topic {topic!r} is not documented"
-    jsonschema.validate(msg, SCHEMAS[topic])
 
 
 def test_the_document_has_a_schema_per_topic():
@@ -37,7 +28,7 @@ def test_the_document_has_a_schema_per_topic():
 def test_every_message_of_a_sorting_task_is_documented(tmp_path, daemon_factory):
     """A full sorting task through the daemon: every message validates against its schema
     (no undocumented field), per-topic counters have no gap, every message has its UTC time."""
-    from .conftest import CONFIG
+    from support.harness import CONFIG
 
     # the quick protocol (0.5 s window, not 5 s): the same messages, a third of the cycle time
     d = daemon_factory(sim_config(tmp_path, profile=str(CONFIG / "profiles" / "sorting-gripper-quick.yaml")))
@@ -132,14 +123,6 @@ def test_bad_commands_get_an_error_reply_and_the_daemon_keeps_running(tmp_path, 
     assert d.request({"cmd": "cycle"})["error"].startswith("busy")
 
 
-def fast_profile(tmp_path):
-    """The gripper with a 3.5 s cycle so that real-time tests stay short."""
-    profile = yaml.safe_load(PROFILE.read_text())
-    profile["sequence"].update(charge_s=0.5, isolate_s=0.5, actuate_s=2.0, vent_s=0.5, offset_s=0.3,
-                               windows=[{"name": "eq", "start_s": 1.0, "end_s": 1.5}])
-    path = tmp_path / "fast.yaml"
-    path.write_text(yaml.safe_dump(profile))
-    return str(path)
 
 
 def test_real_time_heartbeat_and_sigterm_vents_then_exits(tmp_path, daemon_factory):
@@ -181,7 +164,7 @@ def test_monitor_shows_transitions_and_the_result(tmp_path, daemon_factory):
 
     d = daemon_factory(sim_config(tmp_path, clock="virtual"))
     d.wait_welcome()
-    mon = subprocess.Popen([sys.executable, "-m", "fluidsense.cli", "monitor", "--endpoint", d.pub,
+    mon = subprocess.Popen([sys.executable, "-m", "fluidsense", "monitor", "--endpoint", d.pub,
                             "--topic", "state", "--topic", "cycle", "--count", "7", "--timeout", "30"],
                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -244,7 +227,7 @@ def test_a_subscription_gets_the_topics_that_start_with_it(tmp_path, daemon_fact
 def test_oversized_subscription_frames_cost_nothing(tmp_path, daemon_factory):
     """One 8 MB subscription cost ~880 MB and tripped an overrun; 200 MB ones drove RSS to
     14 GB and SIGTERM was ignored. Now the connection is dropped at the frame's header."""
-    from .zmtp import RawPeer
+    from support.zmtp import RawPeer
 
     d = daemon_factory(sim_config(tmp_path, clock="realtime"))
     d.wait_welcome()
@@ -270,7 +253,7 @@ def test_a_flood_of_subscriptions_costs_the_daemon_nothing_and_subscribers_come_
     that reads them busy for as long as they stream: inside the daemon that froze the
     sample loop (this test hung). The outlet process takes them: it drops every subscriber
     connection past its budget and ends at its memory cap; the daemon restarts it."""
-    from .zmtp import RawPeer
+    from support.zmtp import RawPeer
 
     d = daemon_factory(sim_config(tmp_path, clock="realtime"))
     d.wait_welcome()

@@ -14,12 +14,27 @@ import logging
 from collections.abc import Awaitable, Callable
 from typing import TYPE_CHECKING, Any
 
-from common.errors import CommandError, FluidsenseError, NotSupportedError, SequenceError
-from common.faults import Fault, FaultKind
+from fluidsense.common.errors import (
+    CommandError,
+    FluidsenseError,
+    NotSupportedError,
+    SequenceError,
+)
+from fluidsense.common.faults import Fault, FaultKind
 
 from .gripper import Gripper
-from .server import (AbortCmd, CycleCmd, GripCmd, MeasureCmd, ReleaseCmd, ResetCmd, SceneCmd, ShutdownCmd,
-                     StatusCmd, TaskCmd)
+from .server import (
+    AbortCmd,
+    CycleCmd,
+    GripCmd,
+    MeasureCmd,
+    ReleaseCmd,
+    ResetCmd,
+    SceneCmd,
+    ShutdownCmd,
+    StatusCmd,
+    TaskCmd,
+)
 
 if TYPE_CHECKING:  # the controller wires this part; the type is only for reading
     from ..service import Controller

@@ -12,9 +12,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from common.errors import ConfigError
-from common.names import FEATURES
-from controller.sensing.calibration import Calibration
+from fluidsense.common.errors import ConfigError
+from fluidsense.common.names import FEATURES
+from fluidsense.controller.sensing.calibration import Calibration
 
 MM = 1e-3
 

@@ -23,9 +23,8 @@ from __future__ import annotations
 from collections import deque
 
 import numpy as np
-
-from controller.cycles import features as F
-from controller.cycles.analysis import Reference
+from fluidsense.controller.cycles import features as F
+from fluidsense.controller.cycles.analysis import Reference
 
 
 class ContactWatch:

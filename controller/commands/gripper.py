@@ -22,10 +22,15 @@ import logging
 from types import SimpleNamespace
 from typing import TYPE_CHECKING, Any
 
-from common.errors import CommandError, FluidsenseError, SafetyError, SequenceError
-from common.faults import Fault, FaultKind
-from common.samples import SampleBlock
-from common.units import KPA
+from fluidsense.common.errors import (
+    CommandError,
+    FluidsenseError,
+    SafetyError,
+    SequenceError,
+)
+from fluidsense.common.faults import Fault, FaultKind
+from fluidsense.common.samples import SampleBlock
+from fluidsense.common.units import KPA
 
 from ..cycles.analysis import CycleResult
 from ..cycles.runner import reference_key

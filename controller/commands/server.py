@@ -19,14 +19,13 @@ from typing import Annotated, Any, Literal
 
 import zmq
 import zmq.asyncio
+from fluidsense.common.errors import FluidsenseError
+from fluidsense.common.models import StrictModel, first_error
+from fluidsense.common.names import COMMANDS
+from fluidsense.common.scenes import Scene
+from fluidsense.controller.config import CurveKeys
+from fluidsense.controller.config.curve import read_secret_key
 from pydantic import Field, TypeAdapter, ValidationError
-
-from common.errors import FluidsenseError
-from common.models import StrictModel, first_error
-from common.names import COMMANDS
-from common.scenes import Scene
-from controller.config import CurveKeys
-from controller.config.curve import read_secret_key
 
 log = logging.getLogger(__name__)
 

@@ -13,7 +13,14 @@ from .cell import (
                    load_profile,
 )
 from .loading import load_model, read_yaml, validate
-from .profile import CalibrationPlan, FlowProfile, Limits, Profile, SequenceConfig, Window
+from .profile import (
+                   CalibrationPlan,
+                   FlowProfile,
+                   Limits,
+                   Profile,
+                   SequenceConfig,
+                   Window,
+)
 
 __all__ = ["CalibrationPlan", "CellConfig", "CurveKeys", "FlowProfile", "LiveConfig", "Limits", "LoopConfig", "Profile",
            "PublisherConfig", "RecordingConfig", "SequenceConfig", "Supervision", "Window", "load_cell_config",

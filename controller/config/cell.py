@@ -12,12 +12,11 @@ import stat
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
+from fluidsense.common.errors import ConfigError
+from fluidsense.common.files import one_line
+from fluidsense.common.models import FieldError, Integer, Real, StrictModel
+from fluidsense.drivers.config import DriverConfig
 from pydantic import BaseModel, Field, ValidationInfo, field_validator, model_validator
-
-from common.errors import ConfigError
-from common.files import one_line
-from common.models import FieldError, Integer, Real, StrictModel
-from drivers.config import DriverConfig
 
 from .curve import ALLOW_ANY, count_public_keys, read_secret_key
 from .gripper import GripperConfig, check_calibrations, resolve_calibrations

@@ -12,7 +12,7 @@ import os
 import stat
 from pathlib import Path
 
-from common.errors import ConfigError
+from fluidsense.common.errors import ConfigError
 
 MAX_KEY_FILE_BYTES = 64 * 1024  # a certificate is a few hundred bytes
 ALLOW_ANY = "*"  # pyzmq's "any client key" location

@@ -11,10 +11,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from fluidsense.common.errors import ConfigError
+from fluidsense.common.models import Real, StrictModel
 from pydantic import Field
-
-from common.errors import ConfigError
-from common.models import Real, StrictModel
 
 from .loading import referenced_file
 
@@ -48,7 +47,9 @@ def resolve_calibrations(data: dict[str, Any], path: Path) -> dict[str, Any]:
 
 def check_calibrations(cfg: GripperConfig, profile: str, path: Path) -> None:
     """Every calibration named must load and be one of this profile's, its target a length."""
-    from controller.commands.estimates import load_calibration  # the sensing code loads only if named
+    from fluidsense.controller.commands.estimates import (
+        load_calibration,  # the sensing code loads only if named
+    )
 
     for i, name in enumerate(cfg.calibrations):
         field = f"gripper.calibrations.{i}"

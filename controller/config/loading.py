@@ -15,12 +15,18 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import yaml
+from fluidsense.common.errors import ConfigError
+from fluidsense.common.files import (
+    YAML_MAX_BYTES,
+    check_name,
+    decode_utf8,
+    describe,
+    one_line,
+    read_bounded,
+)
+from fluidsense.common.models import FieldError
+from fluidsense.controller.config import yamlfile
 from pydantic import BaseModel, ValidationError
-
-from common.errors import ConfigError
-from common.files import YAML_MAX_BYTES, check_name, decode_utf8, describe, one_line, read_bounded
-from common.models import FieldError
-from controller.config import yamlfile
 
 M = TypeVar("M", bound=BaseModel)
 

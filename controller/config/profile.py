@@ -5,12 +5,19 @@ from __future__ import annotations
 
 from typing import Literal
 
+from fluidsense.common.hardware import (
+    Actuator,
+    Circuit,
+    FlowSensor,
+    GripperActuator,
+    Hardware,
+    Sensor,
+    TankCircuit,
+)
+from fluidsense.common.models import FieldError, Integer, Real, StrictModel
+from fluidsense.common.scenes import Scene
+from fluidsense.common.units import KPA
 from pydantic import Field, model_validator
-
-from common.hardware import Actuator, Circuit, FlowSensor, GripperActuator, Hardware, Sensor, TankCircuit
-from common.models import FieldError, Integer, Real, StrictModel
-from common.scenes import Scene
-from common.units import KPA
 
 
 class Window(StrictModel):

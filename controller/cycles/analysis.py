@@ -7,12 +7,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-
-from common.samples import SampleBlock
-from common.units import KPA
-from controller.config import SequenceConfig
-from controller.cycles import features as F
-from controller.cycles.sequencer import Transition
+from fluidsense.common.samples import SampleBlock
+from fluidsense.common.units import KPA
+from fluidsense.controller.config import SequenceConfig
+from fluidsense.controller.cycles import features as F
+from fluidsense.controller.cycles.sequencer import Transition
 
 
 class CycleTrace:

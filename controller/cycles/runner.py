@@ -17,16 +17,30 @@ from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
-from common.errors import NotSupportedError, SafetyError, SequenceError
-from common.faults import Fault, FaultKind
-from common.samples import SampleBlock
-from common.units import KPA
-from drivers.backend import Backend
+from fluidsense.common.errors import NotSupportedError, SafetyError, SequenceError
+from fluidsense.common.faults import Fault, FaultKind
+from fluidsense.common.samples import SampleBlock
+from fluidsense.common.units import KPA
+from fluidsense.drivers.backend import Backend
 
 from ..config import Profile
 from . import features as F
-from .analysis import CycleResult, CycleTrace, Reference, analyse, make_reference, transition_dict
-from .sequencer import Action, FlowProfileAction, Sequencer, SetpointAction, State, ValveAction
+from .analysis import (
+    CycleResult,
+    CycleTrace,
+    Reference,
+    analyse,
+    make_reference,
+    transition_dict,
+)
+from .sequencer import (
+    Action,
+    FlowProfileAction,
+    Sequencer,
+    SetpointAction,
+    State,
+    ValveAction,
+)
 
 log = logging.getLogger(__name__)
 

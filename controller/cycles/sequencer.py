@@ -28,10 +28,10 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from common.errors import SequenceError
-from common.hardware import ACTUATE, SUPPLY, VENT
-from common.units import SLPM
-from controller.config import SequenceConfig
+from fluidsense.common.errors import SequenceError
+from fluidsense.common.hardware import ACTUATE, SUPPLY, VENT
+from fluidsense.common.units import SLPM
+from fluidsense.controller.config import SequenceConfig
 
 log = logging.getLogger(__name__)
 

@@ -23,9 +23,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from common.errors import FaultError
-from common.faults import Fault, FaultKind
-from drivers.backend import Backend
+from fluidsense.common.errors import FaultError
+from fluidsense.common.faults import Fault, FaultKind
+from fluidsense.drivers.backend import Backend
 
 log = logging.getLogger(__name__)
 

@@ -11,8 +11,8 @@ import logging
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from common.faults import FaultKind
-from drivers.backend import Backend
+from fluidsense.common.faults import FaultKind
+from fluidsense.drivers.backend import Backend
 
 from .latch import SafetyLatch, vented_word
 

@@ -16,11 +16,10 @@ about blocks not arriving rather than their content.
 from __future__ import annotations
 
 import numpy as np
-
-from common.faults import Fault, FaultKind
-from common.samples import SampleBlock
-from common.units import KPA
-from controller.config import Profile, Supervision
+from fluidsense.common.faults import Fault, FaultKind
+from fluidsense.common.samples import SampleBlock
+from fluidsense.common.units import KPA
+from fluidsense.controller.config import Profile, Supervision
 
 
 def _slope(t: np.ndarray, p: np.ndarray) -> tuple[float, float]:

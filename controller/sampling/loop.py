@@ -19,10 +19,10 @@ from collections import deque
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from common.errors import DeviceTimeoutError, LinkLostError
-from common.faults import Fault, FaultKind
-from common.samples import SampleBlock
-from drivers.backend import Backend
+from fluidsense.common.errors import DeviceTimeoutError, LinkLostError
+from fluidsense.common.faults import Fault, FaultKind
+from fluidsense.common.samples import SampleBlock
+from fluidsense.drivers.backend import Backend
 
 from ..config import CellConfig
 

@@ -21,13 +21,18 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import numpy as np
+from fluidsense.common.errors import ConfigError, FluidsenseError
+from fluidsense.common.files import (
+    MB,
+    check_name,
+    decode_utf8,
+    nested_within,
+    read_bounded,
+)
+from fluidsense.common.models import FieldError, Integer, Real, StrictModel
+from fluidsense.common.names import FEATURES, FIT_DEGREE, NEEDS_REFERENCE  # noqa: F401 - their home is light
+from fluidsense.controller.config.loading import validate
 from pydantic import Field, JsonValue, model_validator
-
-from common.errors import ConfigError, FluidsenseError
-from common.files import MB, check_name, decode_utf8, nested_within, read_bounded
-from common.models import FieldError, Integer, Real, StrictModel
-from common.names import FEATURES, FIT_DEGREE, NEEDS_REFERENCE  # noqa: F401 - their home is light
-from controller.config.loading import validate
 
 from .estimate import Estimate, quantity_name, si_unit
 from .fitstats import fit_stats, prediction_sd, t_quantile

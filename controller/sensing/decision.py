@@ -8,8 +8,7 @@ sense at the same t_d.
 from __future__ import annotations
 
 import numpy as np
-
-from controller.cycles import features as F
+from fluidsense.controller.cycles import features as F
 
 METHODS = ("window", "early", "t_c_slope", "t_c_threshold", "dp_max")
 WINDOW_S = 0.05  # the paper's shortest window (Fig. S actuation speed: 0.05 s)

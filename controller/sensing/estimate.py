@@ -13,9 +13,8 @@ from __future__ import annotations
 import math
 from typing import Any, Literal
 
+from fluidsense.common.models import StrictModel
 from pydantic import Field
-
-from common.models import StrictModel
 
 Status = Literal["ok", "no_object", "out_of_range"]
 

@@ -17,10 +17,9 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-
-from common.errors import FluidsenseError
-from common.samples import SampleBlock
-from common.units import KPA, SLPM
+from fluidsense.common.errors import FluidsenseError
+from fluidsense.common.samples import SampleBlock
+from fluidsense.common.units import KPA, SLPM
 
 from ..config import PublisherConfig
 from .publisher import NullPublisher, Publisher

@@ -23,11 +23,10 @@ import time
 from typing import Any
 
 import zmq
-
-from common.errors import ConfigError
-from common.samples import SampleBlock
-from drivers.recording import block_payload, to_json
-from drivers.recording_schema import SAMPLES
+from fluidsense.common.errors import ConfigError
+from fluidsense.common.samples import SampleBlock
+from fluidsense.drivers.recording import block_payload, to_json
+from fluidsense.drivers.recording_schema import SAMPLES
 
 from ..config import LiveConfig
 from .fanout import Sink
@@ -66,7 +65,7 @@ class LiveSink(Sink):
         args = {"host": cfg.host, "port": cfg.port, "backlog": cfg.backlog, "inlet": inlet,
                 "t0_unix_ns": self.t0_unix_ns, "parent_pid": os.getpid(),
                 "log_level": logging.getLevelName(log.getEffectiveLevel())}
-        self._proc = subprocess.Popen([sys.executable, "-m", "controller.telemetry.live_bridge", json.dumps(args)],
+        self._proc = subprocess.Popen([sys.executable, "-m", "fluidsense.controller.telemetry.live_bridge", json.dumps(args)],
                                       stdin=subprocess.DEVNULL, stdout=subprocess.PIPE)
         try:
             self.port = self._wait_ready()

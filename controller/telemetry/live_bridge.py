@@ -1,4 +1,4 @@
-"""The live view's process: ``python -m controller.telemetry.live_bridge ARGS_JSON``.
+"""The live view's process: ``python -m fluidsense.controller.telemetry.live_bridge ARGS_JSON``.
 
 It serves the Foxglove WebSocket protocol (foxglove-sdk) with the channels, JSON schemas
 and log times of the MCAP recordings (drivers/recording.py), so that a recorded file and
@@ -24,10 +24,9 @@ import sys
 from typing import Any
 
 import zmq
+from fluidsense.drivers.recording_schema import SAMPLES, event_schema
 
-from drivers.recording_schema import SAMPLES, event_schema
-
-log = logging.getLogger("controller.telemetry.live_bridge")
+log = logging.getLogger("fluidsense.controller.telemetry.live_bridge")
 
 # the recording's channels (every event the controller emits, and the sample blocks),
 # advertised from the start so that a viewer sees them before the first message

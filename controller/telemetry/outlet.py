@@ -1,4 +1,4 @@
-"""The publisher's outlet process: ``python -m controller.telemetry.outlet ARGS_JSON``.
+"""The publisher's outlet process: ``python -m fluidsense.controller.telemetry.outlet ARGS_JSON``.
 
 It owns the public XPUB socket, so that subscribers, whoever they are, cost the daemon
 nothing. Subscriptions are untrusted input that libzmq handles inside whichever call the
@@ -42,7 +42,7 @@ from typing import Any
 
 import zmq
 
-log = logging.getLogger("controller.telemetry.outlet")
+log = logging.getLogger("fluidsense.controller.telemetry.outlet")
 
 TOPICS = ("pressure", "state", "cycle", "heartbeat", "fault", "task", "log", "contact", "grasp", "slip", "released")
 WELCOME = b"hello"

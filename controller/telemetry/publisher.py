@@ -37,8 +37,7 @@ from typing import Any
 
 import numpy as np
 import zmq
-
-from controller.telemetry.outlet import STOP, TOPICS, WELCOME
+from fluidsense.controller.telemetry.outlet import STOP, TOPICS, WELCOME
 
 log = logging.getLogger(__name__)
 
@@ -145,7 +144,7 @@ class Publisher:
     def _start(self, wait: bool) -> None:
         args = {"endpoint": self.endpoint, "inlet": self._inlet, "hwm": self._hwm, "parent_pid": os.getpid(),
                 "memory_cap_mb": OUTLET_MEMORY_CAP_MB, "log_level": logging.getLevelName(log.getEffectiveLevel())}
-        self._proc = subprocess.Popen([sys.executable, "-m", "controller.telemetry.outlet", json.dumps(args)],
+        self._proc = subprocess.Popen([sys.executable, "-m", "fluidsense.controller.telemetry.outlet", json.dumps(args)],
                                       stdin=subprocess.DEVNULL, stdout=subprocess.PIPE if wait else subprocess.DEVNULL)
         self._started_at = time.monotonic()
         if not wait:

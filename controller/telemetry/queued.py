@@ -17,7 +17,7 @@ import queue
 import threading
 from typing import Any
 
-from common.samples import SampleBlock
+from fluidsense.common.samples import SampleBlock
 
 from .fanout import Sink
 

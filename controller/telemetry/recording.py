@@ -10,7 +10,7 @@ still queued (normally a block or two; tests/test_recording.py); with ``fsync`` 
 worker thread also forces it to storage. A file is started between cycles once it passes
 ``max_file_mb`` or covers ``max_file_s`` of sample time (the MCAP writer keeps an index
 entry per flushed chunk in memory until the file is closed: ~1 KB per ``flush_s``, 28 MB
-over 8 h in one file, found by fluidsense bench soak); each file carries the config and
+over 8 h in one file, found by python -m lab bench soak); each file carries the config and
 the references it needs to replay on its own. A write error or a nearly full disk logs,
 closes what can be closed and drops the sink (the controller's Sink contract): control
 goes on without recording.
@@ -26,14 +26,14 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-from common.errors import ConfigError, RecordingError
-from common.samples import SampleBlock
-from controller.config import CellConfig
-from controller.cycles.analysis import Reference
-from controller.service import Sink
-from drivers.base import SampleSource
-from drivers.recording import RecordingWriter
-from drivers.recording_schema import REFERENCE
+from fluidsense.common.errors import ConfigError, RecordingError
+from fluidsense.common.samples import SampleBlock
+from fluidsense.controller.config import CellConfig
+from fluidsense.controller.cycles.analysis import Reference
+from fluidsense.controller.service import Sink
+from fluidsense.drivers.base import SampleSource
+from fluidsense.drivers.recording import RecordingWriter
+from fluidsense.drivers.recording_schema import REFERENCE
 
 log = logging.getLogger(__name__)
 

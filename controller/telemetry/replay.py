@@ -23,15 +23,20 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from common.errors import EndOfRecording, RecordingError
-from common.files import one_line
-from controller.config import CellConfig, SequenceConfig, validate
-from controller.cycles.analysis import CycleResult, CycleTrace, Reference, analyse, make_reference
-from controller.cycles.runner import reference_key
-from drivers.recording import Record, to_json
-from drivers.recording_schema import REFERENCE
-from drivers.replay import ReplaySource
+from fluidsense.common.errors import EndOfRecording, RecordingError
+from fluidsense.common.files import one_line
+from fluidsense.controller.config import CellConfig, SequenceConfig, validate
+from fluidsense.controller.cycles.analysis import (
+    CycleResult,
+    CycleTrace,
+    Reference,
+    analyse,
+    make_reference,
+)
+from fluidsense.controller.cycles.runner import reference_key
+from fluidsense.drivers.recording import Record, to_json
+from fluidsense.drivers.recording_schema import REFERENCE
+from fluidsense.drivers.replay import ReplaySource
 
 log = logging.getLogger(__name__)
 

@@ -24,10 +24,14 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
-
-from common.errors import ConfigError, DeviceTimeoutError, DriverError, LinkLostError
-from common.hardware import Hardware, RegulatedCircuit, TankCircuit
-from common.samples import SampleBlock
+from fluidsense.common.errors import (
+    ConfigError,
+    DeviceTimeoutError,
+    DriverError,
+    LinkLostError,
+)
+from fluidsense.common.hardware import Hardware, RegulatedCircuit, TankCircuit
+from fluidsense.common.samples import SampleBlock
 
 from ..backend import Backend
 from ..base import Regulator, SampleSource, ValveBank
@@ -114,7 +118,11 @@ class DaqSource(SampleSource):
         self._origin = time.monotonic()
 
     def _start_task(self) -> None:
-        from nidaqmx.constants import AcquisitionType, OverwriteMode, TerminalConfiguration  # noqa: PLC0415
+        from nidaqmx.constants import (  # noqa: PLC0415
+            AcquisitionType,
+            OverwriteMode,
+            TerminalConfiguration,
+        )
 
         terminals = {"default": TerminalConfiguration.DEFAULT, "rse": TerminalConfiguration.RSE,
                      "nrse": TerminalConfiguration.NRSE, "differential": TerminalConfiguration.DIFF,

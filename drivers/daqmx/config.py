@@ -6,10 +6,14 @@ from __future__ import annotations
 
 from typing import Literal
 
+from fluidsense.common.models import Integer, Real, StrictModel
+from fluidsense.common.wiring import (
+    RegulatorWiring,
+    Transfer,
+    check_distinct,
+    wiring_problems,
+)
 from pydantic import Field, model_validator
-
-from common.models import Integer, Real, StrictModel
-from common.wiring import RegulatorWiring, Transfer, check_distinct, wiring_problems
 
 from ..io import BLOCK_SIZE
 

@@ -6,17 +6,21 @@ from __future__ import annotations
 import asyncio
 import logging
 
+from fluidsense.common.errors import ConfigError, DriverError, LinkLostError
+from fluidsense.common.hardware import Hardware, RegulatedCircuit, TankCircuit
+from fluidsense.common.wiring import AnalogScale, RegulatorWiring, Wiring
+from fluidsense.drivers.io import BoxWatchdogConfig
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 
-from common.errors import ConfigError, DriverError, LinkLostError
-from common.hardware import Hardware, RegulatedCircuit, TankCircuit
-from common.wiring import AnalogScale, RegulatorWiring, Wiring
-from drivers.io import BoxWatchdogConfig
-
 from ..backend import Backend
 from ..base import BoxWatchdog, Regulator, ValveBank
-from ..remote import Connection, PolledCellSource, confirm_safe_on_connect, sampler_config
+from ..remote import (
+    Connection,
+    PolledCellSource,
+    confirm_safe_on_connect,
+    sampler_config,
+)
 from ..ur.watchdog import box_script, send_script
 from .config import ModbusDriverConfig, RegisterMap
 
@@ -199,7 +203,7 @@ def build(cfg: ModbusDriverConfig, hw: Hardware, read_only: bool = False) -> Bac
         box_script(cfg.wiring.valves, hw.circuit.safe_valves, cfg.watchdog, arm=cfg.arm is not None)
     poller = {"host": cfg.host, "port": cfg.port, "device_id": cfg.device_id, "timeout_s": cfg.timeout_s,
               "inputs": modbus_inputs(cfg, hw.channels)}
-    sampler = sampler_config("drivers.modbus.poller:ModbusAnalogPoller", poller, hw.channels, cfg.rate_hz,
+    sampler = sampler_config("fluidsense.drivers.modbus.poller:ModbusAnalogPoller", poller, hw.channels, cfg.rate_hz,
                              cfg.block_size, cfg.sampler, cfg.reconnect.connect_timeout_s)
     regulated = isinstance(hw.circuit, (TankCircuit, RegulatedCircuit))
     regulator = ModbusRegulator(link, cfg.wiring.regulator, cfg.registers, cfg.analog) if regulated else None

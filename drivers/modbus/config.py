@@ -4,11 +4,17 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
+from fluidsense.common.models import Host, Integer, Port, Real, StrictModel
+from fluidsense.common.wiring import AnalogScale, Wiring
+from fluidsense.drivers.io import (
+    BLOCK_SIZE,
+    BoxWatchdogConfig,
+    Reconnect,
+    SamplerOptions,
+    UrArmConfig,
+    check_controller_rate,
+)
 from pydantic import Field, ValidationInfo, field_validator, model_validator
-
-from common.models import Host, Integer, Port, Real, StrictModel
-from common.wiring import AnalogScale, Wiring
-from drivers.io import BLOCK_SIZE, BoxWatchdogConfig, Reconnect, SamplerOptions, UrArmConfig, check_controller_rate
 
 Register = Annotated[Integer, Field(ge=0, le=65535)]
 

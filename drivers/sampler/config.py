@@ -4,9 +4,8 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
+from fluidsense.common.models import Integer, Real, StrictModel
 from pydantic import Field, JsonValue, model_validator
-
-from common.models import Integer, Real, StrictModel
 
 from .poller import SPEC_PATTERN
 
@@ -17,7 +16,7 @@ class PollerSpec(StrictModel):
     """Which poller the sampler process builds: ``Class(**kwargs)`` from ``module:Class``."""
 
     factory: str = Field(pattern=SPEC_PATTERN, description="'module:Class', imported inside the sampler process",
-                         examples=["drivers.sampler.synthetic:SyntheticPoller"])
+                         examples=["fluidsense.drivers.sampler.synthetic:SyntheticPoller"])
     kwargs: dict[str, JsonValue] = Field(default_factory=dict, description="JSON keyword arguments")
 
 

@@ -37,7 +37,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from common.errors import ConfigError
+from fluidsense.common.errors import ConfigError
 
 from .poller import NoNewSample, Poller
 

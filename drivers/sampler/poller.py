@@ -31,7 +31,7 @@ import importlib
 import re
 from typing import Any
 
-from common.errors import ConfigError
+from fluidsense.common.errors import ConfigError
 
 
 class NoNewSample(Exception):  # noqa: N818 - a slot's outcome, not an error

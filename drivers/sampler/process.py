@@ -1,4 +1,4 @@
-"""Entry point of the sampler process: ``python -m drivers.sampler.process ARGS_JSON``.
+"""Entry point of the sampler process: ``python -m fluidsense.drivers.sampler.process ARGS_JSON``.
 
 Started (spawned, never forked) by :class:`drivers.sampler.source.SampledSource`.
 ARGS_JSON is the validated SamplerConfig dumped to JSON plus ``data`` and ``control``
@@ -27,15 +27,14 @@ import time
 from typing import Any
 
 import zmq
-
-from common.errors import ConfigError
+from fluidsense.common.errors import ConfigError
 
 from ..child import exit_now
 from . import realtime, wire
 from .loop import Block, SlotLoop, SpinClock
 from .poller import load_poller
 
-log = logging.getLogger("drivers.sampler.process")
+log = logging.getLogger("fluidsense.drivers.sampler.process")
 
 START_LEAD_NS = 10_000_000  # slot 0 is this far after the hello: no late first slot
 HOUSEKEEPING_S = 0.01  # control socket, parent and heartbeat are checked this often

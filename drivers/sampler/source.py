@@ -27,10 +27,14 @@ from typing import Any
 import numpy as np
 import zmq
 import zmq.asyncio
-
-from common.errors import ConfigError, DeviceTimeoutError, DriverError, LinkLostError
-from common.samples import SampleBlock
-from drivers.base import SampleSource
+from fluidsense.common.errors import (
+    ConfigError,
+    DeviceTimeoutError,
+    DriverError,
+    LinkLostError,
+)
+from fluidsense.common.samples import SampleBlock
+from fluidsense.drivers.base import SampleSource
 
 from . import wire
 from .config import SamplerConfig
@@ -115,12 +119,9 @@ class SampledSource(SampleSource):
         args = {**self.cfg.model_dump(mode="json"), "data": f"ipc://{self._dir}/data",
                 "control": f"ipc://{self._dir}/control", "parent_pid": os.getpid(),
                 "heartbeat_s": self.cfg.silence_timeout_s / 4, "log_level": log.getEffectiveLevel()}
-        # the project root first on the path, so the entry point is found with or
-        # without an installed package; stdout unused, stderr shared for its log
-        root = str(Path(__file__).resolve().parents[2])
-        env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)}
-        proc = subprocess.Popen([sys.executable, "-m", "drivers.sampler.process", json.dumps(args)],
-                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, env=env, close_fds=True)
+        # stdout unused, stderr shared for its log
+        proc = subprocess.Popen([sys.executable, "-m", "fluidsense.drivers.sampler.process", json.dumps(args)],
+                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, close_fds=True)
         log.info("sampler process %d spawned: %s at %g Hz, blocks of %d", proc.pid,
                  self.cfg.poller.factory, self.cfg.rate_hz, self.cfg.block_size)
         return proc

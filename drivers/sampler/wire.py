@@ -14,7 +14,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from common.errors import DriverError
+from fluidsense.common.errors import DriverError
 
 PROTOCOL = 1
 DTYPE = "<f8" if sys.byteorder == "little" else ">f8"

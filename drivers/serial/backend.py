@@ -19,11 +19,10 @@ from collections.abc import Awaitable, Callable
 from typing import Any
 
 import numpy as np
-
-from common.errors import ConfigError, LinkLostError
-from common.hardware import Hardware, RegulatedCircuit, TankCircuit
-from common.samples import SampleBlock
-from common.wiring import AnalogScale, RegulatorWiring
+from fluidsense.common.errors import ConfigError, LinkLostError
+from fluidsense.common.hardware import Hardware, RegulatedCircuit, TankCircuit
+from fluidsense.common.samples import SampleBlock
+from fluidsense.common.wiring import AnalogScale, RegulatorWiring
 
 from ..backend import Backend
 from ..base import BoxWatchdog, Regulator, SampleSource, ValveBank
@@ -240,7 +239,7 @@ def build(cfg: SerialDriverConfig, hw: Hardware, read_only: bool = False) -> Bac
     regulator = SerialRegulator(source, cfg.wiring.regulator, cfg.analog_out) if regulated else None
     scene = None
     if cfg.sim_control_port is not None:
-        from drivers.simlink import RemoteScene  # noqa: PLC0415 - a simulated device was asked for
+        from fluidsense.drivers.simlink import RemoteScene  # noqa: PLC0415 - a simulated device was asked for
 
         scene = RemoteScene("127.0.0.1", cfg.sim_control_port)
     return Backend(name="serial", source=source, valves=valves, regulator=regulator, scene=scene,

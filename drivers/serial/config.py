@@ -5,10 +5,16 @@ from __future__ import annotations
 
 from typing import Literal
 
+from fluidsense.common.models import Integer, Port, Real, StrictModel
+from fluidsense.common.wiring import (
+    AnalogScale,
+    RegulatorWiring,
+    Transfer,
+    ValveWiring,
+    check_distinct,
+    wiring_problems,
+)
 from pydantic import Field, model_validator
-
-from common.models import Integer, Port, Real, StrictModel
-from common.wiring import AnalogScale, RegulatorWiring, Transfer, ValveWiring, check_distinct, wiring_problems
 
 from ..io import BLOCK_SIZE, Reconnect
 
@@ -83,7 +89,7 @@ class SerialDriverConfig(StrictModel):
     kind: Literal["serial"] = "serial"
     port: str = Field(min_length=1, max_length=4096, pattern=r"^[^\x00]+$",
                       description="the device: /dev/serial/by-id/usb-... (the same after a replug), /dev/ttyACM0, or "
-                      "the pty link of fluidsense simserial")
+                      "the pty link of python -m lab simserial")
     baudrate: Integer = Field(500_000, ge=1200, le=4_000_000, description="bit/s: the firmware's BAUD (500000 for the "
                               "AVR image; a pty ignores it)")
     rate_hz: Integer = Field(1000, ge=1, le=10_000, description="samples per second of the device's timer (the AVR "
@@ -108,5 +114,5 @@ class SerialDriverConfig(StrictModel):
         "reads the port itself (add_reader). docs/performance.md measures both")
     reconnect: Reconnect = Reconnect()
     sim_control_port: Port | None = Field(
-        None, description="simulated devices only (fluidsense simserial): its control port on 127.0.0.1; absent for "
+        None, description="simulated devices only (python -m lab simserial): its control port on 127.0.0.1; absent for "
         "a real device")

@@ -29,9 +29,13 @@ from typing import Any
 
 import numpy as np
 import serial
-
-from common.errors import ConfigError, DeviceTimeoutError, DriverError, LinkLostError
-from common.samples import SampleBlock
+from fluidsense.common.errors import (
+    ConfigError,
+    DeviceTimeoutError,
+    DriverError,
+    LinkLostError,
+)
+from fluidsense.common.samples import SampleBlock
 
 from . import protocol as p
 from .clock import Timeline

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections import deque
 
-from common.errors import ConfigError
+from fluidsense.common.errors import ConfigError
 
 from . import protocol as p
 from .config import SerialDriverConfig

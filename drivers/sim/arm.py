@@ -6,8 +6,8 @@ a task's motion costs nothing but its samples.
 
 from __future__ import annotations
 
-from common.errors import DriverError
-from simulator.cell import SimulatedCell
+from fluidsense.common.errors import DriverError
+from fluidsense.simulator.cell import SimulatedCell
 
 from ..base import Arm, Pose
 

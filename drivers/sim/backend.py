@@ -15,11 +15,15 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-
-from common.errors import DeviceTimeoutError, LinkLostError
-from common.hardware import FlowControlledCircuit, Hardware, RegulatedCircuit, TankCircuit
-from common.samples import SampleBlock
-from simulator.cell import SimulatedCell
+from fluidsense.common.errors import DeviceTimeoutError, LinkLostError
+from fluidsense.common.hardware import (
+    FlowControlledCircuit,
+    Hardware,
+    RegulatedCircuit,
+    TankCircuit,
+)
+from fluidsense.common.samples import SampleBlock
+from fluidsense.simulator.cell import SimulatedCell
 
 from ..backend import Backend
 from ..base import FlowController, Regulator, SampleSource, SceneControl, ValveBank

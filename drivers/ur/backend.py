@@ -3,9 +3,9 @@ for the analog inputs, the simulated cell's control channel when there is one.""
 
 from __future__ import annotations
 
-from common.hardware import Hardware, RegulatedCircuit, TankCircuit
-from common.wiring import Wiring
-from drivers.io import BoxWatchdogConfig
+from fluidsense.common.hardware import Hardware, RegulatedCircuit, TankCircuit
+from fluidsense.common.wiring import Wiring
+from fluidsense.drivers.io import BoxWatchdogConfig
 
 from ..backend import Backend
 from ..remote import PolledCellSource, confirm_safe_on_connect, sampler_config
@@ -39,7 +39,7 @@ def worker_link(host: str, arm, io: bool, watchdog: BoxWatchdogConfig | None = N
 def scene_link(host: str, port: int | None):
     if port is None:
         return None
-    from drivers.simlink import RemoteScene  # noqa: PLC0415 - a simulated cell was asked for
+    from fluidsense.drivers.simlink import RemoteScene  # noqa: PLC0415 - a simulated cell was asked for
 
     return RemoteScene(host, port)
 
@@ -54,7 +54,7 @@ def build(cfg: UrDriverConfig, hw: Hardware, read_only: bool = False) -> Backend
         link = worker_link(cfg.host, cfg.arm, io=True, watchdog=cfg.watchdog)
     poller = {"host": cfg.host, "frequency": cfg.rate_hz, "inputs": rtde_inputs(cfg.wiring, hw.channels),
               "upper_range_registers": cfg.arm.upper_range_registers, "stale_s": cfg.rtde_timeout_s}
-    sampler = sampler_config("drivers.ur.poller:RtdeAnalogPoller", poller, hw.channels, cfg.rate_hz,
+    sampler = sampler_config("fluidsense.drivers.ur.poller:RtdeAnalogPoller", poller, hw.channels, cfg.rate_hz,
                              cfg.block_size, cfg.sampler, cfg.reconnect.connect_timeout_s)
     source = PolledCellSource("ur", sampler, [link], cfg.reconnect)
     regulated = isinstance(hw.circuit, (TankCircuit, RegulatedCircuit))

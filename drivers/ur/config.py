@@ -5,12 +5,18 @@ from __future__ import annotations
 
 from typing import Literal
 
+from fluidsense.common.models import Host, Integer, Port, Real, StrictModel
+from fluidsense.common.wiring import AnalogScale, Wiring
+from fluidsense.drivers.io import (
+    BLOCK_SIZE,
+    CONTROLLER_HZ,
+    BoxWatchdogConfig,
+    Reconnect,
+    SamplerOptions,
+    UrArmConfig,
+    check_controller_rate,
+)
 from pydantic import Field, ValidationInfo, field_validator
-
-from common.models import Host, Integer, Port, Real, StrictModel
-from common.wiring import AnalogScale, Wiring
-from drivers.io import (BLOCK_SIZE, CONTROLLER_HZ, BoxWatchdogConfig, Reconnect, SamplerOptions, UrArmConfig,
-                        check_controller_rate)
 
 #: highest RTDE output rate per controller generation (UR's RTDE guide): the control rate
 RTDE_MAX_HZ = CONTROLLER_HZ

@@ -6,9 +6,9 @@ from __future__ import annotations
 import logging
 import math
 
-from common.errors import DriverError, SafetyError
-from common.wiring import AnalogScale, RegulatorWiring, ValveWiring
-from drivers.io import BoxWatchdogConfig, UrArmConfig
+from fluidsense.common.errors import DriverError, SafetyError
+from fluidsense.common.wiring import AnalogScale, RegulatorWiring, ValveWiring
+from fluidsense.drivers.io import BoxWatchdogConfig, UrArmConfig
 
 from ..base import Arm, BoxWatchdog, Pose, Regulator, ValveBank
 from .link import WorkerConnection

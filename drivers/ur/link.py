@@ -11,13 +11,11 @@ import asyncio
 import contextlib
 import json
 import logging
-import os
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
-from common.errors import DeviceTimeoutError, DriverError, LinkLostError
+from fluidsense.common.errors import DeviceTimeoutError, DriverError, LinkLostError
 
 from ..remote import Connection
 
@@ -42,11 +40,9 @@ class WorkerConnection(Connection):
 
     # -- life ----------------------------------------------------------------------------------
     async def open(self) -> None:
-        root = str(Path(__file__).resolve().parents[2])
-        env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)}
         self._proc = await asyncio.create_subprocess_exec(
-            sys.executable, "-m", "drivers.ur.worker", json.dumps(self.args), stdin=asyncio.subprocess.PIPE,
-            stdout=asyncio.subprocess.PIPE, env=env, limit=1 << 20)
+            sys.executable, "-m", "fluidsense.drivers.ur.worker", json.dumps(self.args),
+            stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE, limit=1 << 20)
         try:
             line = await self._proc.stdout.readline()  # the caller bounds the wait (connect timeout)
         except BaseException:

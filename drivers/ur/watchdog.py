@@ -29,9 +29,9 @@ import asyncio
 import logging
 from collections.abc import Mapping
 
-from common.errors import LinkLostError
-from common.wiring import ValveWiring
-from drivers.io import BoxWatchdogConfig
+from fluidsense.common.errors import LinkLostError
+from fluidsense.common.wiring import ValveWiring
+from fluidsense.drivers.io import BoxWatchdogConfig
 
 log = logging.getLogger(__name__)
 

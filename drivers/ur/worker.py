@@ -1,4 +1,4 @@
-"""``python -m drivers.ur.worker ARGS_JSON``: ur_rtde's IO and control interfaces in a
+"""``python -m fluidsense.drivers.ur.worker ARGS_JSON``: ur_rtde's IO and control interfaces in a
 process of their own.
 
 ur_rtde's constructors hold the GIL while they wait for the robot (for ever when the
@@ -34,7 +34,7 @@ import threading
 import time
 from typing import Any
 
-from drivers.child import exit_now, keep_until_exit
+from fluidsense.drivers.child import exit_now, keep_until_exit
 
 #: a finished move within this of its target arrived (UR's own blend-free tolerance is finer)
 ARRIVED_M, ARRIVED_RAD = 1e-3, 1e-2

@@ -3,9 +3,9 @@
 backed by a ``ControlBoxModel``. Run it as its own process: ``python -m
 simulator.controlbox``; see docs/controlbox.md."""
 
-from simulator.controlbox.config import AnalogScale, ControlBoxConfig
-from simulator.controlbox.kinematic import KinematicModel
-from simulator.controlbox.model import (
+from fluidsense.simulator.controlbox.config import AnalogScale, ControlBoxConfig
+from fluidsense.simulator.controlbox.kinematic import KinematicModel
+from fluidsense.simulator.controlbox.model import (
     AnalogDomain,
     AnalogInputSource,
     AnalogSignal,
@@ -13,7 +13,7 @@ from simulator.controlbox.model import (
     RobotMode,
     SafetyMode,
 )
-from simulator.controlbox.motion import Pose
+from fluidsense.simulator.controlbox.motion import Pose
 
 __all__ = [
     "AnalogDomain", "AnalogInputSource", "AnalogScale", "AnalogSignal", "ControlBoxConfig",

@@ -1,4 +1,4 @@
-"""``python -m simulator.controlbox``: an emulated UR control box in this process.
+"""``python -m fluidsense.simulator.controlbox``: an emulated UR control box in this process.
 
 Prints one line starting with ``ready`` on stdout once every port listens, then answers
 sim control commands (JSON lines on stdin, see simcontrol.py) on stdout. Logs go to
@@ -19,20 +19,19 @@ import stat
 import sys
 from collections.abc import Callable
 
+from fluidsense.common.errors import ConfigError, DriverError, FluidsenseError
+from fluidsense.simulator.controlbox import simcontrol
+from fluidsense.simulator.controlbox.config import AnalogScale, ControlBoxConfig
+from fluidsense.simulator.controlbox.emulator import Emulator
+from fluidsense.simulator.controlbox.kinematic import KinematicModel
+from fluidsense.simulator.controlbox.model import ControlBoxModel
 from pydantic import ValidationError
 
-from common.errors import ConfigError, DriverError, FluidsenseError
-from simulator.controlbox import simcontrol
-from simulator.controlbox.config import AnalogScale, ControlBoxConfig
-from simulator.controlbox.emulator import Emulator
-from simulator.controlbox.kinematic import KinematicModel
-from simulator.controlbox.model import ControlBoxModel
-
-log = logging.getLogger("simulator.controlbox")
+log = logging.getLogger("fluidsense.simulator.controlbox")
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="python -m simulator.controlbox", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="python -m fluidsense.simulator.controlbox", description=__doc__.splitlines()[0])
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
     p.add_argument("--rtde-port", type=int, default=30004)
     p.add_argument("--dashboard-port", type=int, default=29999)

@@ -19,10 +19,17 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
-from common.errors import SafetyError
-from simulator.controlbox.config import ControlBoxConfig
-from simulator.controlbox.model import N_ANALOG, AnalogDomain, AnalogSignal, ControlBoxModel, RobotMode, SafetyMode
-from simulator.controlbox.registers import Registers
+from fluidsense.common.errors import SafetyError
+from fluidsense.simulator.controlbox.config import ControlBoxConfig
+from fluidsense.simulator.controlbox.model import (
+    N_ANALOG,
+    AnalogDomain,
+    AnalogSignal,
+    ControlBoxModel,
+    RobotMode,
+    SafetyMode,
+)
+from fluidsense.simulator.controlbox.registers import Registers
 
 log = logging.getLogger(__name__)
 

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
+from fluidsense.common.models import StrictModel
+from fluidsense.common.wiring import CONTROLLER_HZ, AnalogScale
 from pydantic import Field
-
-from common.models import StrictModel
-from common.wiring import CONTROLLER_HZ, AnalogScale
 
 Port = Annotated[int, Field(ge=1, le=65535)]
 

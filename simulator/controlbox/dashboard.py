@@ -11,9 +11,9 @@ import asyncio
 import logging
 from collections.abc import Callable
 
-from simulator.controlbox.box import ControlBox, IdleProgram, RuntimeState
-from simulator.controlbox.model import RobotMode
-from simulator.controlbox.tcp import TcpServer
+from fluidsense.simulator.controlbox.box import ControlBox, IdleProgram, RuntimeState
+from fluidsense.simulator.controlbox.model import RobotMode
+from fluidsense.simulator.controlbox.tcp import TcpServer
 
 log = logging.getLogger(__name__)
 

@@ -1,7 +1,7 @@
 """All servers of one emulated control box on one asyncio loop, and the controller cycle
 that drives them.
 
-Run it in its own process (``python -m simulator.controlbox``): ur_rtde's
+Run it in its own process (``python -m fluidsense.simulator.controlbox``): ur_rtde's
 constructors hold the GIL while they wait for the robot, so an emulator thread in the
 client's process would never get to answer.
 """
@@ -11,14 +11,14 @@ from __future__ import annotations
 import asyncio
 import logging
 
-from common.errors import DriverError
-from simulator.controlbox.box import ControlBox
-from simulator.controlbox.config import ControlBoxConfig
-from simulator.controlbox.dashboard import DashboardServer
-from simulator.controlbox.modbus import ModbusServer
-from simulator.controlbox.model import ControlBoxModel
-from simulator.controlbox.rtde import RtdeServer
-from simulator.controlbox.scriptport import ScriptServer
+from fluidsense.common.errors import DriverError
+from fluidsense.simulator.controlbox.box import ControlBox
+from fluidsense.simulator.controlbox.config import ControlBoxConfig
+from fluidsense.simulator.controlbox.dashboard import DashboardServer
+from fluidsense.simulator.controlbox.modbus import ModbusServer
+from fluidsense.simulator.controlbox.model import ControlBoxModel
+from fluidsense.simulator.controlbox.rtde import RtdeServer
+from fluidsense.simulator.controlbox.scriptport import ScriptServer
 
 log = logging.getLogger(__name__)
 

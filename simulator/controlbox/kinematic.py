@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import logging
 
-from common.errors import CommandError, SafetyError
-from simulator.controlbox.model import (
+from fluidsense.common.errors import CommandError, SafetyError
+from fluidsense.simulator.controlbox.model import (
     DIGITAL_MASK,
     N_ANALOG,
     N_GENERAL_PURPOSE,
@@ -17,7 +17,13 @@ from simulator.controlbox.model import (
     RobotMode,
     SafetyMode,
 )
-from simulator.controlbox.motion import LineMove, Pose, Ramp, Segment, as_pose
+from fluidsense.simulator.controlbox.motion import (
+    LineMove,
+    Pose,
+    Ramp,
+    Segment,
+    as_pose,
+)
 
 log = logging.getLogger(__name__)
 

@@ -36,12 +36,11 @@ from __future__ import annotations
 
 import logging
 
+from fluidsense.simulator.controlbox.box import ControlBox
+from fluidsense.simulator.controlbox.model import AnalogDomain, AnalogSignal
 from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
-
-from simulator.controlbox.box import ControlBox
-from simulator.controlbox.model import AnalogDomain, AnalogSignal
 
 log = logging.getLogger(__name__)
 

@@ -33,7 +33,7 @@ import enum
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from simulator.controlbox.motion import Pose
+from fluidsense.simulator.controlbox.motion import Pose
 
 N_ANALOG = 2  # standard analog inputs and outputs on the control box
 N_GENERAL_PURPOSE = 128  # Modbus registers 128-255

@@ -12,11 +12,11 @@ from __future__ import annotations
 import logging
 from typing import Any
 
-from common.hardware import Hardware
-from common.wiring import Wiring
-from simulator.cell import CellSettings, SimulatedCell
-from simulator.controlbox.kinematic import KinematicModel
-from simulator.controlbox.model import AnalogDomain, Pose
+from fluidsense.common.hardware import Hardware
+from fluidsense.common.wiring import Wiring
+from fluidsense.simulator.cell import CellSettings, SimulatedCell
+from fluidsense.simulator.controlbox.kinematic import KinematicModel
+from fluidsense.simulator.controlbox.model import AnalogDomain, Pose
 
 log = logging.getLogger(__name__)
 

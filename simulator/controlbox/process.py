@@ -26,22 +26,20 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from common.errors import DeviceTimeoutError, DriverError, LinkLostError
-
-REPO = Path(__file__).resolve().parents[2]
+from fluidsense.common.errors import DeviceTimeoutError, DriverError, LinkLostError
 
 
 class EmulatorProcess:
-    """``python -m simulator.controlbox`` in a child process."""
+    """``python -m fluidsense.simulator.controlbox`` in a child process."""
 
     def __init__(self, host: str = "127.0.0.1", *, modbus_port: int = 502, model: str | None = None,
-                 args: Sequence[str] = (), python: str = sys.executable, cwd: Path = REPO,
+                 args: Sequence[str] = (), python: str = sys.executable, cwd: Path | None = None,
                  command: Sequence[str] | None = None):
         """``command`` replaces the whole command line (e.g. ``fluidsense simcell``, which
         speaks the same ready line and sim control channel)."""
         self.host = host
         self.modbus_port = modbus_port
-        self.argv = [python, "-m", "simulator.controlbox", "--host", host, "--modbus-port", str(modbus_port)]
+        self.argv = [python, "-m", "fluidsense.simulator.controlbox", "--host", host, "--modbus-port", str(modbus_port)]
         if model is not None:
             self.argv += ["--model", model]
         self.argv += list(args)

@@ -25,9 +25,14 @@ import logging
 import struct
 from collections import deque
 
-from simulator.controlbox.box import ControlBox
-from simulator.controlbox.rtde_vars import Recipe, input_type, output_getter, output_type
-from simulator.controlbox.tcp import TcpServer
+from fluidsense.simulator.controlbox.box import ControlBox
+from fluidsense.simulator.controlbox.rtde_vars import (
+    Recipe,
+    input_type,
+    output_getter,
+    output_type,
+)
+from fluidsense.simulator.controlbox.tcp import TcpServer
 
 log = logging.getLogger(__name__)
 

@@ -12,10 +12,10 @@ import struct
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from simulator.controlbox.registers import Registers
+from fluidsense.simulator.controlbox.registers import Registers
 
 if TYPE_CHECKING:  # pragma: no cover
-    from simulator.controlbox.box import ControlBox
+    from fluidsense.simulator.controlbox.box import ControlBox
 
 #: struct format of each RTDE type (big-endian on the wire)
 FORMATS = {

@@ -14,10 +14,10 @@ import asyncio
 import logging
 import re
 
-from simulator.controlbox.box import ControlBox, ProgramError
-from simulator.controlbox.tcp import TcpServer
-from simulator.controlbox.urscript import program_from_source, split_programs
-from simulator.controlbox.watchdog import run_secondary
+from fluidsense.simulator.controlbox.box import ControlBox, ProgramError
+from fluidsense.simulator.controlbox.tcp import TcpServer
+from fluidsense.simulator.controlbox.urscript import program_from_source, split_programs
+from fluidsense.simulator.controlbox.watchdog import run_secondary
 
 log = logging.getLogger(__name__)
 

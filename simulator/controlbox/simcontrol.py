@@ -25,14 +25,13 @@ import json
 import logging
 from typing import Annotated, Any, Literal
 
+from fluidsense.common.errors import FluidsenseError, NotSupportedError
+from fluidsense.common.models import StrictModel
+from fluidsense.common.scenes import Scene
+from fluidsense.common.world import WorldSpec
+from fluidsense.simulator.controlbox.box import ControlBox
+from fluidsense.simulator.controlbox.model import DIGITAL_MASK, AnalogDomain, RobotMode
 from pydantic import Field, TypeAdapter, ValidationError
-
-from common.errors import FluidsenseError, NotSupportedError
-from common.models import StrictModel
-from common.scenes import Scene
-from common.world import WorldSpec
-from simulator.controlbox.box import ControlBox
-from simulator.controlbox.model import DIGITAL_MASK, AnalogDomain, RobotMode
 
 log = logging.getLogger(__name__)
 

@@ -20,12 +20,11 @@ import math
 import re
 from collections.abc import Callable
 
+from fluidsense.common.errors import CommandError, SafetyError
+from fluidsense.simulator.controlbox.box import ControlBox, Program, ProgramError
+from fluidsense.simulator.controlbox.motion import Pose
+from fluidsense.simulator.controlbox.watchdog import WatchdogProgram
 from scipy.spatial.transform import Rotation
-
-from common.errors import CommandError, SafetyError
-from simulator.controlbox.box import ControlBox, Program, ProgramError
-from simulator.controlbox.motion import Pose
-from simulator.controlbox.watchdog import WatchdogProgram
 
 log = logging.getLogger(__name__)
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import logging
 import re
 
-from simulator.controlbox.box import ControlBox, Program, ProgramError
+from fluidsense.simulator.controlbox.box import ControlBox, Program, ProgramError
 
 log = logging.getLogger(__name__)
 

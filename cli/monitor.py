@@ -1,0 +1,114 @@
+"""``fluidsense monitor --log``: one line per message, for scripts (the screen a person
+reads is cli/screen.py); ``send_command``: one request on the command socket."""
+
+from __future__ import annotations
+
+import json
+import sys
+from typing import Any, TextIO
+
+import zmq
+import zmq.auth
+from fluidsense.controller.telemetry.publisher import WELCOME
+
+NOT_RUNNING = ("the daemon may not be running (fluidsense run), or it listens elsewhere "
+               "(its {what} endpoint: --endpoint, or {option} in --config)")
+
+
+def format_message(topic: str, msg: dict[str, Any]) -> str | None:
+    t = msg.get("t_s", 0.0)
+    if topic == "state":
+        return f"[{t:10.3f}] cycle {msg['cycle_id']}: {msg['from']} -> {msg['to']} ({msg['reason']})"
+    if topic == "cycle":
+        if not msg.get("ok"):
+            return f"[{t:10.3f}] cycle {msg['cycle_id']} FAILED: {msg.get('aborted')}"
+        parts = [f"P_eq {msg['p_eq_kpa']:.3f} +- {msg['p_sd_kpa']:.3f} kPa"]
+        if msg.get("dp_eq_kpa") is not None:
+            parts.append(f"dP {msg['dp_eq_kpa']:.3f} kPa")
+        if msg.get("t_c_threshold_s") is not None:
+            parts.append(f"t_c {msg['t_c_threshold_s']:.3f} s")
+        ref = " (reference)" if msg.get("is_reference") else ""
+        return f"[{t:10.3f}] cycle {msg['cycle_id']}{ref}: " + ", ".join(parts)
+    if topic == "heartbeat":
+        p = msg.get("block_proc_us", {})
+        return (f"[{t:10.3f}] heartbeat: {msg['state']}, {msg['samples']} samples, {msg['missed']} missed, "
+                f"block p99 {p.get('p99', 0):.0f} us, fault {msg.get('fault')}")
+    if topic == "fault":
+        vented = {True: "vented", False: "NOT VENTED", "unknown": "vent not confirmed"}.get(msg.get("vented"), "vent not confirmed")
+        return f"[{t:10.3f}] FAULT {msg['kind']}: {msg['detail']} ({vented})"
+    if topic == "pressure":
+        ch = msg["channels"]
+        last = [row[-1] for row in msg["values"]]
+        return f"[{t:10.3f}] pressure " + ", ".join(f"{c} {v:.2f} kPa" for c, v in zip(ch, last))
+    if topic in ("task", "log"):
+        return f"[{t:10.3f}] {topic}: " + json.dumps({k: v for k, v in msg.items()
+                                                     if k not in ("schema", "topic", "seq", "t_s")})
+    return None
+
+
+def monitor(endpoint: str, topics: list[str], count: int | None, timeout_s: float | None,
+            as_json: bool, out: TextIO = sys.stdout) -> int:
+    """Print messages until ``count`` were shown or nothing arrived for ``timeout_s``.
+
+    Returns 0, or 1 when the timeout passed without any message.
+    """
+    ctx = zmq.Context.instance()
+    sock = ctx.socket(zmq.SUB)
+    sock.setsockopt(zmq.LINGER, 0)
+    for topic in topics:
+        sock.setsockopt(zmq.SUBSCRIBE, topic.encode())
+    sock.setsockopt(zmq.SUBSCRIBE, WELCOME)
+    sock.connect(endpoint)
+    shown = 0
+    last_seq: int | None = None
+    try:
+        while count is None or shown < count:
+            if timeout_s is not None and not sock.poll(int(timeout_s * 1000)):
+                if not shown:
+                    print(f"fluidsense monitor: nothing heard from {endpoint} within {timeout_s:g} s: "
+                          f"{NOT_RUNNING.format(what='publisher', option='publisher.pub')}", file=sys.stderr)
+                return 0 if shown else 1
+            frames = sock.recv_multipart()
+            if frames == [WELCOME]:
+                if not as_json:
+                    print(f"(connected to {endpoint})", file=sys.stderr, flush=True)
+                continue
+            if len(frames) != 2:
+                continue
+            topic, msg = frames[0].decode(), json.loads(frames[1])
+            seq = msg.get("seq")
+            if last_seq is not None and seq is not None and seq > last_seq + 1 and topics == [""]:
+                print(f"(missed {seq - last_seq - 1} messages)", file=out)
+            last_seq = seq
+            line = json.dumps(msg) if as_json else format_message(topic, msg)
+            if line is not None:
+                print(line, file=out, flush=True)
+                shown += 1
+    except KeyboardInterrupt:
+        pass
+    finally:
+        sock.close()
+    return 0
+
+
+def send_command(endpoint: str, request: dict[str, Any], timeout_s: float = 5.0,
+                 curve: tuple[str, str] | None = None) -> dict[str, Any]:
+    """One request on the command socket; raises TimeoutError if no reply comes.
+    ``curve``: (client secret key file, server public key file) for a CURVE socket."""
+    ctx = zmq.Context.instance()
+    sock = ctx.socket(zmq.REQ)
+    sock.setsockopt(zmq.LINGER, 0)
+    if curve is not None:
+        public, secret = zmq.auth.load_certificate(curve[0])
+        server_public, _ = zmq.auth.load_certificate(curve[1])
+        sock.curve_secretkey, sock.curve_publickey, sock.curve_serverkey = secret, public, server_public
+    sock.connect(endpoint)
+    try:
+        sock.send(json.dumps(request).encode())
+        if not sock.poll(int(timeout_s * 1000)):
+            raise TimeoutError(f"no reply from {endpoint} within {timeout_s:g} s: "
+                               + NOT_RUNNING.format(what="command", option="publisher.cmd"))
+        return json.loads(sock.recv())
+    finally:
+        sock.close()
+

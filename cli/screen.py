@@ -1,0 +1,217 @@
+"""``fluidsense monitor`` for a person: one screen, redrawn in place.
+
+What the screen shows comes from two places: the PUB socket (pressure, state, cycles,
+faults, heartbeats) and, once a second, ``status`` on the command socket (the valve
+outputs as the device reports them, the fault in full, whether the vent was confirmed).
+``View`` keeps what was heard and ``render`` turns it into lines; both are plain
+functions of the messages, so that tests read the screen without a terminal.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, TextIO
+
+import zmq
+from fluidsense.controller.telemetry.publisher import WELCOME
+
+TRACE_S = 10.0  # seconds of pressure in the trace
+TRACE_COLS = 60
+SPARK = "▁▂▃▄▅▆▇█"
+RESULTS = 5
+REDRAW_S = 0.25
+STATUS_S = 1.0
+
+# what a fault means and what to do next (docs/bringup.md, "What each fault means")
+FAULT_ADVICE = {
+    "over_pressure": "pressure above the profile's limit: check the regulator and the tank valve, then reset",
+    "under_pressure": "pressure below the limit: look for a leak or a torn actuator",
+    "sensor_nan": "the sensor gave no number: check its cable and the analog input",
+    "sensor_range": "the sensor reads out of range: dead, saturated or miswired (fluidsense check)",
+    "sensor_stuck": "the reading stopped changing: the sensor or its input is frozen",
+    "leak": "pressure falls while the valves are closed: check the tubing and the actuator",
+    "protective_stop": "the robot stopped itself: clear it on the teach pendant",
+    "no_data": "no samples arrive: the device or its link stalled",
+    "link_lost": "the connection to the control box is gone: check the cable and the box",
+    "overrun": "the sample loop fell behind: the PC is overloaded",
+    "driver": "the device driver failed: see the daemon's log",
+    "command": "a valve or setpoint was not carried out: check the wiring (fluidsense check)",
+    "internal": "a bug inside the daemon (vented): see its log and report it",
+}
+
+
+@dataclass
+class View:
+    """What the monitor has heard so far."""
+
+    state: str = "?"
+    cycle_id: int | None = None
+    t_s: float = 0.0
+    heartbeat: dict[str, Any] = field(default_factory=dict)
+    status: dict[str, Any] | None = None
+    status_error: str | None = None
+    results: deque = field(default_factory=lambda: deque(maxlen=RESULTS))
+    faults: deque = field(default_factory=lambda: deque(maxlen=3))
+    task: dict[str, Any] | None = None
+    channels: list[str] = field(default_factory=list)
+    units: list[str] = field(default_factory=list)
+    trace: deque = field(default_factory=deque)  # (t_s, [values]) in the units of the message
+    missed_messages: int = 0
+    last_seq: int | None = None
+    heard: bool = False
+
+    def take(self, topic: str, msg: dict[str, Any]) -> None:
+        self.heard = True
+        seq = msg.get("seq")
+        if self.last_seq is not None and seq is not None and seq > self.last_seq + 1:
+            self.missed_messages += seq - self.last_seq - 1
+        self.last_seq = seq if seq is not None else self.last_seq
+        self.t_s = max(self.t_s, float(msg.get("t_s") or 0.0))
+        if topic == "pressure":
+            self.channels, self.units = msg["channels"], msg.get("units", ["kPa"] * len(msg["channels"]))
+            for i, t in enumerate(msg["times_s"]):
+                self.trace.append((t, [row[i] for row in msg["values"]]))
+            while self.trace and self.trace[-1][0] - self.trace[0][0] > TRACE_S:
+                self.trace.popleft()
+        elif topic == "state":
+            self.state, self.cycle_id = msg["to"], msg.get("cycle_id")
+        elif topic == "heartbeat":
+            self.heartbeat = msg
+            self.state, self.cycle_id = msg.get("state", self.state), msg.get("cycle_id", self.cycle_id)
+        elif topic == "cycle":
+            self.results.append(msg)
+        elif topic == "fault":
+            self.faults.append(msg)
+        elif topic == "task":
+            self.task = msg
+
+
+    def take_status(self, status: dict[str, Any]) -> None:
+        """A ``status`` reply: an idle daemon in virtual time publishes nothing, status still says where it is."""
+        self.heard, self.status, self.status_error = True, status, None
+        self.state, self.cycle_id = status.get("state", self.state), status.get("cycle_id", self.cycle_id)
+        self.t_s = max(self.t_s, float(status.get("t_s") or 0.0))
+
+
+def sparkline(values: list[float], cols: int = TRACE_COLS) -> str:
+    """``values`` squeezed into ``cols`` characters, scaled between their min and max."""
+    if not values:
+        return ""
+    step = max(1, len(values) // cols)
+    pts = [values[i] for i in range(0, len(values), step)][-cols:]
+    lo, hi = min(pts), max(pts)
+    span = hi - lo or 1.0
+    return "".join(SPARK[round((v - lo) / span * (len(SPARK) - 1))] for v in pts)
+
+
+def result_line(msg: dict[str, Any]) -> str:
+    if not msg.get("ok"):
+        return f"cycle {msg['cycle_id']}: FAILED ({msg.get('aborted')})"
+    parts = [f"P_eq {msg['p_eq_kpa']:.3f} ± {1.96 * (msg.get('p_sd_kpa') or 0.0):.3f} kPa (95 %)"]
+    if msg.get("dp_eq_kpa") is not None:
+        parts.append(f"dP {msg['dp_eq_kpa']:.3f} kPa")
+    if msg.get("t_c_threshold_s") is not None:
+        parts.append(f"t_c {msg['t_c_threshold_s']:.3f} s")
+    tag = " reference" if msg.get("is_reference") else (f" {msg['label']}" if msg.get("label") else "")
+    return f"cycle {msg['cycle_id']}{tag}: " + ", ".join(parts)
+
+
+def _valves(status: dict[str, Any]) -> str:
+    reported = status.get("valves")
+    if not reported:
+        return "valves: not reported by the device"
+    words = ", ".join(f"{name} {'open' if on else 'closed'}" for name, on in sorted(reported.items()))
+    age = status.get("valves_age_s")
+    return f"valves (device): {words}" + (f"  [{age:.1f} s ago]" if isinstance(age, (int, float)) else "")
+
+
+def render(view: View, sub_endpoint: str, cmd_endpoint: str | None) -> list[str]:
+    """The screen as lines."""
+    if not view.heard:
+        return [f"fluidsense monitor: waiting for the daemon at {sub_endpoint}"
+                + (f" and {cmd_endpoint}" if cmd_endpoint else ""),
+                "nothing heard yet: is it running (fluidsense run), and is this its publisher endpoint "
+                "(--endpoint, or publisher.pub in --config)?"]
+    hb = view.heartbeat
+    lines = [f"fluidsense  t {view.t_s:9.3f} s   state {view.state.upper()}   cycle {view.cycle_id}"
+             + ("   (virtual time)" if hb.get("virtual") else "")]
+    if hb:
+        lines.append(f"loop: {hb.get('samples', 0)} samples, {hb.get('missed', 0)} missed, {hb.get('late', 0)} late"
+                     f", block p99 {hb.get('block_proc_us', {}).get('p99', 0):.0f} us"
+                     + (f", {view.missed_messages} messages lost" if view.missed_messages else ""))
+    lines.append("")
+    for j, ch in enumerate(view.channels):
+        vals = [row[j] for _, row in view.trace if row[j] is not None]
+        now = f"{vals[-1]:8.2f}" if vals else "     n/a"
+        rng = f"[{min(vals):.1f} .. {max(vals):.1f}]" if vals else ""
+        unit = view.units[j] if j < len(view.units) else ""
+        lines.append(f"{ch:>8} {now} {unit:<4} {sparkline(vals)} {rng}")
+    if not view.channels:
+        lines.append("pressure: no samples yet")
+    st = view.status
+    if st is not None:
+        lines.append(_valves(st) + f"   vented: {st.get('vented')}")
+    elif cmd_endpoint is not None:
+        lines.append(f"valves: no status from {cmd_endpoint}" + (f" ({view.status_error})" if view.status_error else ""))
+    lines += ["", "last results:"]
+    lines += [f"  {result_line(r)}" for r in reversed(view.results)] or ["  none yet"]
+    if view.task is not None:
+        lines.append("task: " + json.dumps({k: v for k, v in view.task.items()
+                                            if k not in ("schema", "topic", "seq", "t_s")})[:200])
+    fault = (st or {}).get("fault") or (view.faults[-1] if view.faults else None)
+    if fault:
+        kind = fault.get("kind", "?")
+        lines += ["", f"FAULT {kind}: {fault.get('detail', '')}",
+                  f"  what to do: {FAULT_ADVICE.get(kind, 'see docs/safety.md')}"]
+    return lines
+
+
+def draw(lines: list[str], out: TextIO) -> None:
+    """Home the cursor, write each line over the old one, clear what is left below."""
+    out.write("\x1b[H" + "".join(f"{line}\x1b[K\n" for line in lines) + "\x1b[J")
+    out.flush()
+
+
+def run_screen(sub_endpoint: str, cmd_endpoint: str | None, out: TextIO = sys.stdout,
+               duration_s: float | None = None) -> int:
+    """Redraw until Ctrl-C (or ``duration_s``). Returns 0."""
+    from .monitor import send_command
+
+    ctx = zmq.Context.instance()
+    sock = ctx.socket(zmq.SUB)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.setsockopt(zmq.SUBSCRIBE, b"")
+    sock.connect(sub_endpoint)
+    view = View()
+    end = None if duration_s is None else time.monotonic() + duration_s
+    next_draw = next_status = 0.0
+    out.write("\x1b[2J")
+    try:
+        while end is None or time.monotonic() < end:
+            if sock.poll(int(REDRAW_S * 1000)):
+                while True:
+                    try:
+                        frames = sock.recv_multipart(zmq.NOBLOCK)
+                    except zmq.Again:
+                        break
+                    if frames != [WELCOME] and len(frames) == 2:
+                        view.take(frames[0].decode(), json.loads(frames[1]))
+            now = time.monotonic()
+            if cmd_endpoint is not None and now >= next_status:
+                next_status = now + STATUS_S
+                try:
+                    view.take_status(send_command(cmd_endpoint, {"cmd": "status"}, 0.5))
+                except TimeoutError as exc:
+                    view.status, view.status_error = None, str(exc).split(":")[0]
+            if now >= next_draw:
+                next_draw = now + REDRAW_S
+                draw(render(view, sub_endpoint, cmd_endpoint), out)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        sock.close()
+    return 0

@@ -1,0 +1,20 @@
+"""Subcommands of ``fluidsense``. Each module has ``register(subparsers)``; add a module
+here and to ``MODULES`` to add a command. The studies (bench, report, simserial) are not
+here: they live in the repository's ``lab/`` (``python -m lab``), outside the wheel."""
+
+from . import (
+    calibrate,
+    check,
+    clients,
+    demo,
+    design,
+    keys,
+    plot,
+    replay,
+    run,
+    simcell,
+    task,
+    watchdog,
+)
+
+MODULES = [run, demo, clients, check, calibrate, design, task, simcell, watchdog, keys, replay, plot]

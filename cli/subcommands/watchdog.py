@@ -1,0 +1,39 @@
+"""``fluidsense watchdog``: the URScript the driver installs on a UR box so that the box
+vents the gripper by itself when the service stops (docs/safety.md)."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "watchdog", help="print (or send) the control box's vent watchdog for a cell",
+        description="Print the URScript that the ur and modbus drivers send to the box at every connection: the "
+        "run-state output actions (every valve output at its safe level while no program runs) and, on a cell "
+        "without an arm, the watchdog program that vents when the daemon's heartbeat register stops. --install "
+        "sends it to the box's script port now (a def program replaces the program that runs there).")
+    p.add_argument("--config", "-c", required=True, help="cell config with driver kind ur or modbus")
+    p.add_argument("--install", action="store_true", help="send it to the box's script port")
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    from fluidsense.common.errors import ConfigError
+    from fluidsense.controller.config import load_cell_config
+    from fluidsense.drivers.ur.watchdog import box_script, send_script
+
+    cfg = load_cell_config(args.config)
+    driver = cfg.driver
+    if driver.kind not in ("ur", "modbus"):
+        raise ConfigError(f"{args.config}: driver.kind: the box watchdog is for a UR control box (ur or modbus), "
+                          f"this config's driver is {driver.kind!r}")
+    if driver.watchdog is None:
+        raise ConfigError(f"{args.config}: driver.watchdog: null: this cell has no box-side watchdog")
+    arm = driver.kind == "ur" or driver.arm is not None
+    script = box_script(driver.wiring.valves, cfg.profile.hardware.circuit.safe_valves, driver.watchdog, arm)
+    print(script, end="")
+    if args.install:
+        asyncio.run(send_script(driver.host, driver.watchdog.script_port, script))
+    return 0

@@ -1,0 +1,35 @@
+"""A client of the fluidsense daemon: drive it as a gripper and follow its events.
+
+    from fluidsense.client import Gripper
+
+    with Gripper("tcp://127.0.0.1:5561", "tcp://127.0.0.1:5560") as g:
+        g.measure(store_reference=True)     # nothing in the gripper: the free-air reference
+        grasp = g.grip()                    # waits for the grasp (contact first, if any)
+        print(grasp.object, grasp.size)     # True, Estimate(quantity='diameter', value_mm=60.2, ...)
+        g.release()
+
+``AsyncGripper`` is the same for asyncio. Commands go over a REQ socket that is made again
+after a timeout (a REQ socket that missed its reply is stuck); events come over a SUB
+socket attached before the first command, so no event of a command is missed. CURVE keys
+are optional (``curve=(client secret key file, server public key file)``). The messages
+and their fields: docs/zmq-schema.md.
+"""
+
+from .aio import AsyncGripper
+from .sync import Gripper
+from .types import (
+           GRIPPER_TOPICS,
+           Contact,
+           Estimate,
+           Event,
+           Grasp,
+           GripEnded,
+           NoReply,
+           Refused,
+           Released,
+           Slip,
+           typed,
+)
+
+__all__ = ["AsyncGripper", "Contact", "Estimate", "Event", "GRIPPER_TOPICS", "Grasp", "GripEnded", "Gripper",
+           "NoReply", "Refused", "Released", "Slip", "typed"]

@@ -1,0 +1,312 @@
+"""``python -m lab bench timing``: the daemon at 1 kHz, measured from another process.
+
+Starts ``fluidsense run`` (real time) on the simulated cell (``--source sim``: hardware-
+timed, exact timestamps), on a polled Modbus analog input served by the emulated UR
+control box (``--source modbus``: the sampler process polls it), or on the serial driver
+against the firmware's host board behind a pty, fed by the simulated cell (``--source
+serial``: ``python -m lab simserial``; hardware-timed by the board's timer, each sample
+stamped from its device tick), attaches a ZeroMQ subscriber in this process and
+reports, for the samples it received:
+- lost and duplicated samples (every slot of the grid accounted for),
+- lateness of each sample's timestamp against its slot (0 for a hardware-timed source),
+- end-to-end latency from a sample's timestamp to its arrival here (CLOCK_MONOTONIC is
+  shared by the processes of a machine): the newest sample of each published block,
+- CPU used by the daemon and its sampler process (and, for serial, by the simulated
+  device: the board process and the plant, which a real device does not take);
+- for serial, the link's counts from the daemon (frames lost and corrupt, retries,
+  clock offset and drift) and the board's (its timer's wake-up lateness, ticks whose
+  plant inputs came late, frames it dropped).
+Blocks are published as they come (``pressure_batch_s`` = one block). The daemon records
+as it does in production (MCAP, flushed every second), into the benchmark's temporary
+directory, which is removed at the end; ``--no-record`` measures without it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import os
+import select
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+import zmq
+
+NAME = "timing"
+HELP = "1 kHz end to end: lost samples, lateness, latency to a subscriber, CPU"
+DESCRIPTION = __doc__
+
+
+def register(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--seconds", type=float, default=60.0, help="measurement length (default 60)")
+    p.add_argument("--source", choices=["sim", "modbus", "serial"], default="sim")
+    p.add_argument("--reader", choices=["thread", "loop"], default=None,
+                   help="serial: the driver's reader (default: the config's, thread)")
+    p.add_argument("--rate-hz", type=float, default=None,
+                   help="default 1000; modbus: 500 (an e-Series box refreshes its registers no faster)")
+    p.add_argument("--load", nargs="?", const=-1, type=int, default=0,
+                   help="competing CPU load: N busy processes (default: one per CPU)")
+    p.add_argument("--late-us", type=float, default=50.0, help="a sample this late is late (default 50 us)")
+    p.add_argument("--no-record", dest="record", action="store_false",
+                   help="run the daemon without its recording (default: records, as in production)")
+    p.add_argument("--json", action="store_true")
+
+
+def _burn(stop_at: float) -> None:  # pragma: no cover - runs in a load process
+    x = 0
+    while time.monotonic() < stop_at:
+        x += 1
+
+
+def _cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process and its live children (Linux /proc)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    total = 0.0
+    pids = [pid]
+    try:
+        for task in Path(f"/proc/{pid}/task").iterdir():
+            kids = (task / "children").read_text().split()
+            pids += [int(k) for k in kids]
+    except OSError:
+        pass
+    for p in pids:
+        try:
+            fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
+            total += (int(fields[11]) + int(fields[12])) / tick
+        except (OSError, IndexError, ValueError):
+            pass
+    return total
+
+
+def _cell_config(tmp: Path, source: str, rate: float, record: bool = True, reader: str | None = None) -> Path:
+    from lab import REPO
+
+    block = 10
+    data: dict[str, Any] = {
+        "profile": str(REPO / "config" / "profiles" / "pneunet-gripper.yaml"),
+        "publisher": {"pub": f"ipc://{tmp}/pub", "cmd": f"ipc://{tmp}/cmd", "pressure_batch_s": block / rate},
+        "log_level": "WARNING",
+        "recording": {"enabled": record, "dir": str(tmp / "runs"), "min_free_mb": 16},
+    }
+    if source == "sim":
+        data["driver"] = {"kind": "sim", "clock": "realtime", "rate_hz": rate, "block_size": block, "seed": 1}
+    elif source == "serial":
+        cell = yaml.safe_load((REPO / "config" / "cell-serial-sim.yaml").read_text())
+        driver = {**cell["driver"], "port": str(tmp / "device.tty"), "rate_hz": int(rate)}
+        driver.pop("sim_control_port", None)
+        if reader is not None:
+            driver["reader"] = reader
+        data["driver"] = driver
+        data["profile"] = str(REPO / "config" / cell["profile"])
+    else:
+        modbus = REPO / "config" / "cell-modbus-sim.yaml"
+        if not modbus.exists():
+            raise SystemExit("--source modbus needs the Modbus driver (config/cell-modbus-sim.yaml)")
+        cell = yaml.safe_load(modbus.read_text())
+        # daemon and sampler only: the arm's ur_rtde worker (and its own 500 Hz RTDE
+        # stream) is not part of the sampling path being measured
+        data["driver"] = {**cell["driver"], "arm": None, "rate_hz": rate}
+        data["profile"] = str((modbus.parent / cell["profile"]).resolve()) if isinstance(cell["profile"], str) \
+            else cell["profile"]
+    path = tmp / "cell.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def run_bench(seconds: float = 60.0, source: str = "sim", rate: float = 1000.0, load: int = 0,
+              late_us: float = 50.0, record: bool = True, reader: str | None = None) -> dict[str, Any]:
+    tmp = Path(tempfile.mkdtemp(prefix="fluidsense-timing-"))
+    try:
+        cfg = _cell_config(tmp, source, rate, record, reader)
+        res = _measure(tmp, cfg, seconds, source, rate, load, late_us, record)
+        if source == "serial":
+            res["reader"] = yaml.safe_load(cfg.read_text())["driver"].get("reader", "thread")
+        return res
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, load: int, late_us: float,
+             record: bool) -> dict[str, Any]:
+    extra: list[subprocess.Popen] = []
+    rtt = device = None
+    if source == "serial":
+        device = subprocess.Popen([sys.executable, "-m", "lab", "simserial", "--config", str(cfg)],
+                                  stdin=subprocess.DEVNULL, stdout=subprocess.PIPE)
+        extra.append(device)
+        ready = select.select([device.stdout], [], [], 60)[0] and device.stdout.readline().decode()
+        if not ready or not ready.startswith("ready"):
+            device.kill()
+            raise RuntimeError(f"python -m lab simserial did not start (said {ready!r})")
+    if source == "modbus":
+        box = subprocess.Popen([sys.executable, "-m", "fluidsense", "simcell", "--config", str(cfg)],
+                               stdout=subprocess.PIPE)
+        extra.append(box)
+        ready = select.select([box.stdout], [], [], 30)[0] and box.stdout.readline().decode()
+        if not ready or not ready.startswith("ready"):
+            box.kill()
+            raise RuntimeError(f"fluidsense simcell did not start (said {ready!r}); is another box on its ports?")
+        rtt = _modbus_read_times(cfg)
+    daemon = subprocess.Popen([sys.executable, "-m", "fluidsense", "run", "--config", str(cfg)],
+                              stderr=subprocess.PIPE)
+    ctx = zmq.Context()
+    sub = ctx.socket(zmq.SUB)
+    sub.setsockopt(zmq.RCVHWM, 100_000)
+    for topic in (b"pressure", b"hello"):
+        sub.setsockopt(zmq.SUBSCRIBE, topic)
+    sub.connect(f"ipc://{tmp}/pub")
+    burners: list[multiprocessing.Process] = []
+    try:
+        if not sub.poll(30_000) or sub.recv_multipart() != [b"hello"]:
+            raise RuntimeError(f"the daemon did not come up: {daemon.stderr.read().decode()[-2000:]}")
+        n_load = (os.cpu_count() or 1) if load == -1 else load
+        stop_at = time.monotonic() + seconds
+        for _ in range(n_load):
+            pr = multiprocessing.Process(target=_burn, args=(stop_at,))
+            pr.start()
+            burners.append(pr)
+        cpu0, wall0 = _cpu_s(daemon.pid), time.monotonic()
+        dev_cpu0 = _cpu_s(device.pid) if device is not None else 0.0
+        times, newest_age, oldest_age, in_daemon = [], [], [], []
+        while time.monotonic() < stop_at:
+            if not sub.poll(1000):
+                continue
+            frames = sub.recv_multipart()
+            arrival = time.monotonic()
+            if frames[0] != b"pressure":
+                continue
+            msg = json.loads(frames[1])
+            origin = msg["clock_origin_s"]
+            t = msg["times_s"]
+            times.extend(t)
+            newest_age.append(arrival - (origin + t[-1]))
+            in_daemon.append(msg["sent_s"] - (origin + t[-1]))
+            oldest_age.append(arrival - (origin + t[0]))
+        cpu = (_cpu_s(daemon.pid) - cpu0) / (time.monotonic() - wall0)
+        dev_cpu = (_cpu_s(device.pid) - dev_cpu0) / (time.monotonic() - wall0) if device is not None else None
+        link = _status(ctx, tmp).get("source_link") if source == "serial" else None
+    finally:
+        for pr in burners:
+            pr.join(5)
+        daemon.send_signal(signal.SIGTERM)
+        try:
+            daemon.wait(30)
+        except subprocess.TimeoutExpired:
+            daemon.kill()
+        board = None
+        for p in extra:
+            p.terminate()
+            out, _ = p.communicate(timeout=30)
+            if p is device:
+                stats = [line[6:] for line in (out or b"").decode().splitlines() if line.startswith("stats ")]
+                board = json.loads(stats[-1]).get("board") if stats else None
+        sub.close()
+        ctx.term()
+    recorded = sum(f.stat().st_size for f in (tmp / "runs").glob("*.mcap"))
+    t = np.array(times)
+    if len(t) < 2:
+        raise RuntimeError("the subscriber received no samples: see the daemon's log")
+    # sample time 0 is slot 0's deadline and a sample is stamped when its read starts,
+    # before the next slot's deadline: its slot is the floor (rounding would file a
+    # sample more than half a period late under the next slot)
+    k = np.floor(t * rate + 1e-6).astype(np.int64)
+    lateness = (t - k / rate) * 1e6
+    uniq = np.unique(k)
+    pct = np.percentile
+    newest_ms, in_daemon_ms = np.array(newest_age) * 1e3, np.array(in_daemon) * 1e3
+    return {
+        "source": source, "rate_hz": rate, "seconds": seconds, "load_processes": n_load, "samples": int(len(t)),
+        "lost": int(uniq[-1] - uniq[0] + 1 - len(uniq)), "duplicated": int(len(k) - len(uniq)),
+        "late_fraction": float(np.mean(lateness > late_us)), "late_threshold_us": late_us,
+        "lateness_us": _pcts(lateness, p999=True),
+        "e2e_latency_ms": _pcts(newest_ms),
+        "e2e_latency_oldest_ms": {"p50": float(pct(oldest_age, 50) * 1e3), "p99": float(pct(oldest_age, 99) * 1e3)},
+        # the newest sample's age split at the daemon's send: source + daemon, then ZeroMQ to here
+        "to_daemon_send_ms": _pcts(in_daemon_ms),
+        "daemon_send_to_subscriber_ms": _pcts(newest_ms - in_daemon_ms),
+        "cpu_percent": 100.0 * cpu,
+        "recording": record, "recorded_mb": recorded / 2**20,
+        "modbus_read_us": rtt,
+        **({"device_cpu_percent": 100.0 * dev_cpu, "link": link, "board": board} if source == "serial" else {}),
+    }
+
+
+def _status(ctx: zmq.Context, tmp: Path) -> dict[str, Any]:
+    """The daemon's status (its link counts), asked on its command socket."""
+    req = ctx.socket(zmq.REQ)
+    req.setsockopt(zmq.LINGER, 0)
+    req.connect(f"ipc://{tmp}/cmd")
+    try:
+        req.send(json.dumps({"cmd": "status"}).encode())
+        return json.loads(req.recv()) if req.poll(10_000) else {}
+    finally:
+        req.close()
+
+
+def _modbus_read_times(cfg: Path, n: int = 5000) -> dict[str, float]:
+    """Round trip of one poll (every wired analog input in one request), before the daemon
+    starts: the sampler's own poller code, here at normal priority in this process, paced
+    at 1 kHz. The floor under any polled sample's latency."""
+    from fluidsense.controller.config import load_cell_config
+    from fluidsense.drivers.modbus.backend import modbus_inputs
+    from fluidsense.drivers.modbus.poller import ModbusAnalogPoller
+
+    cell = load_cell_config(cfg)
+    d = cell.driver
+    poller = ModbusAnalogPoller(d.host, d.port, d.device_id, modbus_inputs(d, cell.profile.hardware.channels),
+                                d.timeout_s)
+    poller.open()
+    took = np.empty(n)
+    try:
+        due = time.monotonic()
+        for i in range(n):
+            due += 1e-3
+            time.sleep(max(0.0, due - time.monotonic()))
+            t0 = time.perf_counter()
+            poller.read()
+            took[i] = time.perf_counter() - t0
+    finally:
+        poller.close()
+    took *= 1e6
+    return {"reads": n, **_pcts(took, p999=True),
+            "over_1ms_fraction": float(np.mean(took > 1000.0))}
+
+
+def _pcts(x: np.ndarray, p999: bool = False) -> dict[str, float]:
+    out = {"p50": float(np.percentile(x, 50)), "p99": float(np.percentile(x, 99))}
+    if p999:
+        out["p999"] = float(np.percentile(x, 99.9))
+    return {**out, "max": float(x.max())}
+
+
+def run(args: argparse.Namespace) -> int:
+    rate = args.rate_hz or (500.0 if args.source == "modbus" else 1000.0)
+    res = run_bench(args.seconds, args.source, rate, args.load, args.late_us, args.record, args.reader)
+    if args.json:
+        print(json.dumps(res, indent=1))
+        return 0
+    lat, e2e = res["lateness_us"], res["e2e_latency_ms"]
+    print(f"{res['source']} at {res['rate_hz']:.0f} Hz for {res['seconds']:.0f} s ({res['load_processes']} load "
+          f"processes): {res['samples']} samples, {res['lost']} lost, {res['duplicated']} duplicated, "
+          f"{100 * res['late_fraction']:.3f} % late; lateness p50/p99/p99.9/max {lat['p50']:.1f}/{lat['p99']:.1f}/"
+          f"{lat['p999']:.1f}/{lat['max']:.1f} us; latency to subscriber p50/p99/max {e2e['p50']:.2f}/"
+          f"{e2e['p99']:.2f}/{e2e['max']:.2f} ms; CPU {res['cpu_percent']:.1f} % of one core")
+    if res["source"] == "serial":
+        link, board = res["link"] or {}, res["board"] or {}
+        wake = board.get("wake_late_us", {})
+        print(f"serial ({res['reader']} reader): {link.get('frames')} frames, {link.get('lost_frames')} lost, "
+              f"{link.get('corrupt_frames')} corrupt, {link.get('retries')} command retries, {link.get('resets')} "
+              f"resets, clock drift {link.get('drift_ppm', 0.0):.1f} ppm; board: {board.get('ticks')} ticks, "
+              f"{board.get('stale')} with late plant inputs, {board.get('skipped')} skipped, {board.get('tx_dropped')} "
+              f"frames dropped, timer wake-up lateness p50/p99/max {wake.get('p50')}/{wake.get('p99')}/"
+              f"{wake.get('max')} us; simulated device CPU {res['device_cpu_percent']:.1f} %")
+    return 0

@@ -1,0 +1,1 @@
+"""The studies' subcommands (``python -m lab COMMAND``), each with ``register(subparsers)``."""

@@ -6,10 +6,16 @@ file beside the calibration (``OUT.cycles.jsonl``) and forced to disk, so a faul
 Ctrl-C or a power cut loses at most the cycle that was running; ``--resume`` reads it back
 and runs only what is missing. The first line is the plan the cycles belong to: a resume
 with another plan is refused rather than mixing two calibrations.
+
+Every cycle's line carries a checksum chained to the line before it (the first to the
+header): a line edited by hand, moved, or pasted from another journal breaks the chain and
+the resume is refused at that line, rather than fitting a curve through a number nobody
+measured. The checksum is against mistakes, not an adversary (it is not keyed).
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -20,6 +26,19 @@ from fluidsense.common.files import decode_utf8, read_bounded
 
 MAX_BYTES = 16 * 2**20  # ~100 bytes a cycle: far more cycles than any calibration has
 KIND = "fluidsense calibration cycles"
+VERSION = 2  # 2: each cycle's line has a chained checksum
+
+
+def _canonical(obj: Any) -> bytes:
+    return json.dumps(obj, sort_keys=True, separators=(",", ":")).encode()
+
+
+def _chain(previous: str, obj: dict[str, Any]) -> str:
+    return hashlib.sha256(previous.encode() + _canonical(obj)).hexdigest()[:16]
+
+
+def _header(plan: dict[str, Any]) -> dict[str, Any]:
+    return {"kind": KIND, "version": VERSION, "plan": plan}
 
 
 def journal_path(out: str | Path) -> Path:
@@ -29,6 +48,9 @@ def journal_path(out: str | Path) -> Path:
 class CycleJournal:
     def __init__(self, path: Path, plan: dict[str, Any], entries: list[dict[str, Any]]):
         self.path, self.plan, self.entries = path, plan, entries
+        self._sum = _chain("", _header(plan))
+        for entry in entries:
+            self._sum = _chain(self._sum, entry)
 
     @classmethod
     def open(cls, path: str | Path, plan: dict[str, Any], resume: bool) -> CycleJournal:
@@ -42,7 +64,7 @@ class CycleJournal:
             entries, complete = cls._read(path, plan)
             if not complete:  # drop the cycle a crash cut off, so that the next one starts on its own line
                 tmp = path.with_name(path.name + ".tmp")
-                tmp.write_text("".join(json.dumps(x) + "\n" for x in [{"kind": KIND, "plan": plan}, *entries]),
+                tmp.write_text("".join(json.dumps(x) + "\n" for x in [_header(plan), *_summed(plan, entries)]),
                                encoding="utf-8")
                 os.replace(tmp, path)
         elif exists and CycleJournal._holds_cycles(path):
@@ -53,7 +75,7 @@ class CycleJournal:
                 os.unlink(path)
             entries = []
             with open(path, "x", encoding="utf-8") as f:
-                f.write(json.dumps({"kind": KIND, "plan": plan}) + "\n")
+                f.write(json.dumps(_header(plan)) + "\n")
                 f.flush()
                 os.fsync(f.fileno())
         return cls(path, plan, entries)
@@ -82,12 +104,16 @@ class CycleJournal:
             header = None
         if not isinstance(header, dict) or header.get("kind") != KIND:
             raise ConfigError(f"{path}:1: not a calibration journal")
+        if header.get("version") != VERSION:
+            raise ConfigError(f"{path}:1: a journal of another fluidsense version (lines without checksums): its "
+                              "cycles cannot be checked; move the file away to start again")
         if header.get("plan") != plan:
             theirs = header.get("plan") if isinstance(header.get("plan"), dict) else {}
             differ = sorted(k for k in {*plan, *theirs} if plan.get(k) != theirs.get(k))
             raise ConfigError(f"{path}:1: the journal is for another calibration (differs in {', '.join(differ)}): "
                               "give the same profile, scene, target, values, feature, fit and cycles")
-        entries = []
+        entries: list[dict[str, Any]] = []
+        last = _chain("", header)
         for n, line in enumerate(lines[1:], start=2):
             try:
                 e = json.loads(line)
@@ -95,11 +121,15 @@ class CycleJournal:
                 entry = {"value": None if e["value"] is None else float(e["value"]), "k": int(e["k"]),
                          "cycle_id": int(e["cycle_id"]),
                          "y": None if e["y"] is None else float(e["y"])}
-            except (ValueError, KeyError, TypeError) as exc:
-                if n == len(lines):  # the cycle a crash cut off while it was written
-                    complete = False
+                if e.get("sum") != _chain(last, entry):
+                    raise ValueError("its checksum does not follow the line before")
+            except (ValueError, KeyError, TypeError, AttributeError) as exc:
+                if n == len(lines) and not complete:  # the cycle a crash cut off while it was written
                     break
-                raise ConfigError(f"{path}:{n}: not a finished cycle ({type(exc).__name__}: {exc})") from exc
+                raise ConfigError(f"{path}:{n}: not a finished cycle of this journal ({exc}: edited, moved or copied "
+                                  f"from another journal); move the file away to start again, or delete line {n} and "
+                                  "those after it to resume before it") from exc
+            last = e["sum"]
             if entry["value"] is None:
                 if not 0 <= entry["k"] < plan.get("free_cycles", 0):
                     raise ConfigError(f"{path}:{n}: free cycle {entry['k']} is not in the plan")
@@ -109,8 +139,18 @@ class CycleJournal:
         return entries, complete
 
     def add(self, entry: dict[str, Any]) -> None:
+        self._sum = _chain(self._sum, entry)
         with open(self.path, "a", encoding="utf-8") as f:
-            f.write(json.dumps(entry) + "\n")
+            f.write(json.dumps({**entry, "sum": self._sum}) + "\n")
             f.flush()
             os.fsync(f.fileno())
         self.entries.append(entry)
+
+
+def _summed(plan: dict[str, Any], entries: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The entries as their lines are written: each with its checksum."""
+    out, last = [], _chain("", _header(plan))
+    for entry in entries:
+        last = _chain(last, entry)
+        out.append({**entry, "sum": last})
+    return out

@@ -85,6 +85,44 @@ def test_a_journal_cut_off_mid_line_resumes_from_the_last_whole_cycle(tmp_path):
     assert [e["k"] for e in CycleJournal.open(path, _plan(cfg), resume=True).entries] == [0, 1]
 
 
+def test_a_journal_line_edited_moved_or_from_another_journal_is_refused_at_that_line(tmp_path):
+    """A resume fits a curve through every line it accepts: a value edited by hand (one
+    reading times ten gave r^2 0.021 and exit 0), two lines swapped, or a line pasted from
+    another run of the same plan are refused with the line's number, before any cycle."""
+    cfg = _cell()
+    plan = _plan(cfg)
+
+    def journal(name: str, ys: list[float]) -> Path:
+        path = journal_path(tmp_path / name)
+        j = CycleJournal.open(path, plan, resume=False)
+        for k, y in enumerate(ys):
+            j.add({"value": 40.0, "k": k, "cycle_id": k + 1, "y": y})
+        return path
+
+    good = journal("a.json", [30000.0, 30010.0, 30020.0])
+    assert [e["y"] for e in CycleJournal.open(good, plan, resume=True).entries] == [30000.0, 30010.0, 30020.0]
+    lines = good.read_text().splitlines()
+
+    def refused(text: str) -> str:
+        bad = tmp_path / "bad.json.cycles.jsonl"
+        bad.write_text(text)
+        with pytest.raises(ConfigError) as err:
+            CycleJournal.open(bad, plan, resume=True)
+        return str(err.value)
+
+    tenfold = json.loads(lines[2])
+    tenfold["y"] *= 10
+    assert f"bad.json.cycles.jsonl:3: not a finished cycle of this journal" in \
+        refused("\n".join([*lines[:2], json.dumps(tenfold), *lines[3:]]) + "\n")
+    assert ":3: " in refused("\n".join([lines[0], lines[1], lines[3], lines[2]]) + "\n")
+    other = journal("b.json", [31000.0, 31010.0]).read_text().splitlines()
+    assert ":4: " in refused("\n".join([*lines[:3], other[2]]) + "\n")
+    # a journal from before the checksums: nothing in it can be checked
+    old = [json.dumps({"kind": json.loads(lines[0])["kind"], "plan": plan}),
+           *(json.dumps({k: v for k, v in json.loads(line).items() if k != "sum"}) for line in lines[1:])]
+    assert "another fluidsense version" in refused("\n".join(old) + "\n")
+
+
 def test_a_task_stopped_by_a_fault_reports_it_with_what_it_did():
     from fluidsense.tasks.config import load_task
     from fluidsense.tasks.runner import run_task

@@ -167,13 +167,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         "profile": cfg.profile.name, "scene": scene.model_dump(), "target": target, "values": values,
         "feature": feature, "fit": fit, "cycles": cycles, "drop_first": drop, "free_cycles": free},
         resume=args.resume)
+    total = len(values) * cycles + free  # the free (nothing there) cycles count as the bar counts them
     if journal.entries:
-        print(f"resuming: {len(journal.entries)} of {len(values) * cycles} cycles done ({journal.path})",
-              file=sys.stderr)
+        print(f"resuming: {len(journal.entries)} of {total} cycles done ({journal.path})", file=sys.stderr)
 
     async def job():
         async with app.controller(cfg, own_process=True) as ctrl:
-            total = len(values) * cycles + free
             with tqdm(total=total, initial=len(journal.entries), desc=f"calibrating {cfg.profile.name}",
                       unit="cycle", file=sys.stderr, disable=args.json) as bar:
                 if operator is not None:

@@ -155,13 +155,13 @@ image-check: $(STAMP)
 
 # Debian bookworm, minimal, with python3 from apt, as a local base image (~1-2 minutes)
 image-base:
-	@root=$$(mktemp -d /tmp/fluidsense-base.XXXXXX); \
+	@root=$$(mktemp -d /tmp/fluidsense-base.XXXXXX); start=$$(date +%s); \
 	echo "make image-base: debootstrap bookworm into $$root"; \
 	debootstrap --variant=minbase --include=python3 bookworm $$root > $$root.log 2>&1 \
 		|| { tail -n 20 $$root.log; rm -rf $$root $$root.log; exit 1; }; \
 	rm -rf $$root/var/cache/apt/archives/*.deb $$root/var/lib/apt/lists/*; \
 	tar -C $$root -c . | $(ENGINE) import --quiet - $(IMAGE_BASE) >/dev/null; rc=$$?; \
-	rm -rf $$root $$root.log; exit $$rc
+	rm -rf $$root $$root.log; [ $$rc != 0 ] || echo "make image-base: made in $$(( $$(date +%s) - start )) s"; exit $$rc
 
 image-clean:
 	-$(ENGINE) rmi --force $(IMAGE_BASE) $$($(ENGINE) images --quiet --filter reference='localhost/fluidsense:check-*')

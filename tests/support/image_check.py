@@ -152,7 +152,7 @@ def run_container(engine: Engine, image: str, tmp: Path, uid: int) -> float:
     name = f"fluidsense-check-{os.getpid()}"
     t0 = time.monotonic()
     volumes = (f"{conf}:{CONFIG}:ro", f"{runs}:{RUNS}")
-    engine("run", "--detach", "--name", name, *engine.run_flags,
+    engine("run", "--detach", "--replace", "--name", name, *engine.run_flags,
            "--publish", f"127.0.0.1::{PUB_PORT}", "--publish", f"127.0.0.1::{CMD_PORT}",
            *(f"--volume={v}" for v in volumes), image)
     try:

@@ -112,10 +112,11 @@ wheel: $(STAMP)
 # installed. The base is made once and kept (`make image-clean` removes it and the images).
 #
 # The engine's flags, in one place, for the machines this project is built and tested on:
-#   --runtime runc   crun refuses their hybrid (v1 and v2 mixed) cgroup hierarchy; runc runs there
-#   --ulimit ...     the engine's default open-files limit is above the hard limit a process
-#                    gets there, and runc cannot raise it ("error setting rlimits"); 1024 is
-#                    plenty for the daemon
+#   --runtime runc   crun refuses their hybrid (v1 and v2 mixed) cgroup hierarchy ("cgroups in
+#                    hybrid mode not supported"); runc runs there
+#   --ulimit ...     the engine's default open-files and processes limits are above the hard
+#                    limits a process gets there, and runc cannot raise them ("error setting
+#                    rlimits", each of the two on its own); 1024 is plenty for the daemon
 #   --network host   builds only: a build reaches the package registries as the host does
 #   --format docker  builds only: OCI images have no HEALTHCHECK; podman keeps it in this format
 #   --layers=false   builds only: nothing of a build is left behind but its image (no

@@ -29,7 +29,7 @@ import tomllib
 from pathlib import Path
 
 import yaml
-from fluidsense.client import GRIPPER_TOPICS, Gripper
+from fluidsense.client import GRIPPER_TOPICS, Gripper, NoReply, Refused
 from fluidsense.config import SHIPPED
 
 REPO = Path(__file__).resolve().parents[2]
@@ -168,7 +168,7 @@ def run_container(engine: Engine, image: str, tmp: Path, uid: int) -> float:
                 try:
                     g.attach(1)
                     status = g.status()
-                except Exception:  # noqa: BLE001 - not up yet (NoReply, Refused while connecting)
+                except (NoReply, Refused):  # not up yet, or still connecting
                     status = None
                 if status and status["state"] == "idle" and status["samples"] > 0:
                     startup_s = time.monotonic() - t0

@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 # installed package; they are not in the wheel
 LAB := $(BIN)/python -m lab
 
-.PHONY: demo test install clean wheel wheelhouse-check lint-imports report speed-accuracy stability timing faults fuzz busy grips soak firmware firmware-host
+.PHONY: demo test install clean wheel image-check image-base image-clean lint-imports report speed-accuracy stability timing faults fuzz busy grips soak firmware firmware-host
 
 $(STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
@@ -22,10 +22,22 @@ demo: $(STAMP)
 	$(BIN)/fluidsense demo
 
 # the serial driver's tests run the firmware's host board (gcc only); the AVR image is
-# built by `make firmware`, when avr-gcc is there
+# built by `make firmware`, when avr-gcc is there.
+# Where podman, runc and debootstrap are installed (as root), `make image-check` runs beside
+# the suite, in the background: it mostly waits on the network and the engine, and
+# tests/test_ship.py waits for its result (FLUIDSENSE_IMAGE_CHECK_LOG) instead of holding a
+# worker for its minutes.
 test: $(STAMP) firmware-host
 	@command -v avr-gcc >/dev/null || echo "make test: avr-gcc not found: the AVR image is not built (make firmware builds it; apt-get install gcc-avr avr-libc)"
-	$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder
+	@log=; if $(IMAGE_READY); then \
+		log=$$(mktemp /tmp/fluidsense-image-check.XXXXXX); export FLUIDSENSE_IMAGE_CHECK_LOG=$$log; \
+		{ $(IMAGE_CHECK) > $$log 2>&1; echo "exit $$?" >> $$log; } & \
+	else echo "make test: $(IMAGE_MISSING)"; fi; \
+	echo "$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder"; \
+	$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder; rc=$$?; \
+	wait; if [ -n "$$log" ]; then grep -h "^image-check: image size" $$log; \
+		grep -qx "exit 0" $$log && rm -f $$log || echo "make test: make image-check failed: $$log"; fi; \
+	exit $$rc
 
 # The serial streamer's firmware (firmware/README.md): the AVR image (size reported; needs
 # gcc-avr and avr-libc) and the host board that runs behind a pty in the tests.
@@ -89,17 +101,71 @@ soak: $(STAMP)
 wheel: $(STAMP)
 	$(BIN)/python -m pip wheel --no-deps --quiet --wheel-dir dist .
 
-# The Docker image's two pip steps on this host (no Docker engine here): every runtime
-# wheel built into a wheelhouse, a fresh venv installs from it alone (no index, no test
-# extras), then `fluidsense demo` runs from a directory outside the checkout (~3 minutes).
-WHEELHOUSE_TMP := $(shell mktemp -d -u /tmp/fluidsense-wheelhouse.XXXXXX)
-wheelhouse-check:
-	$(PYTHON) -m venv $(WHEELHOUSE_TMP)/venv
-	$(WHEELHOUSE_TMP)/venv/bin/python -m pip wheel --quiet --wheel-dir $(WHEELHOUSE_TMP)/wheels .
-	$(WHEELHOUSE_TMP)/venv/bin/python -m pip install --quiet --no-index --find-links $(WHEELHOUSE_TMP)/wheels fluidsense
-	mkdir -p $(WHEELHOUSE_TMP)/elsewhere
-	cd $(WHEELHOUSE_TMP)/elsewhere && $(WHEELHOUSE_TMP)/venv/bin/fluidsense demo
-	rm -rf $(WHEELHOUSE_TMP)
+# ------------------------------------------------------------------- the production image
+# `make image-check` (docs/deployment.md "Container"): builds a base image from Debian with
+# debootstrap (python3 from apt; no image registry needed), the Dockerfile on it with podman,
+# then runs the image and checks what a deployment relies on (tests/support/image_check.py:
+# the non-root daemon on the simulated cell, `fluidsense cmd status` from the host through
+# the published command port, the engine's healthcheck, the config and runs volumes, SIGTERM,
+# pip list) and prints the image's size and start-up time. As root it installs podman, runc
+# and debootstrap with apt-get when they are missing; `make test` runs it when they are
+# installed. The base is made once and kept (`make image-clean` removes it and the images).
+#
+# The engine's flags, in one place, for the machines this project is built and tested on:
+#   --runtime runc   crun refuses their hybrid (v1 and v2 mixed) cgroup hierarchy ("cgroups in
+#                    hybrid mode not supported"); runc runs there
+#   --ulimit ...     the engine's default open-files and processes limits are above the hard
+#                    limits a process gets there, and runc cannot raise them ("error setting
+#                    rlimits", each of the two on its own); 1024 is plenty for the daemon
+#   --network host   builds only: a build reaches the package registries as the host does
+#   --format docker  builds only: OCI images have no HEALTHCHECK; podman keeps it in this format
+#   --layers=false   builds only: nothing of a build is left behind but its image (no
+#                    intermediate images piling up from run to run)
+#   PIP_CERT         when set in the environment (the CA bundle of a TLS-inspecting proxy), it
+#                    is mounted into the build and named to pip
+ENGINE := podman
+ENGINE_FLAGS := --runtime runc --ulimit nofile=1024:1024 --ulimit nproc=1024:1024
+ENGINE_BUILD_FLAGS := $(ENGINE_FLAGS) --network host --format docker --layers=false \
+	$(if $(PIP_CERT),--volume $(PIP_CERT):/run/pip-ca.crt:ro --build-arg PIP_CERT=/run/pip-ca.crt)
+IMAGE_BASE := localhost/fluidsense-base:bookworm
+IMAGE_TOOLS := podman runc debootstrap
+IMAGE_READY = [ "$$(id -u)" = 0 ] && command -v podman >/dev/null && command -v runc >/dev/null \
+	&& command -v debootstrap >/dev/null
+# through a variable: a recipe line naming $(MAKE) itself would run even under `make -n`
+IMAGE_CHECK = $(MAKE) --no-print-directory image-check
+IMAGE_MISSING = podman, runc or debootstrap not installed, or not root: the production image is not built \
+	or run (make image-check, as root, installs them and does both)
+
+image-check: $(STAMP)
+	@missing=$$(for t in $(IMAGE_TOOLS); do command -v $$t >/dev/null || echo $$t; done); \
+	if [ -n "$$missing" ]; then \
+		[ "$$(id -u)" = 0 ] || { echo "make image-check: needs $$missing (apt-get install $(IMAGE_TOOLS), as root)"; exit 1; }; \
+		echo "make image-check: installing $$missing"; \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(IMAGE_TOOLS) >/dev/null; \
+	fi
+	@$(ENGINE) image exists $(IMAGE_BASE) || $(MAKE) --no-print-directory image-base
+	@tag=localhost/fluidsense:check-$$$$; log=$$(mktemp /tmp/fluidsense-image-build.XXXXXX); \
+	echo "make image-check: building $$tag on $(IMAGE_BASE) (log: $$log)"; \
+	start=$$(date +%s); \
+	$(ENGINE) build $(ENGINE_BUILD_FLAGS) --build-arg BASE=$(IMAGE_BASE) --tag $$tag . > $$log 2>&1 \
+		|| { tail -n 30 $$log; echo "make image-check: the build failed (all of it: $$log)"; exit 1; }; \
+	echo "make image-check: built in $$(( $$(date +%s) - start )) s"; rm -f $$log; \
+	$(BIN)/python tests/support/image_check.py --engine $(ENGINE) --run-flags "$(ENGINE_FLAGS)" \
+		--base $(IMAGE_BASE) $$tag; rc=$$?; \
+	$(ENGINE) rmi --force $$tag >/dev/null; exit $$rc
+
+# Debian bookworm, minimal, with python3 from apt, as a local base image (~1-2 minutes)
+image-base:
+	@root=$$(mktemp -d /tmp/fluidsense-base.XXXXXX); start=$$(date +%s); \
+	echo "make image-base: debootstrap bookworm into $$root"; \
+	debootstrap --variant=minbase --include=python3 bookworm $$root > $$root.log 2>&1 \
+		|| { tail -n 20 $$root.log; rm -rf $$root $$root.log; exit 1; }; \
+	rm -rf $$root/var/cache/apt/archives/*.deb $$root/var/lib/apt/lists/*; \
+	tar -C $$root -c . | $(ENGINE) import --quiet - $(IMAGE_BASE) >/dev/null; rc=$$?; \
+	rm -rf $$root $$root.log; [ $$rc != 0 ] || echo "make image-base: made in $$(( $$(date +%s) - start )) s"; exit $$rc
+
+image-clean:
+	-$(ENGINE) rmi --force $(IMAGE_BASE) $$($(ENGINE) images --quiet --filter reference='localhost/fluidsense:check-*')
 
 lint-imports: $(STAMP)
 	$(BIN)/lint-imports

@@ -1,19 +1,15 @@
-"""Deployment: systemd readiness and watchdog (sd_notify), the unit file, the Dockerfile."""
+"""Deployment: systemd readiness and watchdog (sd_notify), and the unit file."""
 
 from __future__ import annotations
 
 import asyncio
-import re
 import shlex
-import shutil
 import signal
 import socket
-import subprocess
 from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
-from fluidsense.controller.config import load_cell_config
 from fluidsense.controller.telemetry.replay import replay_file
 from fluidsense.daemon.notify import (
     LoopWatchdog,
@@ -21,10 +17,8 @@ from fluidsense.daemon.notify import (
     keep_alive,
     watchdog_interval,
 )
-from support.harness import REPO, run, sim_config
-
-UNIT = REPO / "config" / "systemd" / "fluidsense.service"
-UNIT_CONFIG = REPO / "config" / "systemd" / "cell.yaml"
+from support.harness import run, sim_config
+from support.shipping import unit_entries
 
 
 def notify_socket(path: Path) -> socket.socket:
@@ -220,24 +214,8 @@ def test_a_loop_stuck_in_a_device_command_fails_the_watchdog(virtual_controller)
 
 
 # ------------------------------------------------------------------ the unit
-def unit_entries(path: Path) -> dict[str, list[str]]:
-    """``Section.Key`` -> values (systemd allows a key several times)."""
-    out: dict[str, list[str]] = {}
-    section = None
-    for raw in path.read_text().splitlines():
-        line = raw.strip()
-        if not line or line.startswith(("#", ";")):
-            continue
-        if line.startswith("["):
-            section = line.strip("[]")
-            continue
-        key, _, value = line.partition("=")
-        out.setdefault(f"{section}.{key.strip()}", []).append(value.strip())
-    return out
-
-
 def test_the_systemd_unit_is_a_notify_service_with_a_watchdog():
-    unit = unit_entries(UNIT)
+    unit = unit_entries()
     one = {k: v[-1] for k, v in unit.items()}
     assert one["Service.Type"] == "notify" and one["Service.NotifyAccess"] == "main"
     assert one["Service.Restart"] == "on-failure" and one["Service.KillSignal"] == "SIGTERM"
@@ -248,42 +226,17 @@ def test_the_systemd_unit_is_a_notify_service_with_a_watchdog():
     assert watchdog_s / 2 > 0.5 + 1.0
     assert float(one["Service.TimeoutStopSec"].removesuffix("s")) > 5
     assert one["Service.User"] != "root" and one["Service.NoNewPrivileges"] == "yes"
-    assert one["Service.ProtectSystem"] == "strict" and "runs" in one["Service.ReadWritePaths"]
+    # read-only but for its state directory, where it works and records
+    assert one["Service.ProtectSystem"] == "strict" and one["Service.StateDirectory"] == "fluidsense"
+    assert one["Service.WorkingDirectory"] == "/var/lib/fluidsense"
     assert one["Service.LimitRTPRIO"] == "40"  # the sampler's SCHED_FIFO priority (docs/sampler.md)
     argv = shlex.split(one["Service.ExecStart"])
-    assert argv[0] == one["Service.WorkingDirectory"] + "/.venv/bin/fluidsense"  # make install's venv
-    assert argv[1:] == ["run", "--config", "/etc/fluidsense/cell.yaml"]
+    assert argv[0] == "/opt/fluidsense/venv/bin/fluidsense"  # the venv the wheel is installed into
+    assert argv[1:] == ["run", "--config", "/etc/fluidsense/cell.yaml", "--tasks-dir", "/etc/fluidsense/tasks"]
 
 
-def test_the_units_config_is_in_the_repository_and_validates(tmp_path):
-    """/etc/fluidsense/cell.yaml is installed from config/systemd/cell.yaml (the install
-    steps in docs/deployment.md say so); with /opt/fluidsense as this checkout it loads,
-    and it records where the unit lets the service write."""
-    unit = {k: v[-1] for k, v in unit_entries(UNIT).items()}
-    root = unit["Service.WorkingDirectory"]
-    assert re.search(r"install .*config/systemd/cell\.yaml /etc/fluidsense/cell\.yaml",
-                     (REPO / "docs" / "deployment.md").read_text())
-    installed = tmp_path / "cell.yaml"
-    installed.write_text(UNIT_CONFIG.read_text().replace(root, str(REPO)))
-    cfg = load_cell_config(installed)
-    assert cfg.driver.clock == "realtime" and cfg.recording.enabled
-    writable = [p.replace(root, str(REPO)) for p in unit["Service.ReadWritePaths"].split()]
-    assert cfg.recording.dir in writable
-
-
-@pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze is not installed")
-def test_systemd_analyze_verifies_the_unit(tmp_path):
-    """The unit as installed, with /opt/fluidsense pointing at this checkout so that the
-    executable exists (verify checks it)."""
-    unit = tmp_path / "fluidsense.service"
-    unit.write_text(UNIT.read_text().replace("/opt/fluidsense", str(REPO)))
-    out = subprocess.run(["systemd-analyze", "verify", "--man=no", str(unit)], capture_output=True, text=True,
-                         timeout=60)
-    problems = [line for line in (out.stdout + out.stderr).splitlines() if "fluidsense.service" in line]
-    assert out.returncode == 0 and not problems, out.stdout + out.stderr
-
-
-# the Dockerfile and the wheel: tests/test_ship.py
+# the unit installed from the wheel as docs/deployment.md says, systemd-analyze verify on it, the
+# Dockerfile and the wheel: tests/test_ship.py
 
 
 def test_a_daemon_started_before_the_robot_is_connecting_then_ready_when_it_comes(tmp_path):

@@ -1,63 +1,64 @@
-"""Shipping: the production Dockerfile (read here; `make image-check` builds and runs it
-where a container engine is installed) and the wheel, built here and run from outside the
-checkout with its configs as package data."""
+"""Shipping: the production Dockerfile (read here, and built and run by `make image-check`
+where podman is installed), the wheel (built here and run from outside the checkout with
+its configs as package data), and docs/deployment.md's install from that wheel, run in a
+scratch root, whose unit systemd-analyze verifies and which agrees with the image."""
 
 from __future__ import annotations
 
 import json
+import os
 import re
+import shlex
 import shutil
 import subprocess
 import sys
+import time
 import zipfile
+from pathlib import Path
 
 import pytest
 from fluidsense.controller.config import load_cell_config
 from support.harness import REPO
+from support.shipping import doc_block, dockerfile, stages, unit_entries
 
 
-def dockerfile() -> list[tuple[str, str]]:
-    """(INSTRUCTION, arguments), continuation lines joined."""
-    text = re.sub(r"\\\n", " ", (REPO / "Dockerfile").read_text())
-    return [(line.split(None, 1)[0].upper(), line.split(None, 1)[1].strip())
-            for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")]
-
-
-def final_stage(steps):
-    starts = [i for i, (k, _) in enumerate(steps) if k == "FROM"]
-    return steps[starts[-1]:]
-
-
-def test_the_image_is_multi_stage_non_root_with_a_healthcheck_and_no_test_extras():
+def test_the_image_takes_its_base_as_an_argument_and_ships_the_venv_alone_as_a_user_of_its_own():
+    """The Dockerfile read (``make image-check`` builds and runs it: the test below)."""
     steps = dockerfile()
-    froms = [a for k, a in steps if k == "FROM"]
-    assert len(froms) == 2 and froms[0].endswith(" AS build"), froms
-    final = final_stage(steps)
-    # the base image satisfies requires-python
-    version = re.search(r"python:(\d+)\.(\d+)", froms[-1])
+    text = (REPO / "Dockerfile").read_text()
+    # the base: a build argument whose default is the official slim Python that meets requires-python
+    default = re.search(r"^ARG BASE=python:(\d+)\.(\d+)-slim$", text, re.M)
     required = re.search(r'requires-python = ">=(\d+)\.(\d+)"', (REPO / "pyproject.toml").read_text())
-    assert version and required and tuple(map(int, version.groups())) >= tuple(map(int, required.groups()))
-    # runtime dependencies only: the wheels built in the first stage, nothing from the sources
-    runs = " ".join(a for k, a in final if k == "RUN")
-    assert "--no-index" in runs and "pip install" in runs
-    assert "[test]" not in (REPO / "Dockerfile").read_text() and "make" not in runs.split()
+    assert default and required and tuple(map(int, default.groups())) >= tuple(map(int, required.groups()))
+    by = stages(steps)
+    assert list(by) == ["python", "build", "final"], list(by)
+    assert by["python"][0][1] == "${BASE} AS python" and by["build"][0][1] == "python AS build"
+    assert by["final"][0][1] == "python"
+    # the build stage makes the wheel and installs it into the venv, no extras, no editable install
+    build_runs = " ".join(a for k, a in by["build"] if k == "RUN")
+    assert "pip wheel" in build_runs and "--no-deps" in build_runs
+    assert re.search(r"pip install (--\S+ )*/dist/fluidsense-\*\.whl", build_runs), build_runs
+    assert "[" not in build_runs and " -e " not in build_runs and "make" not in build_runs.split()
+    # the last stage takes the venv alone from it: no sources, no wheels, no compiler
+    final = by["final"]
     copies = [a for k, a in final if k == "COPY"]
-    assert any(c.startswith("--from=build ") for c in copies)
-    assert not any(c.split()[0] in (".", "./") for c in copies), "the final stage copies the source tree"
+    assert copies == ["--from=build /opt/fluidsense/venv /opt/fluidsense/venv"], copies
+    assert "pip" not in " ".join(a for k, a in final if k == "RUN").split()
     # a user of its own, set after every RUN (root only while installing)
     users = [i for i, (k, _) in enumerate(final) if k == "USER"]
     assert users and final[users[-1]][1] not in ("root", "0", "0:0")
     assert max(i for i, (k, _) in enumerate(final) if k == "RUN") < users[-1]
-    # the health check asks the command socket
+    # healthy = heartbeats arrive on the event socket (no command keys needed)
     health = dict(final)["HEALTHCHECK"]
     cmd = json.loads(health.split("CMD", 1)[1])
-    assert cmd[:3] == ["fluidsense", "cmd", "status"]
-    # config and recordings are volumes; the default cell exists, validates, and records into one
+    assert cmd[:2] == ["fluidsense", "monitor"] and cmd[cmd.index("--topic") + 1] == "heartbeat"
+    # config and recordings are volumes; the default cell exists in the wheel, validates, and
+    # records into the runs volume
     volumes = json.loads(dict(final)["VOLUME"])
     run = json.loads(dict(final)["CMD"])
-    assert run[:3] == ["fluidsense", "run", "--config"] and run[3].startswith(volumes[0] + "/")
-    source = next(a.split()[0] for k, a in final if k == "COPY" and a.split()[-1] == run[3])
-    cfg = load_cell_config(REPO / source)
+    assert run[:3] == ["fluidsense", "run", "--config"] and run[3] == volumes[0] + "/cell.yaml"
+    assert re.search(r'cp "\$shipped/cell-sim-container.yaml" ' + re.escape(run[3]), text)
+    cfg = load_cell_config(REPO / "config" / "cell-sim-container.yaml")
     assert cfg.driver.kind == "sim" and cfg.recording.enabled and not cfg.recording.dir.startswith("/")
     assert dict(final)["WORKDIR"] + "/" + cfg.recording.dir in volumes
     assert cfg.publisher.cmd.startswith("tcp://127.0.0.1:") and cfg.publisher.pub.startswith("tcp://0.0.0.0:")
@@ -127,20 +128,145 @@ def test_the_installed_wheel_runs_outside_the_checkout_beside_a_users_own_module
     assert json.loads(demo.stdout)
 
 
+# ------------------------------------------------------- the install from the wheel
+def rooted(block: str, root: Path, wheel: Path) -> list[str]:
+    """A block of docs/deployment.md made to run in ``root`` instead of ``/``: absolute
+    paths under it, the wheel built here for the copied one, no ``useradd`` or ``systemctl``
+    (users and services of this machine), and pip without dependencies (they come from the
+    index: the image check installs them for real)."""
+    out = []
+    for line in block.splitlines():
+        cmd = line.split(" #", 1)[0].strip()
+        if not cmd or cmd.startswith("#") or cmd.split()[0] in ("useradd", "systemctl"):
+            continue
+        cmd = re.sub(r"(?<![\w.$/])/(opt|etc)/", lambda m: f"{root}/{m.group(1)}/", cmd)
+        cmd = re.sub(r"\S*fluidsense-[\w.]+-py3-none-any\.whl", str(wheel), cmd)
+        out.append(cmd.replace("/bin/pip install ", "/bin/pip install --no-deps "))
+    return out
+
+
+@pytest.fixture(scope="module")
+def installed(wheel, tmp_path_factory) -> Path:
+    """docs/deployment.md's install block, run for real in a scratch root."""
+    root = tmp_path_factory.mktemp("root")
+    (root / "etc" / "systemd" / "system").mkdir(parents=True)  # there on a robot PC
+    script = rooted(doc_block("### Install on the robot PC"), root, wheel)
+    assert any("bin/pip install --no-deps " + str(wheel) in line for line in script), script
+    out = subprocess.run(["bash", "-euo", "pipefail", "-c", "\n".join(script)], capture_output=True, text=True,
+                         timeout=600)
+    assert out.returncode == 0, "\n".join(script) + "\n" + out.stderr
+    return root
+
+
+def test_the_docs_install_the_wheel_into_the_venv_the_unit_names_and_the_image_agrees(installed):
+    """No clone, no test extras: the wheel into a venv, the unit and the config from the
+    wheel; the installed unit runs that venv's fluidsense on the installed config, and the
+    image has the same venv, command, working directory, user and recordings."""
+    root, block = installed, doc_block("### Install on the robot PC")
+    assert "git clone" not in block and "make install" not in block and "[test]" not in block
+    unit = {k: v[-1] for k, v in unit_entries(root / "etc/systemd/system/fluidsense.service").items()}
+    argv = shlex.split(unit["Service.ExecStart"])
+    venv = re.search(r"^python3 -m venv (\S+)$", block, re.M).group(1)
+    exe = root / argv[0].lstrip("/")
+    assert argv[0] == venv + "/bin/fluidsense" and exe.is_file() and os.access(exe, os.X_OK)
+    # the installed config validates, beside the profiles and tasks it names
+    config, tasks = argv[argv.index("--config") + 1], argv[argv.index("--tasks-dir") + 1]
+    cfg = load_cell_config(root / config.lstrip("/"))
+    assert cfg.driver.kind == "sim" and cfg.driver.clock == "realtime" and cfg.recording.enabled
+    assert (root / tasks.lstrip("/") / "sorting.yaml").is_file()
+    # the service writes only in its state directory: its home, working directory and recordings
+    state = "/var/lib/" + unit["Service.StateDirectory"]
+    assert unit["Service.WorkingDirectory"] == state and cfg.recording.dir.startswith(state + "/")
+    assert unit["Service.ProtectSystem"] == "strict" and "Service.ReadWritePaths" not in unit
+    assert re.search(rf"^useradd .*--home-dir {state} .*{unit['Service.User']}$", block, re.M)
+    # the image: the same venv on its PATH, the same command, directory, user and recordings
+    by = stages(dockerfile())
+    final = dict(by["final"])
+    assert f"python3 -m venv {venv} " in " ".join(a for k, a in by["build"] if k == "RUN")
+    assert dict(by["python"])["ENV"].startswith(f"PATH={venv}/bin:")
+    assert json.loads(final["CMD"]) == ["fluidsense", *argv[1:]]
+    assert final["WORKDIR"] == state and final["USER"] == unit["Service.User"]
+    assert cfg.recording.dir in json.loads(final["VOLUME"]) and os.path.dirname(config) in json.loads(final["VOLUME"])
+
+
+def systemd_units() -> Path:
+    """This machine's systemd unit folder (the targets a service unit is ordered against)."""
+    return next(p for p in (Path("/usr/lib/systemd/system"), Path("/lib/systemd/system"))
+                if (p / "sysinit.target").exists())
+
+
+def verify(root: Path) -> tuple[int, str]:
+    out = subprocess.run(["systemd-analyze", "verify", "--man=no", f"--root={root}", "fluidsense.service"],
+                         capture_output=True, text=True, timeout=60)
+    return out.returncode, out.stdout + out.stderr
+
+
 @pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="systemd-analyze is not installed")
-def test_the_device_drop_in_verifies_and_keeps_the_hardening(tmp_path):
-    """The drop-in's settings added at the end of the unit's [Service] (a later assignment
-    wins, as a drop-in's does), verified with /opt/fluidsense pointing at this checkout."""
-    unit_text = (REPO / "config/systemd/fluidsense.service").read_text().replace("/opt/fluidsense", str(REPO))
-    drop_in = (REPO / "config/systemd/fluidsense-devices.conf").read_text()
-    assert "PrivateDevices=no" in drop_in and "DevicePolicy=closed" in drop_in
-    kept = ("NoNewPrivileges=yes", "ProtectSystem=strict", "ProtectHome=yes", "PrivateTmp=yes")
-    assert all(k in unit_text for k in kept) and not any(k.split("=")[0] + "=" in drop_in for k in kept)
-    unit = tmp_path / "fluidsense.service"
-    settings = "\n".join(line for line in drop_in.splitlines() if not line.startswith("["))
-    unit.write_text(unit_text.replace("\n[Install]", "\n" + settings + "\n\n[Install]", 1))
-    assert "DevicePolicy=closed" in unit.read_text()
-    out = subprocess.run(["systemd-analyze", "verify", "--man=no", str(unit)], capture_output=True, text=True,
+def test_systemd_analyze_verifies_the_installed_unit_alone_and_with_the_devices_drop_in(installed, wheel):
+    """`systemd-analyze verify --root` on the scratch root: the unit as installed (its
+    ExecStart must exist there), then with the drop-in installed as the docs say."""
+    root = installed
+    shutil.copytree(systemd_units(), root / "usr/lib/systemd/system", dirs_exist_ok=True, symlinks=True)
+    rc, out = verify(root)
+    assert rc == 0 and "fluidsense" not in out, out
+    # verify reads drop-ins under --root: a bad one is reported (then removed)
+    bad = root / "etc/systemd/system/fluidsense.service.d/zz-bad.conf"
+    bad.parent.mkdir(parents=True)
+    bad.write_text("[Service]\nNoSuchSetting=1\n")
+    assert "NoSuchSetting" in verify(root)[1]
+    bad.unlink()
+    # in the install's shell: $shipped is the installed package's config folder
+    shipped = [line for line in rooted(doc_block("### Install on the robot PC"), root, wheel)
+               if line.startswith("shipped=")]
+    script = shipped + rooted(doc_block("**systemd.**"), root, wheel)
+    out = subprocess.run(["bash", "-euo", "pipefail", "-c", "\n".join(script)], capture_output=True, text=True,
                          timeout=60)
-    problems = [line for line in (out.stdout + out.stderr).splitlines() if "fluidsense.service" in line]
-    assert out.returncode == 0 and not problems, out.stdout + out.stderr
+    assert out.returncode == 0, out.stderr
+    drop_in = (root / "etc/systemd/system/fluidsense.service.d/devices.conf").read_text()
+    assert "PrivateDevices=no" in drop_in and "DevicePolicy=closed" in drop_in
+    # the drop-in opens device nodes and nothing else of the hardening
+    unit = unit_entries(root / "etc/systemd/system/fluidsense.service")
+    kept = {"NoNewPrivileges": "yes", "ProtectSystem": "strict", "ProtectHome": "yes", "PrivateTmp": "yes"}
+    assert all(unit[f"Service.{k}"] == [v] for k, v in kept.items())
+    assert not any(f"\n{k}=" in drop_in for k in kept)
+    rc, out = verify(root)
+    assert rc == 0 and "fluidsense" not in out, out
+
+
+# ------------------------------------------------------------------ the image, run
+IMAGE_TOOLS = ("podman", "runc", "debootstrap")
+
+
+def image_check_output() -> tuple[int, str]:
+    """`make image-check`'s output and exit status: from the run `make test` started in the
+    background beside the suite (FLUIDSENSE_IMAGE_CHECK_LOG; its last line is ``exit N``),
+    or run here."""
+    log = os.environ.get("FLUIDSENSE_IMAGE_CHECK_LOG")
+    if not log:
+        out = subprocess.run(["make", "--no-print-directory", "image-check"], cwd=REPO, capture_output=True,
+                             text=True, timeout=3000)
+        return out.returncode, out.stdout + out.stderr
+    deadline = time.monotonic() + 3000
+    while not re.search(r"^exit \d+$", text := Path(log).read_text(), re.M):
+        assert time.monotonic() < deadline, f"make image-check did not end within 3000 s: {text[-3000:]}"
+        time.sleep(1)
+    return int(re.search(r"^exit (\d+)$", text, re.M).group(1)), text
+
+
+@pytest.mark.timeout(3600)
+def test_the_image_builds_and_runs_as_a_deployment_relies_on():
+    """The Dockerfile built by podman on a Debian base made here, then run with a config
+    volume and a runs folder of the host (Makefile image-check; tests/support/image_check.py)."""
+    missing = [tool for tool in IMAGE_TOOLS if shutil.which(tool) is None]
+    if missing or os.geteuid() != 0:
+        pytest.skip(f"{' '.join(missing) or 'root'} needed: the image is not built (make image-check installs them, "
+                    "as root)")
+    rc, text = image_check_output()
+    assert rc == 0 and "image-check: FAILED" not in text, text[-6000:]
+    done = re.findall(r"^image-check: ok: (.*)$", text, re.M)
+    for what in ("its own user", "pip list in the image", "simulated cell in real time with the mounted config",
+                 "not root", "`fluidsense cmd status` from the host answers through the published command port",
+                 "healthcheck", "grasps the 60 mm cylinder", "runs volume", "ends the daemon with exit 0",
+                 "valves safe", "the recording is closed"):
+        assert any(what in line for line in done), (what, done)
+    assert re.search(r"^image-check: image size \d+ MB .*; start-up [\d.]+ s", text, re.M), text[-2000:]

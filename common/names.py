@@ -18,5 +18,5 @@ FEATURES: dict[str, tuple[str, str, float]] = {
 }
 NEEDS_REFERENCE = {"dp_eq", "dp_max", "t_c_slope", "t_c_threshold", "t_c2", "t_c_onset"}
 
-#: the command socket's requests (controller/commands/server.py)
+#: the command socket's requests (controller/requests/server.py)
 COMMANDS = ("status", "cycle", "grip", "release", "measure", "abort", "reset", "scene", "task", "shutdown")

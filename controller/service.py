@@ -23,8 +23,8 @@ from fluidsense.common.samples import SampleBlock
 from fluidsense.drivers.backend import Backend
 
 from .cell import ArmAccess, SceneAccess
-from .commands.dispatch import Dispatcher
-from .commands.status import heartbeat_of, status_of
+from .requests.dispatch import Dispatcher
+from .requests.status import heartbeat_of, status_of
 from .config import CellConfig
 from .cycles.analysis import CycleResult
 from .cycles.runner import CycleRunner

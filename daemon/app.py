@@ -19,7 +19,7 @@ from fluidsense.common.errors import (
 )
 from fluidsense.common.exitcodes import EXIT_FAILURE, EXIT_OK
 from fluidsense.config import SHIPPED
-from fluidsense.controller.commands.server import CommandServer
+from fluidsense.controller.requests.server import CommandServer
 from fluidsense.controller.config import CellConfig, load_cell_config
 from fluidsense.controller.safety.latch import vented_word
 from fluidsense.controller.service import Controller

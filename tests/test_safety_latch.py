@@ -137,7 +137,7 @@ def test_a_failing_command_handler_vents_and_answers_with_the_reason():
         cfg = _cfg()
         ctrl = Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware), Probe())
         async with ctrl:
-            from fluidsense.controller.commands.server import SceneCmd
+            from fluidsense.controller.requests.server import SceneCmd
 
             async def broken(scene, t):
                 raise Boom("injected in the scene device")
@@ -208,7 +208,7 @@ def test_a_sample_loop_that_dies_stops_the_daemon_vented_with_status_1(tmp_path,
 
 
 def test_a_command_socket_that_dies_stops_the_daemon_with_status_1(tmp_path, monkeypatch):
-    from fluidsense.controller.commands.server import CommandServer
+    from fluidsense.controller.requests.server import CommandServer
     from fluidsense.daemon import app
 
     async def broken_serve(self):

@@ -17,7 +17,7 @@ import zmq
 import zmq.asyncio
 from fluidsense.cli.monitor import send_command
 from fluidsense.common.errors import ConfigError
-from fluidsense.controller.commands.server import (
+from fluidsense.controller.requests.server import (
     MAX_DEPTH,
     MAX_FRAME_BYTES,
     MAX_REQUEST_BYTES,

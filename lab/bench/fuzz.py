@@ -30,7 +30,7 @@ from typing import Any
 
 import yaml
 import zmq
-from fluidsense.controller.commands.server import (
+from fluidsense.controller.requests.server import (
     MAX_FRAME_BYTES,
     MAX_HOPS,
     MAX_REQUEST_BYTES,

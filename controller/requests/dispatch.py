@@ -1,4 +1,4 @@
-"""The command dispatcher: a validated request (commands/server.py parses and checks it)
+"""The command dispatcher: a validated request (requests/server.py parses and checks it)
 to the controller method that carries it out, and the daemon's task jobs.
 
 A refused request is an error reply. Anything else that raises while a request is

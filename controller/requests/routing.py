@@ -45,7 +45,8 @@ class Routes:
         self.names = tuple(name_of(m) for m in models)
         if len(set(self.names)) != len(self.names):
             raise ValueError(f"two handlers answer one request: {self.names}")
-        self._methods = {model: getattr(h, fn.__name__) for h in handlers for fn in vars(type(h)).values()
+        # bound from the class: an attribute of the same name on the instance cannot shadow it
+        self._methods = {model: fn.__get__(h, type(h)) for h in handlers for fn in vars(type(h)).values()
                          if (model := getattr(fn, "request_model", None)) is not None}
         self._adapter = TypeAdapter(Annotated[Union[models], Field(discriminator="cmd")])  # noqa: UP007 - a tuple of types
 

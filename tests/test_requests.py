@@ -222,3 +222,26 @@ def test_no_task_runner_no_task():
             await FakeCell().requests().answer({"cmd": "task", "file": "sorting.yaml"})
 
     run(body)
+
+
+def test_a_request_finds_its_method_even_where_the_handler_keeps_state_of_that_name():
+    """GripHandler keeps ``last_grasp``: a request of that name must still reach its method."""
+    from typing import Literal
+
+    from fluidsense.common.models import StrictModel
+    from fluidsense.controller.requests.routing import Routes, answers
+
+    class PingRequest(StrictModel):
+        cmd: Literal["ping"]
+
+    class Handler:
+        def __init__(self):
+            self.ping = None  # state under the request's name
+
+        @answers(PingRequest)
+        async def ping(self, req: PingRequest) -> dict:
+            return {"pong": True}
+
+    routes = Routes(Handler())
+    request = routes.parse({"cmd": "ping"})
+    assert routes.names == ("ping",) and run(lambda: routes.method(request)(request)) == {"pong": True}

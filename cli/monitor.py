@@ -8,8 +8,7 @@ import sys
 from typing import Any, TextIO
 
 import zmq
-import zmq.auth
-from fluidsense.controller.telemetry.publisher import WELCOME
+from fluidsense.common.names import WELCOME
 
 NOT_RUNNING = ("the daemon may not be running (fluidsense run), or it listens elsewhere "
                "(its {what} endpoint: --endpoint, or {option} in --config)")
@@ -93,22 +92,16 @@ def monitor(endpoint: str, topics: list[str], count: int | None, timeout_s: floa
 
 def send_command(endpoint: str, request: dict[str, Any], timeout_s: float = 5.0,
                  curve: tuple[str, str] | None = None) -> dict[str, Any]:
-    """One request on the command socket; raises TimeoutError if no reply comes.
-    ``curve``: (client secret key file, server public key file) for a CURVE socket."""
-    ctx = zmq.Context.instance()
-    sock = ctx.socket(zmq.REQ)
-    sock.setsockopt(zmq.LINGER, 0)
-    if curve is not None:
-        public, secret = zmq.auth.load_certificate(curve[0])
-        server_public, _ = zmq.auth.load_certificate(curve[1])
-        sock.curve_secretkey, sock.curve_publickey, sock.curve_serverkey = secret, public, server_public
-    sock.connect(endpoint)
-    try:
-        sock.send(json.dumps(request).encode())
-        if not sock.poll(int(timeout_s * 1000)):
-            raise TimeoutError(f"no reply from {endpoint} within {timeout_s:g} s: "
-                               + NOT_RUNNING.format(what="command", option="publisher.cmd"))
-        return json.loads(sock.recv())
-    finally:
-        sock.close()
+    """One request on the command socket, through the client library's core: its reply,
+    an error reply included; raises TimeoutError if no reply comes. ``curve``: (client
+    secret key file, server public key file) for a CURVE socket."""
+    from fluidsense.client import Gripper, NoReply, Refused
 
+    with Gripper(endpoint, None, timeout_s=timeout_s, curve=curve, context=zmq.Context.instance()) as client:
+        try:
+            return client.request(request)
+        except Refused as refused:
+            return refused.reply
+        except NoReply:
+            raise TimeoutError(f"no reply from {endpoint} within {timeout_s:g} s: "
+                               + NOT_RUNNING.format(what="command", option="publisher.cmd")) from None

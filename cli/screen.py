@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any, TextIO
 
 import zmq
-from fluidsense.controller.telemetry.publisher import WELCOME
+from fluidsense.common.names import WELCOME
 
 TRACE_S = 10.0  # seconds of pressure in the trace
 TRACE_COLS = 60

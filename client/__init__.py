@@ -8,17 +8,18 @@
         print(grasp.object, grasp.size)     # True, Estimate(quantity='diameter', value_mm=60.2, ...)
         g.release()
 
-``AsyncGripper`` is the same for asyncio. Commands go over a REQ socket that is made again
-after a timeout (a REQ socket that missed its reply is stuck); events come over a SUB
-socket attached before the first command, so no event of a command is missed. CURVE keys
-are optional (``curve=(client secret key file, server public key file)``). The messages
-and their fields: docs/zmq-schema.md.
+``AsyncGripper`` is the same for asyncio: both run the calls of one core (core.py).
+Requests go over a REQ socket that is made again after a timeout (a REQ socket that missed
+its reply is stuck); events come over a SUB socket attached before the first request, so
+no event of a request is missed. CURVE keys are optional (``curve=(client secret key
+file, server public key file)``). The messages and their fields: docs/zmq-schema.md.
 """
+
+from fluidsense.common.names import GRIPPER_TOPICS
 
 from .aio import AsyncGripper
 from .sync import Gripper
 from .types import (
-           GRIPPER_TOPICS,
            Contact,
            Estimate,
            Event,

@@ -1,15 +1,10 @@
-"""Sockets and messages shared by the sync and asyncio clients."""
+"""The sockets both faces open: a REQ socket for requests (CURVE keys optional) and a SUB
+socket for events, subscribed to the welcome as well."""
 
 from __future__ import annotations
 
-import json
-from typing import Any
-
 import zmq
-
-from .types import Event
-
-WELCOME = b"hello"
+from fluidsense.common.names import WELCOME
 
 
 def curve_keys(curve: tuple[str, str] | None) -> tuple[bytes, bytes, bytes] | None:
@@ -42,19 +37,36 @@ def setup_sub(sock: zmq.Socket, endpoint: str, topics: tuple[str, ...]) -> zmq.S
     return sock
 
 
-def request_body(cmd: str, **fields: Any) -> dict[str, Any]:
-    return {"cmd": cmd, **{k: v for k, v in fields.items() if v is not None}}
+class Sockets:
+    """What the two faces share: the session (core.Session), a REQ socket made when a
+    request needs one, the SUB socket (none for a client made with ``pub=None``)."""
 
+    def __init__(self, session, ctx: zmq.Context, own_ctx: bool, curve: tuple[str, str] | None,
+                 topics: tuple[str, ...]):
+        self._session, self._ctx, self._own_ctx = session, ctx, own_ctx
+        self._keys = curve_keys(curve)
+        self._req: zmq.Socket | None = None
+        self._sub = None if session.pub_endpoint is None else setup_sub(ctx.socket(zmq.SUB), session.pub_endpoint,
+                                                                        topics)
 
-def decode(frames: list[bytes]) -> Event | None:
-    """An event, or None for the welcome frame and anything that is not a message."""
-    if len(frames) != 2:
-        return None
-    try:
-        return Event.of(json.loads(frames[1]))
-    except (ValueError, KeyError, TypeError):
-        return None
+    cmd_endpoint = property(lambda self: self._session.cmd_endpoint)
+    pub_endpoint = property(lambda self: self._session.pub_endpoint)
+    timeout_s = property(lambda self: self._session.timeout_s)
+    event_timeout_s = property(lambda self: self._session.event_timeout_s)
 
+    def _request_socket(self) -> zmq.Socket:
+        if self._req is None:
+            self._req = setup_req(self._ctx.socket(zmq.REQ), self.cmd_endpoint, self._keys)
+        return self._req
 
-def matches(ev: Event, topic: str, cycle_id: int | None) -> bool:
-    return ev.topic == topic and (cycle_id is None or ev.data.get("cycle_id") == cycle_id)
+    def _drop_request_socket(self) -> None:
+        """A REQ socket that missed its reply is stuck: the next request gets a new one."""
+        self._req.close()
+        self._req = None
+
+    def close(self) -> None:
+        for sock in (self._req, self._sub):
+            if sock is not None:
+                sock.close()
+        if self._own_ctx:
+            self._ctx.term()

@@ -8,9 +8,6 @@ from typing import Any
 
 from fluidsense.common.errors import CommandError, DeviceTimeoutError, FluidsenseError
 
-#: the gripper's event topics
-GRIPPER_TOPICS = ("contact", "grasp", "slip", "released")
-
 
 class Refused(CommandError):
     """The daemon answered a request with an error (``reply`` holds it all)."""

@@ -1,5 +1,11 @@
-"""Names the command line offers, in a module with no imports: its parsers are built
-from them without loading pydantic, numpy or scipy."""
+"""Names the command line and the clients offer, in a module with no imports: the CLI's
+parsers are built from them without loading pydantic, numpy or scipy, and the client
+library speaks them without the controller.
+
+Where a list here is also defined by a model (the requests, by the models that
+controller/requests answers), the model is the source and this is its light copy:
+tests/test_requests.py checks that the two agree.
+"""
 
 from __future__ import annotations
 
@@ -18,5 +24,13 @@ FEATURES: dict[str, tuple[str, str, float]] = {
 }
 NEEDS_REFERENCE = {"dp_eq", "dp_max", "t_c_slope", "t_c_threshold", "t_c2", "t_c_onset"}
 
-#: the command socket's requests (controller/commands/server.py)
-COMMANDS = ("status", "cycle", "grip", "release", "measure", "abort", "reset", "scene", "task", "shutdown")
+#: the command socket's requests, as the daemon lists them (the light copy of the names
+#: of the models in controller/requests)
+COMMANDS = ("status", "cycle", "abort", "reset", "scene", "task", "shutdown", "grip", "release", "measure")
+
+#: the published topics (docs/zmq-schema.md has a schema for each); the gripper's are the
+#: events of a grip, which the client library types
+GRIPPER_TOPICS = ("contact", "grasp", "slip", "released")
+TOPICS = ("pressure", "state", "cycle", "heartbeat", "fault", "task", "log", *GRIPPER_TOPICS)
+#: the one-frame message a subscriber gets when its subscription is attached
+WELCOME = b"hello"

@@ -1,4 +1,4 @@
-"""The controller: the parts below, wired; the interface tasks and commands use.
+"""The controller: the parts below, wired; the interface tasks and requests use.
 
     sampling/loop.py     pulls blocks from the backend's source (the only reader)
     safety/supervisor.py checks every block: limits, NaN, rail, stuck, leak, stop
@@ -6,7 +6,9 @@
     cycles/runner.py     the sequencer's plans on the devices, the cycle's trace, features
     telemetry/fanout.py  events to the publisher and the recording
     sampling/clock.py    sample time: waits released by samples
-    commands/dispatch.py requests from the command socket
+
+The command socket's requests (requests/) are wired onto this interface by the daemon;
+the controller knows nothing of them.
 
 Per block: clock -> cycle trace -> supervisor (-> latch) -> cycle runner -> outputs watch
 -> telemetry -> waits released -> heartbeat -> deferred faults.
@@ -23,12 +25,10 @@ from fluidsense.common.samples import SampleBlock
 from fluidsense.drivers.backend import Backend
 
 from .cell import ArmAccess, SceneAccess
-from .commands.dispatch import Dispatcher
-from .commands.status import heartbeat_of, status_of
 from .config import CellConfig
-from .cycles.analysis import CycleResult
-from .cycles.runner import CycleRunner
-from .safety.latch import SafetyLatch
+from .cycles.analysis import CycleResult, Reference
+from .cycles.runner import CycleRunner, reference_key
+from .safety.latch import SafetyLatch, vented_word
 from .safety.outputs import OutputWatch
 from .safety.supervisor import Supervisor
 from .sampling.clock import SampleClock
@@ -51,10 +51,8 @@ class Controller:
         self.outputs = OutputWatch(backend, self.latch, self.telemetry.emit, cfg.publisher.heartbeat_s)
         self.loop = SampleLoop(cfg, backend, connect=self._connect, handle=self._on_block, fail=self._read_failed,
                                wanted=self._wants_samples, demand=self.clock.demand, now=now)
-        self.commands = Dispatcher(self)
         self.arm = ArmAccess(backend, lambda: self.latch.fault, now)
         self.scene = SceneAccess(backend, now)
-        self.command_stats = None  # the daemon installs the command socket's counts here
         self.latch.before_vent.append(self.cycles.on_fault)
         self.latch.after_vent += [lambda f, event: self.telemetry.emit("fault", event),
                                   lambda f, event: self.outputs.tripped(), self.cycles.after_fault,
@@ -80,10 +78,9 @@ class Controller:
         await self.latch.command_safe_state(self.now)
 
     async def stop(self) -> None:
-        """Stop any task, vent, stop the loop (cancelled and awaited), close the devices and
-        the sinks. Safe to call twice."""
+        """Vent, stop the loop (cancelled and awaited), close the devices and the sinks.
+        Safe to call twice."""
         self.loop.stopping = True
-        await self.commands.stop()
         if self.cycles.busy:
             await self.cycles.abort("shutdown")
         if self.cycles.tracing:  # report the interrupted cycle rather than drop it
@@ -164,8 +161,17 @@ class Controller:
 
     async def release(self) -> CycleResult:
         """End a held cycle: vent, and return its final result."""
+        return await (await self.let_go())
+
+    async def let_go(self) -> asyncio.Future[CycleResult]:
+        """End a held cycle without waiting for it: vent; the future resolves with its
+        final result."""
         self.clock.demand.set()
-        return await self.cycles.release()
+        return await self.cycles.let_go()
+
+    def reference(self, p0_pa: float) -> Reference | None:
+        """The free-air reference at this P0, if one was measured."""
+        return self.cycles.references.get(reference_key(p0_pa))
 
     async def abort(self, reason: str = "operator") -> bool:
         """Abort the running cycle (vent). False when nothing was running."""
@@ -200,8 +206,37 @@ class Controller:
         """Publish an event (a task's progress) and hand it to the sinks."""
         self.telemetry.emit(topic, payload)
 
+    async def fail(self, detail: str) -> None:
+        """A bug outside the sample loop (a request handler, a task job): vent and latch an
+        internal fault that says where."""
+        await self.latch.trip(Fault(FaultKind.INTERNAL, None, self.now, detail), self.now)
+
     def status(self) -> dict[str, Any]:
-        return status_of(self)
+        """The controller's state, read from its parts (the command socket's ``status``
+        adds the requests' own)."""
+        seq, valves, fault = self.cycles.sequencer, self.backend.valves, self.fault
+        return {
+            "state": seq.state.value if self.connected else "connecting", "connecting": self.connecting,
+            "cycle_id": seq.cycle_id, "t_s": self.now, "virtual": self.virtual, "backend": self.backend.name,
+            "profile": self.profile.name,
+            "fault": None if fault is None else {"kind": fault.kind, "detail": fault.detail, "t_s": fault.t},
+            "valves": valves.reported, "valves_age_s": valves.age_s(), "valves_commanded": valves.state,
+            "vented": vented_word(self.latch.vented()), "references_kpa": sorted(self.cycles.references),
+            "samples": self.loop.samples, "missed": self.loop.missed,
+            "last_cycle": self.cycles.results[-1].to_dict() if self.cycles.results else None,
+            "publisher": self.telemetry.pub.stats,
+            "sinks": [sink.stats for sink in self.telemetry.sinks if hasattr(sink, "stats")],
+            # a source that keeps link counts (the serial driver: frames lost and corrupt, resets, clock drift)
+            "source_link": getattr(self.backend.source, "link_stats", lambda: None)(),
+        }
+
+    def heartbeat(self) -> dict[str, Any]:
+        """The heartbeat's fields: the few a watcher needs every second."""
+        seq, loop = self.cycles.sequencer, self.loop
+        return {"state": seq.state.value, "cycle_id": seq.cycle_id,
+                "fault": None if self.fault is None else self.fault.kind, "samples": loop.samples,
+                "blocks": loop.blocks, "missed": loop.missed, "late": loop.late,
+                "rate_hz": self.backend.source.rate_hz, "virtual": self.virtual}
 
     # ------------------------------------------------------------------ the loop's side
     def _check_running(self) -> None:
@@ -222,7 +257,7 @@ class Controller:
         self.outputs.on_block(self.now)
         self.telemetry.on_block(block)
         if self.telemetry.heartbeat_due():
-            self.telemetry.heartbeat(heartbeat_of(self), self.loop.proc_s)
+            self.telemetry.heartbeat(self.heartbeat(), self.loop.proc_s)
         await self.latch.trip_deferred(self.now)
 
     async def _trip(self, fault: Fault) -> None:

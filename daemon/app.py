@@ -19,7 +19,8 @@ from fluidsense.common.errors import (
 )
 from fluidsense.common.exitcodes import EXIT_FAILURE, EXIT_OK
 from fluidsense.config import SHIPPED
-from fluidsense.controller.commands.server import CommandServer
+from fluidsense.controller.requests.server import CommandServer
+from fluidsense.controller.requests.wiring import wire
 from fluidsense.controller.config import CellConfig, load_cell_config
 from fluidsense.controller.safety.latch import vented_word
 from fluidsense.controller.service import Controller
@@ -65,9 +66,9 @@ def bind_publisher(cfg: CellConfig, hwm: int | None = None) -> Publisher:
 
 
 def bind_command_server(cfg: CellConfig) -> CommandServer:
-    """The command socket, bound; its handler is installed once the controller runs."""
+    """The command socket, bound; it serves once the controller runs."""
     try:
-        return CommandServer(cfg.publisher.cmd, None, curve=cfg.publisher.cmd_curve)
+        return CommandServer(cfg.publisher.cmd, curve=cfg.publisher.cmd_curve)
     except (zmq.ZMQError, OSError, ValueError) as exc:
         raise ConfigError(f"publisher.cmd: cannot bind {cfg.publisher.cmd}: {exc}") from exc
 
@@ -163,7 +164,7 @@ async def _first_iteration(ctrl: Controller, notifier: Notifier) -> None:
 async def _until_stopped(ctrl: Controller, cfg: CellConfig, notifier: Notifier,
                          *ends: asyncio.Task) -> set[asyncio.Task]:
     """READY once the sample loop runs, watchdog pings while it makes progress, until one
-    of ``ends`` finishes (a stop signal, a shutdown command, the command socket failing);
+    of ``ends`` finishes (a stop signal or a shutdown request, the command socket failing);
     returns the finished ones."""
     first = asyncio.create_task(_first_iteration(ctrl, notifier))
     done, _ = await asyncio.wait({first, *ends}, return_when=asyncio.FIRST_COMPLETED)
@@ -217,17 +218,15 @@ async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: N
     bad_setting: ConfigError | None = None
     try:
         async with controller(cfg, publisher=pub, record=True, connect_in_background=True,
-                              own_process=own_process) as ctrl:
+                              own_process=own_process) as ctrl, \
+                wire(ctrl, tasks=_task_runner(ctrl, tasks_dir), socket_stats=lambda: server.stats,
+                     shutdown=stop.set) as requests:
             if live is not None:  # no await since start(): the view's times are the recording's
                 ctrl.add_sink(_share_clock(ctrl, live))
-            ctrl.commands.task_runner = _task_runner(ctrl, tasks_dir)
-            server.handler = ctrl.commands.handle
-            ctrl.command_stats = lambda: server.stats
-            serve = asyncio.create_task(server.serve(), name="command-socket")
+            serve = asyncio.create_task(server.serve(requests.answer), name="command-socket")
             stopper = asyncio.create_task(stop.wait(), name="stop-signal")
-            shutdown = asyncio.create_task(ctrl.commands.shutdown.wait(), name="shutdown-command")
             core = {serve: "the command socket", ctrl.loop_task: "the sample loop"}
-            done = await _until_stopped(ctrl, cfg, notifier, stopper, shutdown, *core)
+            done = await _until_stopped(ctrl, cfg, notifier, stopper, *core)
             notifier.send("STOPPING=1", "STATUS=stopping: venting and closing")
             for task, name in core.items():
                 if task in done:
@@ -236,7 +235,7 @@ async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: N
                         bad_setting = cause
                         continue
                     failed.append(f"{name} ended: {cause!r}" if cause is not None else f"{name} ended")
-            for task in (stopper, shutdown, serve):
+            for task in (stopper, serve):
                 task.cancel()
             for reason in failed:
                 log.critical("%s; venting and exiting with status 1 for a restart", reason)

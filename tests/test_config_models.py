@@ -15,7 +15,7 @@ from fluidsense.controller.config import validate
 MODULES = ["fluidsense.common.hardware", "fluidsense.common.scenes", "fluidsense.common.world", "fluidsense.drivers.config", "fluidsense.drivers.sampler.config",
            "fluidsense.drivers.io", "fluidsense.common.wiring", "fluidsense.drivers.ur.config", "fluidsense.drivers.modbus.config", "fluidsense.drivers.serial.config",
            "fluidsense.drivers.daqmx.config",
-           "fluidsense.controller.config", "fluidsense.controller.commands.server", "fluidsense.controller.sensing.calibration", "fluidsense.tasks.config"]
+           "fluidsense.controller.config", "fluidsense.controller.requests.dispatch", "fluidsense.controller.sensing.calibration", "fluidsense.tasks.config"]
 for m in MODULES:
     importlib.import_module(m)
 
@@ -38,10 +38,10 @@ EXAMPLES = {
     "WorldSpec": {"slots": [{"name": "s", "pose": [0, 0, 0, 0, 0, 0]}]},
     "PollerSpec": {"factory": "fluidsense.drivers.sampler.synthetic:SyntheticPoller"},
     "SamplerConfig": {"poller": {"factory": "fluidsense.drivers.sampler.synthetic:SyntheticPoller"}, "channels": ["p_act"]},
-    "StatusCmd": {"cmd": "status"}, "CycleCmd": {"cmd": "cycle"}, "AbortCmd": {"cmd": "abort"},
-    "ResetCmd": {"cmd": "reset"}, "SceneCmd": {"cmd": "scene", "scene": {"kind": "none"}},
-    "TaskCmd": {"cmd": "task", "file": "x.yaml"}, "ShutdownCmd": {"cmd": "shutdown"},
-    "GripCmd": {"cmd": "grip"}, "ReleaseCmd": {"cmd": "release"}, "MeasureCmd": {"cmd": "measure"},
+    "StatusRequest": {"cmd": "status"}, "CycleRequest": {"cmd": "cycle"}, "AbortRequest": {"cmd": "abort"},
+    "ResetRequest": {"cmd": "reset"}, "SceneRequest": {"cmd": "scene", "scene": {"kind": "none"}},
+    "TaskRequest": {"cmd": "task", "file": "x.yaml"}, "ShutdownRequest": {"cmd": "shutdown"},
+    "GripRequest": {"cmd": "grip"}, "ReleaseRequest": {"cmd": "release"}, "MeasureRequest": {"cmd": "measure"},
     "RipenessObject": {"name": "o", "diameter_mm": 55},
     "Estimate": {"quantity": "diameter"},
     "CalibrationFile": {"format": "fluidsense-calibration/1", "profile": "p", "method": "tank", "feature": "p_eq",

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 from fluidsense.client import AsyncGripper, GripEnded, Gripper, Refused
-from fluidsense.controller.commands.grip_watch import SlipWatch
+from fluidsense.controller.requests.grip_watch import SlipWatch
 from support.gripper import grip_a_60_mm_cylinder, slip_to_40_mm
 from support.harness import REPO, sim_config
 

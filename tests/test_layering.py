@@ -39,7 +39,7 @@ def test_every_import_of_ours_goes_through_the_one_namespace():
 
 
 def test_controller_and_tasks_do_not_load_the_plant_or_ur_rtde_at_import():
-    code = ("import sys, fluidsense.controller.service, fluidsense.controller.commands.server, "
+    code = ("import sys, fluidsense.controller.service, fluidsense.controller.requests.server, "
             "fluidsense.tasks.size_survey, fluidsense.cli;"
             "bad = [m for m in sys.modules if m.startswith(('fluidsense.drivers.sim', 'fluidsense.simulator', 'rtde'))];"
             "print(bad); sys.exit(1 if bad else 0)")

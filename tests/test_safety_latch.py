@@ -137,7 +137,8 @@ def test_a_failing_command_handler_vents_and_answers_with_the_reason():
         cfg = _cfg()
         ctrl = Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware), Probe())
         async with ctrl:
-            from fluidsense.controller.commands.server import SceneCmd
+            from fluidsense.controller.requests.dispatch import SceneRequest
+            from fluidsense.controller.requests.wiring import wire
 
             async def broken(scene, t):
                 raise Boom("injected in the scene device")
@@ -147,7 +148,7 @@ def test_a_failing_command_handler_vents_and_answers_with_the_reason():
             await ctrl.wait(5.0)
             inflated = ctrl.backend.valves.reported["actuate"]
             with pytest.raises(CommandError, match="internal error.*safe state"):
-                await ctrl.commands.handle(SceneCmd(cmd="scene", scene={"kind": "none"}))
+                await wire(ctrl).handle(SceneRequest(cmd="scene", scene={"kind": "none"}))
             return inflated, ctrl.fault, ctrl.latch.vented()
 
     inflated, fault, vented = asyncio.run(body())
@@ -208,10 +209,10 @@ def test_a_sample_loop_that_dies_stops_the_daemon_vented_with_status_1(tmp_path,
 
 
 def test_a_command_socket_that_dies_stops_the_daemon_with_status_1(tmp_path, monkeypatch):
-    from fluidsense.controller.commands.server import CommandServer
+    from fluidsense.controller.requests.server import CommandServer
     from fluidsense.daemon import app
 
-    async def broken_serve(self):
+    async def broken_serve(self, answer):
         await asyncio.sleep(0)
         raise Boom("injected in the command socket")
 

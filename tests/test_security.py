@@ -17,7 +17,7 @@ import zmq
 import zmq.asyncio
 from fluidsense.cli.monitor import send_command
 from fluidsense.common.errors import ConfigError
-from fluidsense.controller.commands.server import (
+from fluidsense.controller.requests.server import (
     MAX_DEPTH,
     MAX_FRAME_BYTES,
     MAX_REQUEST_BYTES,
@@ -162,6 +162,7 @@ def test_a_hostile_message_leaves_a_daemon_that_answers_and_stops_with_0(tmp_pat
 
 def test_the_server_counts_what_it_answered_rejected_and_dropped(tmp_path):
     """CommandServer.stats, on a real socket in front of a virtual-time controller."""
+    from fluidsense.controller.requests.wiring import wire
     from fluidsense.daemon import app
 
     cfg = load_cell_config(sim_config(tmp_path))
@@ -169,9 +170,9 @@ def test_the_server_counts_what_it_answered_rejected_and_dropped(tmp_path):
 
     async def main():
         ctx = zmq.asyncio.Context()
-        async with app.controller(cfg) as ctrl:
-            server = CommandServer(endpoint, ctrl.commands.handle, context=ctx)
-            serving = asyncio.create_task(server.serve())
+        async with app.controller(cfg) as ctrl, wire(ctrl) as requests:
+            server = CommandServer(endpoint, context=ctx)
+            serving = asyncio.create_task(server.serve(requests.answer))
             sock = ctx.socket(zmq.DEALER)
             sock.setsockopt(zmq.LINGER, 0)
             sock.connect(endpoint)

@@ -13,6 +13,7 @@ import pytest
 import zmq
 from support.events import SCHEMAS, check, fast_profile
 from support.harness import REPO, sim_config
+from support.requests import BAD_REQUESTS
 
 DOC = (REPO / "docs" / "zmq-schema.md").read_text()
 
@@ -94,19 +95,6 @@ def test_subscriber_receives_heartbeats_states_pressure_and_cycle_results(tmp_pa
     assert d.proc.wait(30) == 0
 
 
-BAD_REQUESTS = [
-    ([b"not json"], "not a JSON object"),
-    ([b"[1, 2]"], "must be a JSON object"),
-    ([b'{"cmd": "explode"}'], "unknown command"),
-    ([b'{"nocmd": 1}'], "unknown command"),
-    ([b'{"cmd": "cycle", "p0_kpa": "high"}'], "p0_kpa"),
-    ([b'{"cmd": "cycle", "p0_kpa": 5000}'], "p0_kpa"),
-    ([b'{"cmd": "status", "extra": 1}'], "extra"),
-    ([b'{"cmd": "scene", "scene": {"kind": "dragon"}}'], "scene"),
-    ([b"\xff\xfe\x00"], "not a JSON object"),
-    ([b'{"cmd": "status"}', b"second frame"], "one frame"),
-    ([b'{"cmd": "cycle", "p0_kpa": 95}'], "outside the profile's limits"),
-]
 
 
 def test_bad_commands_get_an_error_reply_and_the_daemon_keeps_running(tmp_path, daemon_factory):

@@ -47,7 +47,7 @@ def resolve_calibrations(data: dict[str, Any], path: Path) -> dict[str, Any]:
 
 def check_calibrations(cfg: GripperConfig, profile: str, path: Path) -> None:
     """Every calibration named must load and be one of this profile's, its target a length."""
-    from fluidsense.controller.commands.estimates import (
+    from fluidsense.controller.requests.estimates import (
         load_calibration,  # the sensing code loads only if named
     )
 

@@ -122,13 +122,17 @@ class CycleRunner:
         return await self._measured
 
     async def release(self) -> CycleResult:
+        return await (await self.let_go())
+
+    async def let_go(self) -> asyncio.Future[CycleResult]:
+        """A held cycle vents (``release`` without waiting): the future of its result."""
         fut = self._result
         if fut is None or not self.sequencer.busy:
             raise SequenceError("no cycle is running")
         actions = self.sequencer.release(self._now())
         self.publish_transitions()
         await self.apply(actions)
-        return await fut
+        return fut
 
     async def abort(self, reason: str) -> bool:
         if not self.sequencer.busy:

@@ -41,11 +41,10 @@ import time
 from typing import Any
 
 import zmq
+from fluidsense.common.names import TOPICS, WELCOME
 
 log = logging.getLogger("fluidsense.controller.telemetry.outlet")
 
-TOPICS = ("pressure", "state", "cycle", "heartbeat", "fault", "task", "log", "contact", "grasp", "slip", "released")
-WELCOME = b"hello"
 KNOWN = tuple(t.encode() for t in TOPICS) + (WELCOME,)
 STOP = [b"stop"]  # never a published message: those are two frames
 # a frame's size limit also applies to the ZMTP handshake (a subscriber's READY command is

@@ -37,7 +37,8 @@ from typing import Any
 
 import numpy as np
 import zmq
-from fluidsense.controller.telemetry.outlet import STOP, TOPICS, WELCOME
+from fluidsense.common.names import TOPICS, WELCOME
+from fluidsense.controller.telemetry.outlet import STOP
 
 log = logging.getLogger(__name__)
 

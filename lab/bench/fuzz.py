@@ -30,7 +30,8 @@ from typing import Any
 
 import yaml
 import zmq
-from fluidsense.controller.commands.server import (
+from fluidsense.controller.requests.dispatch import NAMES
+from fluidsense.controller.requests.server import (
     MAX_FRAME_BYTES,
     MAX_HOPS,
     MAX_REQUEST_BYTES,
@@ -44,8 +45,8 @@ HELP = "hostile command messages (REQ and DEALER framing) against a live daemon:
 DESCRIPTION = __doc__
 
 PROFILE = CONFIG / "profiles" / "pneunet-gripper.yaml"
-FUZZ_COMMANDS = ["status", "cycle", "grip", "release", "measure", "abort", "reset", "scene", "task",  # not shutdown:
-                 "", "stat", "SHUTDOWN", "cycles"]  # it would end the run
+# every request but shutdown (it would end the run), and names that are none
+FUZZ_COMMANDS = [name for name in NAMES if name != "shutdown"] + ["", "stat", "SHUTDOWN", "cycles"]
 PROBE = b'{"cmd": "status"}'
 
 

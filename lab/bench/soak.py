@@ -93,10 +93,6 @@ class GapCounter(Sink):
         return self.slot_gaps + self.missed
 
 
-def _kpa(pa: float | None) -> float | None:
-    return None if pa is None else pa / 1e3
-
-
 def rss_mb() -> float:
     """Resident set size of this process (second field of /proc/self/statm, in pages)."""
     return int(Path("/proc/self/statm").read_text().split()[1]) * PAGE_MB
@@ -229,7 +225,7 @@ async def _cycles(ctrl, end_s: float, window_h: float) -> tuple[list, dict, list
         scene = names[len(rows) % len(names)]
         await ctrl.scene.place(parse_scene(SCENES[scene]))
         res = await ctrl.run_cycle(label=scene)
-        rows.append((scene, res.t_start, _kpa(res.p_eq), res.ok))
+        rows.append((scene, res.t_start, res.to_dict()["p_eq_kpa"], res.ok))  # as the cycle publishes it
         if warm is None and ctrl.now >= window_h * HOUR:
             gc.collect()
             warm = {"rss_mb": rss_mb(), "objects": len(gc.get_objects()), "cycles": len(rows)}

@@ -1,5 +1,5 @@
-"""The gripper commands: ``grip`` (close and stay holding), ``release`` (vent, then ready)
-and ``measure`` (one sensing cycle), and the live events of a grip.
+"""The gripper's requests: ``grip`` (close and stay holding), ``release`` (vent, then
+ready) and ``measure`` (one sensing cycle), and the live events of a grip.
 
 A grip is a held cycle (charge -> isolate -> actuate -> hold until released); a measure
 is an ordinary cycle. Both go through the controller's cycle runner, so the safety latch,
@@ -11,49 +11,73 @@ Events, on their own topics (docs/zmq-schema.md):
     slip      while held, an abrupt fall of the pressure, with the size after it
     released  the cycle is over and the gripper open (why: release, abort, fault, ...)
 
-Commands reply at once (the socket answers one request at a time: a reply that waited for
-the grasp would keep ``abort`` out); the client library waits for the events.
+Requests reply at once (the socket answers one request at a time: a reply that waited for
+the grasp would keep ``abort`` out); the client library waits for the events. The handler
+reads and asks the cell through its port (ports.GripPort) and nothing else.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+from collections.abc import Callable
 from types import SimpleNamespace
-from typing import TYPE_CHECKING, Any
+from typing import Any, Literal
 
-from fluidsense.common.errors import (
-    CommandError,
-    FluidsenseError,
-    SafetyError,
-    SequenceError,
-)
-from fluidsense.common.faults import Fault, FaultKind
+from fluidsense.common.errors import FluidsenseError, SafetyError, SequenceError
+from fluidsense.common.models import StrictModel
 from fluidsense.common.samples import SampleBlock
 from fluidsense.common.units import KPA
+from pydantic import Field
 
+from ..config import Profile
+from ..config.gripper import GripperConfig
 from ..cycles.analysis import CycleResult
-from ..cycles.runner import reference_key
 from ..cycles.sequencer import State
 from ..telemetry.fanout import Sink
 from . import estimates as E
 from .grip_watch import ContactWatch, SlipWatch
-
-if TYPE_CHECKING:
-    from ..service import Controller
+from .ports import GripPort
+from .routing import answers
 
 log = logging.getLogger(__name__)
 
+#: the cycle's features a grasp carries beside its estimates, as the cycle's result
+#: publishes them (CycleResult.to_dict: the unit in each name)
+GRASP_FEATURES = ("p_eq_kpa", "p_sd_kpa", "offset_kpa", "dp_eq_kpa", "dp_max_kpa", "t_c_slope_s", "t_c_threshold_s",
+                  "v_eq_ml")
 
-def _kpa(v: float | None) -> float | None:
-    return None if v is None else v / KPA
+
+class GripRequest(StrictModel):
+    """Close and stay holding; ``timeout_s``: sample time to the grasp before the grip is
+    given up (vented)."""
+
+    cmd: Literal["grip"]
+    p0_kpa: float | None = Field(None, ge=-101, le=1000)
+    timeout_s: float | None = Field(None, gt=0, le=3600)
+    label: str | None = Field(None, max_length=80)
 
 
-class Gripper(Sink):
-    def __init__(self, ctrl: Controller):
-        self.ctrl, self.cfg = ctrl, ctrl.cfg.gripper
-        self.calibrations = [E.load_calibration(p, ctrl.profile.name, f"gripper.calibrations.{i}")
-                             for i, p in enumerate(self.cfg.calibrations)]
+class ReleaseRequest(StrictModel):
+    cmd: Literal["release"]
+
+
+class MeasureRequest(StrictModel):
+    cmd: Literal["measure"]
+    p0_kpa: float | None = Field(None, ge=-101, le=1000)
+    label: str | None = Field(None, max_length=80)
+    store_reference: bool = False
+
+
+class GripHandler(Sink):
+    """The gripper's requests, and a telemetry sink that watches every block of a grip."""
+
+    def __init__(self, cell: GripPort, cfg: GripperConfig, profile: Profile,
+                 running_task: Callable[[], str | None] = lambda: None):
+        """``running_task``: the file of the task that runs, if one does (none may start a grip)."""
+        self.cell, self.cfg, self.plan, self._running_task = cell, cfg, profile.sequence, running_task
+        self.calibrations = [E.load_calibration(p, profile.name, f"gripper.calibrations.{i}")
+                             for i, p in enumerate(cfg.calibrations)]
         self.op: str | None = None  # "grip" or "measure" while one runs
         self.cycle_id: int | None = None
         self.last_grasp: dict[str, Any] | None = None
@@ -81,78 +105,75 @@ class Gripper(Sink):
         return {"holding": self.holding, "object": self.object, "gripper_op": self.op,
                 "calibrated": bool(self.calibrations), "last_grasp": self.last_grasp}
 
-    # ------------------------------------------------------------------ commands
-    async def grip(self, p0_kpa: float | None, timeout_s: float | None, label: str | None) -> dict[str, Any]:
+    # ------------------------------------------------------------------ requests
+    @answers(GripRequest)
+    async def grip(self, req: GripRequest) -> dict[str, Any]:
         self._check_free("grip")
-        seq = self.ctrl.profile.sequence
-        needed = seq.charge_s + seq.isolate_s + max(w.end_s for w in seq.windows)
-        if timeout_s is not None and timeout_s < needed:
-            raise SafetyError(f"timeout_s {timeout_s:g} is shorter than this profile's grip: {needed:g} s of sample "
-                              f"time from charge to the end of the measurement windows")
-        return await self._start("grip", p0_kpa, label, False, hold=True, timeout_s=timeout_s)
+        plan = self.plan
+        needed = plan.charge_s + plan.isolate_s + max(w.end_s for w in plan.windows)
+        if req.timeout_s is not None and req.timeout_s < needed:
+            raise SafetyError(f"timeout_s {req.timeout_s:g} is shorter than this profile's grip: {needed:g} s of "
+                              f"sample time from charge to the end of the measurement windows")
+        return await self._start("grip", req.p0_kpa, req.label, False, hold=True, timeout_s=req.timeout_s)
 
-    async def measure(self, p0_kpa: float | None, label: str | None, store_reference: bool) -> dict[str, Any]:
-        self._check_free("measure")
-        return await self._start("measure", p0_kpa, label, store_reference, hold=False, timeout_s=None)
-
-    async def release(self) -> dict[str, Any]:
-        ctrl, runner = self.ctrl, self.ctrl.cycles
+    @answers(ReleaseRequest)
+    async def release(self, req: ReleaseRequest | None = None) -> dict[str, Any]:
+        cycle = self.cell.cycle
         if self.op is None:
-            if runner.busy:
-                raise SequenceError(f"cycle {runner.sequencer.cycle_id} is not a grip: send abort to stop it")
+            if cycle.busy:
+                raise SequenceError(f"cycle {cycle.cycle_id} is not a grip: send abort to stop it")
             raise SequenceError("nothing to release: the gripper is open")
         if self.op == "measure":
             raise SequenceError(f"cycle {self.cycle_id} is a measure: it vents by itself (send abort to stop it now)")
-        state = runner.sequencer.state
-        if state == State.VENT:
-            return {"cycle_id": self.cycle_id, "releasing": True, "state": state.value}
+        if cycle.state == State.VENT:
+            return {"cycle_id": self.cycle_id, "releasing": True, "state": cycle.state.value}
         self._reason = self._reason or "release"
-        if state in (State.ACTUATE, State.HOLD):
-            actions = runner.sequencer.release(ctrl.now)
-            runner.publish_transitions()
-            await runner.apply(actions)
+        if cycle.state in (State.ACTUATE, State.HOLD):
+            await self.cell.let_go()
         else:  # still charging: nothing closed yet, opening is aborting
-            await ctrl.abort("released before actuation")
-        ctrl.clock.demand.set()
-        return {"cycle_id": self.cycle_id, "releasing": True, "state": runner.sequencer.state.value}
+            await self.cell.abort("released before actuation")
+        return {"cycle_id": self.cycle_id, "releasing": True, "state": cycle.state.value}
+
+    @answers(MeasureRequest)
+    async def measure(self, req: MeasureRequest) -> dict[str, Any]:
+        self._check_free("measure")
+        return await self._start("measure", req.p0_kpa, req.label, req.store_reference, hold=False, timeout_s=None)
 
     async def after_scene(self) -> None:
         """A scene changed under a held grip. In virtual time sample time stands still while
         holding: run it a little so the grip sees the change, as it would in real time."""
-        if self.holding and self.ctrl.virtual and self.cfg.settle_s > 0:
-            await self.ctrl.wait(self.cfg.settle_s)
+        if self.holding and self.cell.virtual and self.cfg.settle_s > 0:
+            await self.cell.wait(self.cfg.settle_s)
 
     def _check_free(self, what: str) -> None:
-        ctrl = self.ctrl
+        cycle, task = self.cell.cycle, self._running_task()
         if self.holding:
             raise SequenceError(f"holding (cycle {self.cycle_id}): send release before {what}")
-        if ctrl.commands.task is not None and ctrl.commands.task["running"]:
-            raise SequenceError(f"busy: task {ctrl.commands.task['file']} is running")
-        if ctrl.cycles.busy:
-            raise SequenceError(f"busy: cycle {ctrl.cycles.sequencer.cycle_id} is in "
-                                f"{ctrl.cycles.sequencer.state.value}")
+        if task is not None:
+            raise SequenceError(f"busy: task {task} is running")
+        if cycle.busy:
+            raise SequenceError(f"busy: cycle {cycle.cycle_id} is in {cycle.state.value}")
 
     async def _start(self, op: str, p0_kpa: float | None, label: str | None, store_reference: bool, *, hold: bool,
                      timeout_s: float | None) -> dict[str, Any]:
-        ctrl = self.ctrl
-        fut = await ctrl.start_cycle(p0_kpa=p0_kpa, label=label, store_reference=store_reference, hold=hold)
-        seq, prof = ctrl.cycles.sequencer, ctrl.profile.sequence
-        self.op, self.cycle_id, self.t_grasp, self._reason = op, seq.cycle_id, None, None
-        self._deadline = float("inf") if timeout_s is None else ctrl.now + timeout_s
-        self._sign = -1.0 if seq.p0_pa < 0 else 1.0
-        reference = None if store_reference else ctrl.cycles.references.get(reference_key(seq.p0_pa))
-        align = None if prof.align_rise_kpa is None else tuple(v * KPA for v in prof.align_rise_kpa)
-        self._contact = ContactWatch(reference, prof.contact_threshold_kpa * KPA, self._sign, prof.offset_s,
-                                     max(w.end_s for w in prof.windows), align)
+        cell, plan = self.cell, self.plan
+        fut = await cell.start_cycle(p0_kpa=p0_kpa, label=label, store_reference=store_reference, hold=hold)
+        cycle = cell.cycle
+        self.op, self.cycle_id, self.t_grasp, self._reason = op, cycle.cycle_id, None, None
+        self._deadline = float("inf") if timeout_s is None else cell.now() + timeout_s
+        self._sign = -1.0 if cycle.p0_pa < 0 else 1.0
+        reference = None if store_reference else cell.reference(cycle.p0_pa)
+        align = None if plan.align_rise_kpa is None else tuple(v * KPA for v in plan.align_rise_kpa)
+        self._contact = ContactWatch(reference, plan.contact_threshold_kpa * KPA, self._sign, plan.offset_s,
+                                     max(w.end_s for w in plan.windows), align)
         self._slip = None
-        measured = asyncio.ensure_future(ctrl.measured())
+        measured = asyncio.ensure_future(cell.measured())
         self._follow = asyncio.get_running_loop().create_task(self._follow_cycle(measured, fut),
-                                                              name=f"{op} {seq.cycle_id}")
-        return {"cycle_id": seq.cycle_id, "p0_kpa": seq.p0_pa / KPA, "reference": reference is not None}
+                                                              name=f"{op} {cycle.cycle_id}")
+        return {"cycle_id": cycle.cycle_id, "p0_kpa": cycle.p0_pa / KPA, "reference": reference is not None}
 
     # ------------------------------------------------------------------ the cycle's course
     async def _follow_cycle(self, measured: asyncio.Future[CycleResult], done: asyncio.Future[CycleResult]) -> None:
-        ctrl = self.ctrl
         try:
             res = await measured
             if res.ok and res.cycle_id == self.cycle_id:
@@ -164,8 +185,7 @@ class Gripper(Sink):
         except Exception as exc:  # noqa: BLE001 - a bug here must not leave the gripper closed
             log.exception("following %s %s failed", self.op, self.cycle_id)
             self.op = None
-            await ctrl.latch.trip(Fault(FaultKind.INTERNAL, None, ctrl.now,
-                                        f"gripper: {type(exc).__name__}: {exc}"), ctrl.now)
+            await self.cell.fail(f"gripper: {type(exc).__name__}: {exc}")
 
     def _grasp(self, res: CycleResult) -> None:
         contact = None if not res.has_reference else res.t_c_threshold is not None
@@ -181,26 +201,25 @@ class Gripper(Sink):
                    "store_reference and nothing in the gripper)"
         if not self.calibrations:
             note = (note + "; " if note else "") + "no calibration loaded: features in kPa only"
-        self.t_grasp = self.ctrl.now
+        published = res.to_dict()
+        self.t_grasp = self.cell.now()
         self.last_grasp = {
-            "cycle_id": res.cycle_id, "command": self.op, "at_s": self.ctrl.now, "p0_kpa": _kpa(res.p0),
+            "cycle_id": res.cycle_id, "command": self.op, "at_s": self.t_grasp, "p0_kpa": published["p0_kpa"],
             "object": obj, "contact": contact, "t_c_s": res.t_c_threshold,
             "calibrated": bool(self.calibrations), "estimates": [E.to_edge(e) for e in ests],
             "in_range": None if not ests or obj is False else all(ok), "note": note,
-            "features": {"p_eq_kpa": _kpa(res.p_eq), "p_sd_kpa": _kpa(res.p_sd), "offset_kpa": _kpa(res.offset),
-                         "dp_eq_kpa": _kpa(res.dp_eq), "dp_max_kpa": _kpa(res.dp_max),
-                         "t_c_slope_s": res.t_c_slope, "t_c_threshold_s": res.t_c_threshold,
-                         "v_eq_ml": None if res.v_eq is None else res.v_eq * 1e6}}
+            "features": {name: published[name] for name in GRASP_FEATURES}}
         self._offset = res.offset or 0.0
         level = (res.p_eq or 0.0) + self._offset
         self._slip = SlipWatch(self.cfg.slip_drop_kpa * KPA, self.cfg.slip_within_s, self._sign, level) \
             if self.op == "grip" else None
-        self.ctrl.emit("grasp", self.last_grasp)
+        self.cell.emit("grasp", self.last_grasp)
 
     def _released(self, final: CycleResult) -> None:
         reason = self._reason or final.aborted or ("done" if self.op == "measure" else "release")
-        held = None if self.t_grasp is None or self.op != "grip" else (self._t_opened or self.ctrl.now) - self.t_grasp
-        self.ctrl.emit("released", {"cycle_id": final.cycle_id, "command": self.op, "at_s": self.ctrl.now,
+        now = self.cell.now()
+        held = None if self.t_grasp is None or self.op != "grip" else (self._t_opened or now) - self.t_grasp
+        self.cell.emit("released", {"cycle_id": final.cycle_id, "command": self.op, "at_s": now,
                                     "reason": reason, "held_s": held, "ok": final.aborted is None})
         self.op, self.t_grasp, self._slip, self._contact, self._t_opened = None, None, None, None, None
 
@@ -208,23 +227,24 @@ class Gripper(Sink):
     def on_block(self, block: SampleBlock) -> None:
         if self.op is None or "p_act" not in block.channels:
             return
-        ctrl, seq = self.ctrl, self.ctrl.cycles.sequencer
+        cell, seq = self.cell, self.cell.cycle
+        now = cell.now()
         p = block.channel("p_act")
         if self.t_grasp is not None and self._t_opened is None and seq.state != State.HOLD:
             self._t_opened = float(block.t[0])
         if self._contact is not None and not self._contact.done:
             t_c = self._contact.feed(block.t, p, seq.t_open)
             if t_c is not None:
-                ctrl.emit("contact", {"cycle_id": self.cycle_id, "command": self.op, "at_s": seq.t_open + t_c,
+                cell.emit("contact", {"cycle_id": self.cycle_id, "command": self.op, "at_s": seq.t_open + t_c,
                                       "t_c_s": t_c})
-        if self.t_grasp is None and ctrl.now > self._deadline and seq.busy and self._reason is None:
+        if self.t_grasp is None and now > self._deadline and seq.busy and self._reason is None:
             self._reason = "timeout"
-            self._spawn(ctrl.abort("grip timeout"))
+            self._spawn(cell.abort("grip timeout"))
         if self._slip is not None and seq.state == State.HOLD:
             slip = self._slip.feed(float(block.t.mean()), float(p.mean()))
             if slip is not None:
                 self._slipped(slip)
-            if self.holding and ctrl.now - self.t_grasp > self.cfg.max_hold_s and self._reason is None:
+            if self.holding and now - self.t_grasp > self.cfg.max_hold_s and self._reason is None:
                 self._reason = "max_hold_s"
                 log.warning("grip %s held for max_hold_s = %g s: releasing", self.cycle_id, self.cfg.max_hold_s)
                 self._spawn(self.release())
@@ -235,14 +255,14 @@ class Gripper(Sink):
         obj = None
         if self._contact is not None and self._contact.reference is not None:
             ref = self._contact.reference
-            first = self.ctrl.profile.sequence.windows[0]
+            first = self.plan.windows[0]
             sel = (ref.t_rel >= first.start_s) & (ref.t_rel < first.end_s)
-            obj = bool(self._sign * (level - float(ref.p[sel].mean())) > self.ctrl.profile.sequence.contact_threshold_kpa * KPA)
+            obj = bool(self._sign * (level - float(ref.p[sel].mean())) > self.plan.contact_threshold_kpa * KPA)
             if not obj:
                 ests = [E.no_object(e) for e in ests]
         if self.last_grasp is not None:
             self.last_grasp = {**self.last_grasp, "object": obj if obj is not None else self.last_grasp["object"]}
-        self.ctrl.emit("slip", {"cycle_id": self.cycle_id, "at_s": slip["at_s"], "held_s": slip["at_s"] - self.t_grasp,
+        self.cell.emit("slip", {"cycle_id": self.cycle_id, "at_s": slip["at_s"], "held_s": slip["at_s"] - self.t_grasp,
                                 "drop_kpa": slip["drop_pa"] / KPA, "p_kpa": level / KPA, "object": obj,
                                 "estimates": [E.to_edge(e) for e in ests]})
 
@@ -252,4 +272,4 @@ class Gripper(Sink):
                                or log.error("gripper: %s", t.exception()))
 
 
-__all__ = ["Gripper", "CommandError"]
+__all__ = ["GripHandler", "GripRequest", "MeasureRequest", "ReleaseRequest"]

@@ -6,7 +6,9 @@ without the delimiter cannot be answered and is dropped and counted; every other
 exactly one reply, malformed bodies included (``{"ok": false, "error": ...}``). A body is
 size- and depth-checked before it is parsed, requests are handled one at a time, and
 nothing a client sends can stop the daemon except ``shutdown``. Only JSON is ever parsed:
-nothing is unpickled from the wire. Limits: docs/zmq-schema.md.
+nothing is unpickled from the wire. Limits: docs/zmq-schema.md. What a request means is
+not the socket's business: the JSON object goes to ``answer`` (the dispatcher), which
+validates it and replies.
 """
 
 from __future__ import annotations
@@ -15,19 +17,18 @@ import asyncio
 import json
 import logging
 from collections.abc import Awaitable, Callable
-from typing import Annotated, Any, Literal
+from typing import Any
 
 import zmq
 import zmq.asyncio
 from fluidsense.common.errors import FluidsenseError
-from fluidsense.common.models import StrictModel, first_error
-from fluidsense.common.names import COMMANDS
-from fluidsense.common.scenes import Scene
 from fluidsense.controller.config import CurveKeys
 from fluidsense.controller.config.curve import read_secret_key
-from pydantic import Field, TypeAdapter, ValidationError
 
 log = logging.getLogger(__name__)
+
+#: a decoded request -> its reply (without ``ok``), or a FluidsenseError saying why not
+Answer = Callable[[dict[str, Any]], Awaitable[dict[str, Any]]]
 
 MAX_REQUEST_BYTES = 64 * 1024
 MAX_DEPTH = 32  # json.loads recurses once per level: a deep document is a RecursionError
@@ -37,68 +38,6 @@ MAX_FRAME_BYTES = 4 * MAX_REQUEST_BYTES
 MAX_HOPS = 8  # routing frames before the delimiter: one per ROUTER/DEALER proxy on the way
 MAX_ROUTING_ID_BYTES = 255  # ZeroMQ's own limit on a routing id
 HWM = 64  # messages queued per client, each way
-
-
-class StatusCmd(StrictModel):
-    cmd: Literal["status"]
-
-
-class CycleCmd(StrictModel):
-    cmd: Literal["cycle"]
-    p0_kpa: float | None = Field(None, ge=-101, le=1000)
-    label: str | None = Field(None, max_length=80)
-    store_reference: bool = False
-
-
-class GripCmd(StrictModel):
-    """Close and stay holding; ``timeout_s``: sample time to the grasp before the grip is
-    given up (vented)."""
-
-    cmd: Literal["grip"]
-    p0_kpa: float | None = Field(None, ge=-101, le=1000)
-    timeout_s: float | None = Field(None, gt=0, le=3600)
-    label: str | None = Field(None, max_length=80)
-
-
-class ReleaseCmd(StrictModel):
-    cmd: Literal["release"]
-
-
-class MeasureCmd(StrictModel):
-    cmd: Literal["measure"]
-    p0_kpa: float | None = Field(None, ge=-101, le=1000)
-    label: str | None = Field(None, max_length=80)
-    store_reference: bool = False
-
-
-class AbortCmd(StrictModel):
-    cmd: Literal["abort"]
-    reason: str = Field("operator", max_length=200)
-
-
-class ResetCmd(StrictModel):
-    cmd: Literal["reset"]
-
-
-class SceneCmd(StrictModel):
-    cmd: Literal["scene"]
-    scene: Scene
-
-
-class TaskCmd(StrictModel):
-    cmd: Literal["task"]
-    file: str = Field(min_length=1, max_length=200, description="task file name in the daemon's task directory")
-    order_mm: list[float] | None = Field(None, max_length=50)
-
-
-class ShutdownCmd(StrictModel):
-    cmd: Literal["shutdown"]
-
-
-Request = Annotated[StatusCmd | CycleCmd | GripCmd | ReleaseCmd | MeasureCmd | AbortCmd | ResetCmd | SceneCmd
-                    | TaskCmd | ShutdownCmd,
-                    Field(discriminator="cmd")]
-_ADAPTER = TypeAdapter(Request)
 
 
 def too_deep(raw: bytes, limit: int = MAX_DEPTH) -> bool:
@@ -144,9 +83,9 @@ def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def parse(frames: list[bytes]) -> Any:
-    """Check, decode and validate one request body; raises ValueError with a reason for
-    the client. Size and depth are checked before anything is parsed."""
+def decode(frames: list[bytes]) -> dict[str, Any]:
+    """Check and decode one request body into a JSON object; raises ValueError with a
+    reason for the client. Size and depth are checked before anything is parsed."""
     if len(frames) != 1:
         raise ValueError(f"expected one frame, got {len(frames)}")
     raw = frames[0]
@@ -162,12 +101,7 @@ def parse(frames: list[bytes]) -> Any:
         raise ValueError(f"not a JSON object: {exc}") from None
     if not isinstance(data, dict):
         raise ValueError("request must be a JSON object like {\"cmd\": \"status\"}")
-    if data.get("cmd") not in COMMANDS:
-        raise ValueError(f"unknown command {data.get('cmd')!r}; known: {', '.join(COMMANDS)}")
-    try:
-        return _ADAPTER.validate_python(data)
-    except ValidationError as exc:
-        raise ValueError(first_error(exc, "request", skip=1)) from None
+    return data
 
 
 def split_envelope(frames: list[bytes]) -> tuple[list[bytes], list[bytes]] | None:
@@ -193,13 +127,11 @@ def _encode(reply: dict[str, Any]) -> bytes:
 
 
 class CommandServer:
-    def __init__(self, endpoint: str, handler: Callable[[Any], Awaitable[dict[str, Any]]] | None,
-                 context: zmq.asyncio.Context | None = None, curve: CurveKeys | None = None):
-        """``curve``: the server's secret key and the clients let in (CurveKeys).
-        ``handler`` may be installed later (``self.handler``): the daemon binds its sockets
-        before it touches a device, and the controller that answers comes after."""
+    def __init__(self, endpoint: str, context: zmq.asyncio.Context | None = None, curve: CurveKeys | None = None):
+        """Bound here; ``curve``: the server's secret key and the clients let in
+        (CurveKeys). The daemon binds its sockets before it touches a device; what answers
+        comes with ``serve``, once the controller runs."""
         self.endpoint = endpoint
-        self.handler = handler
         self._ctx = context or zmq.asyncio.Context.instance()
         self._auth = None
         self._sock = self._ctx.socket(zmq.ROUTER)
@@ -223,15 +155,15 @@ class CommandServer:
     def stats(self) -> dict[str, int]:
         return {"handled": self.handled, "rejected": self.rejected, "malformed_dropped": self.malformed_dropped}
 
-    async def serve(self) -> None:
-        """Answer requests until cancelled; no message can end this loop."""
+    async def serve(self, answer: Answer) -> None:
+        """Answer requests with ``answer`` until cancelled; no message can end this loop."""
         while True:
             try:
                 frames = await self._sock.recv_multipart()
             except zmq.Again:  # woken without a message: nothing to do
                 continue
             try:
-                await self._answer(frames)
+                await self._reply(frames, answer)
             except asyncio.CancelledError:
                 raise
             except Exception:  # noqa: BLE001 - a message must never end the command socket
@@ -240,7 +172,7 @@ class CommandServer:
             # back-to-back requests complete without suspending: let the sample loop run
             await asyncio.sleep(0)
 
-    async def _answer(self, frames: list[bytes]) -> None:
+    async def _reply(self, frames: list[bytes], answer: Answer) -> None:
         parts = split_envelope(frames)
         if parts is None:
             self.malformed_dropped += 1
@@ -249,19 +181,19 @@ class CommandServer:
                             self.malformed_dropped)
             return
         envelope, body = parts
-        reply = await self.handle(body)
+        reply = await self.handle(body, answer)
         # a ROUTER never blocks: a reply to a client that has gone or stopped reading is dropped
         await self._sock.send_multipart([*envelope, _encode(reply)])
 
-    async def handle(self, frames: list[bytes]) -> dict[str, Any]:
+    async def handle(self, frames: list[bytes], answer: Answer) -> dict[str, Any]:
         self.handled += 1
         try:
-            cmd = parse(frames)
+            request = decode(frames)
         except ValueError as exc:
             self.rejected += 1
             return {"ok": False, "error": str(exc)}
         try:
-            return {"ok": True, **(await self.handler(cmd))}
+            return {"ok": True, **(await answer(request))}
         except FluidsenseError as exc:
             self.rejected += 1
             return {"ok": False, "error": str(exc)}
@@ -269,7 +201,7 @@ class CommandServer:
             raise
         except Exception as exc:  # noqa: BLE001 - a command must never kill the daemon
             self.rejected += 1
-            log.exception("command %s failed", getattr(cmd, "cmd", "?"))
+            log.exception("command %s failed", request.get("cmd", "?"))
             return {"ok": False, "error": f"internal error: {type(exc).__name__}: {exc}"}
 
     def _enable_curve(self, keys: CurveKeys) -> None:

@@ -1,0 +1,199 @@
+"""The client's one core, under the blocking and the asyncio faces (sync.py, aio.py).
+
+Every call of the client is written here once, as a generator that does no I/O: it
+yields a step (``Exchange``: a request and its reply; ``Listen``: the next message of
+the subscription), is sent back what came of it, and returns the call's result. A face
+runs the steps its own way, blocking or awaited, and decides nothing else. So what a
+request does after a timeout, how an attached subscription is known (the daemon's
+welcome), and which event a wait is for are decided in one place: ``Session._take`` sees
+every message that arrives, ``matches`` decides every wait.
+"""
+
+from __future__ import annotations
+
+import inspect
+import json
+import time
+from collections import deque
+from collections.abc import Generator
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+from fluidsense.common.names import WELCOME
+
+from .types import Event, Grasp, GripEnded, NoReply, Refused, Released
+
+T = TypeVar("T")
+
+
+@dataclass(frozen=True)
+class Exchange:
+    """Send ``body`` on the request socket and wait up to ``timeout_s`` for the reply: its
+    bytes, or None. After None the face closes that socket (a REQ socket that missed its
+    reply is stuck) and the next exchange goes over a new one."""
+
+    body: bytes
+    timeout_s: float
+
+
+@dataclass(frozen=True)
+class Listen:
+    """The next message of the subscription within ``timeout_s`` (None: no limit): its
+    frames, or None."""
+
+    timeout_s: float | None
+
+
+Call = Generator[Exchange | Listen, Any, T]
+
+
+def request_body(cmd: str, **fields: Any) -> dict[str, Any]:
+    return {"cmd": cmd, **{k: v for k, v in fields.items() if v is not None}}
+
+
+def decode(frames: list[bytes]) -> Event | None:
+    """An event, or None for anything that is not a published message."""
+    if len(frames) != 2:
+        return None
+    try:
+        return Event.of(json.loads(frames[1]))
+    except (ValueError, KeyError, TypeError):
+        return None
+
+
+def matches(ev: Event, topic: str, cycle_id: int | None) -> bool:
+    return ev.topic == topic and (cycle_id is None or ev.data.get("cycle_id") == cycle_id)
+
+
+def _left(deadline: float | None) -> float | None:
+    return None if deadline is None else max(0.0, deadline - time.monotonic())
+
+
+class Session:
+    """What one client knows between calls (the events read but not yet asked for, whether
+    its subscription is attached) and its calls. ``pub`` None: requests only."""
+
+    def __init__(self, cmd: str, pub: str | None, timeout_s: float, event_timeout_s: float):
+        self.cmd_endpoint, self.pub_endpoint = cmd, pub
+        self.timeout_s, self.event_timeout_s = timeout_s, event_timeout_s
+        self.pending: deque[Event] = deque(maxlen=10_000)
+        self.attached = pub is None  # nothing to attach to
+
+    # ------------------------------------------------------------------ requests
+    def request(self, body: dict[str, Any], timeout_s: float | None = None) -> Call[dict[str, Any]]:
+        """One request; its reply (``Refused`` for an error reply, ``NoReply`` after the
+        timeout, and the next request goes over a new socket)."""
+        yield from self.attach()
+        raw = yield Exchange(json.dumps(body).encode(), self.timeout_s if timeout_s is None else timeout_s)
+        if raw is None:
+            raise NoReply(f"no reply to {body.get('cmd')!r} from {self.cmd_endpoint}")
+        reply = json.loads(raw)
+        if not reply.get("ok"):
+            raise Refused(body, reply)
+        return reply
+
+    def status(self) -> Call[dict[str, Any]]:
+        return (yield from self.request({"cmd": "status"}))
+
+    def grip(self, p0_kpa: float | None = None, timeout_s: float | None = None, label: str | None = None,
+             wait: bool = True) -> Call[Grasp | int]:
+        """Close on what is there and stay holding; the grasp (or the cycle id with
+        ``wait=False``). ``GripEnded`` if the cycle ends first (aborted, a fault)."""
+        reply = yield from self.request(request_body("grip", p0_kpa=p0_kpa, timeout_s=timeout_s, label=label))
+        if not wait:
+            return reply["cycle_id"]
+        limit = self.event_timeout_s if timeout_s is None else timeout_s + self.timeout_s
+        return Grasp.of((yield from self.wait_for("grasp", reply["cycle_id"], limit, fail_on_end=True)))
+
+    def measure(self, p0_kpa: float | None = None, label: str | None = None, store_reference: bool = False,
+                wait: bool = True) -> Call[Grasp | int]:
+        """One sensing cycle (the gripper opens again by itself); its grasp."""
+        reply = yield from self.request(request_body("measure", p0_kpa=p0_kpa, label=label,
+                                                     store_reference=store_reference or None))
+        if not wait:
+            return reply["cycle_id"]
+        grasp = Grasp.of((yield from self.wait_for("grasp", reply["cycle_id"], self.event_timeout_s,
+                                                   fail_on_end=True)))
+        yield from self.wait_for("released", reply["cycle_id"], self.event_timeout_s)
+        return grasp
+
+    def release(self, wait: bool = True) -> Call[Released | int]:
+        """Open (vent); once open, the ``released`` event."""
+        reply = yield from self.request({"cmd": "release"})
+        if not wait:
+            return reply["cycle_id"]
+        return Released.of((yield from self.wait_for("released", reply["cycle_id"], self.event_timeout_s)))
+
+    def abort(self, reason: str = "client") -> Call[bool]:
+        return (yield from self.request({"cmd": "abort", "reason": reason}))["aborted"]
+
+    def reset(self) -> Call[str]:
+        return (yield from self.request({"cmd": "reset"}))["state"]
+
+    def scene(self, scene: dict[str, Any]) -> Call[dict[str, Any]]:
+        """Simulated cells only: place an object (``{"kind": "cylinder", "diameter_mm": 60}``)."""
+        return (yield from self.request({"cmd": "scene", "scene": scene}))["scene"]
+
+    # ------------------------------------------------------------------ events
+    def attach(self, timeout_s: float | None = None) -> Call[None]:
+        """Wait until the daemon has attached the subscription (its welcome): no event
+        published after that is lost to ZeroMQ's slow-joiner gap."""
+        deadline = time.monotonic() + (self.timeout_s if timeout_s is None else timeout_s)
+        while not self.attached:
+            frames = yield Listen(_left(deadline))
+            if frames is None:
+                raise NoReply(f"no welcome from {self.pub_endpoint}: is the daemon running?")
+            self._take(frames)
+
+    def next_event(self, timeout_s: float | None = None) -> Call[Event | None]:
+        """The next event (None after ``timeout_s``; None: wait for ever)."""
+        if self.pending:
+            return self.pending.popleft()
+        if self.pub_endpoint is None:
+            raise ValueError("this client subscribes to nothing (made with pub=None)")
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while True:
+            frames = yield Listen(_left(deadline))
+            if frames is None:
+                return None
+            ev = self._take(frames)
+            if ev is not None:
+                return ev
+
+    def wait_for(self, topic: str, cycle_id: int | None, timeout_s: float, fail_on_end: bool = False) -> Call[Event]:
+        """The next ``topic`` event of the cycle; others are kept for ``events()``."""
+        deadline = time.monotonic() + timeout_s
+        skipped: list[Event] = []
+        try:
+            while True:
+                ev = yield from self.next_event(_left(deadline))
+                if ev is None:
+                    raise NoReply(f"no {topic} of cycle {cycle_id} within {timeout_s:g} s")
+                if matches(ev, topic, cycle_id):
+                    return ev
+                skipped.append(ev)
+                if fail_on_end and matches(ev, "released", cycle_id):
+                    raise GripEnded(Released.of(ev))
+        finally:
+            self.pending.extendleft(reversed(skipped))
+
+    def _take(self, frames: list[bytes]) -> Event | None:
+        """Every message of the subscription comes through here: the welcome attaches it,
+        an event is decoded, anything else is passed over."""
+        if frames == [WELCOME]:
+            self.attached = True
+            return None
+        return decode(frames)
+
+
+#: the calls a face offers: every public generator method of the session
+CALLS = tuple(name for name, fn in vars(Session).items() if not name.startswith("_") and inspect.isgeneratorfunction(fn))
+
+
+def face_signature(call: Any) -> inspect.Signature:
+    """A call's signature as a face offers it: what the call returns, not its generator."""
+    sig = inspect.signature(call)
+    ret = sig.return_annotation
+    if isinstance(ret, str) and ret.startswith("Call[") and ret.endswith("]"):
+        ret = ret[len("Call["):-1]
+    return sig.replace(return_annotation=ret)

@@ -1,0 +1,149 @@
+"""The client library's one core (fluidsense/client/core.py) and its two faces.
+
+The core's calls do no I/O: here they are driven step by step from a script (what the
+daemon would send), then the blocking and the asyncio face, and the CLI's ``send_command``,
+run against a real ZeroMQ ROUTER in this process that leaves the first request
+unanswered: the request socket must be made again for the next one to get through."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import threading
+
+import pytest
+import zmq
+import zmq.asyncio
+from fluidsense.client import AsyncGripper, GripEnded, Gripper, NoReply, Refused
+from fluidsense.client.core import Exchange, Listen, Session
+from fluidsense.common.names import WELCOME
+
+
+def event(topic: str, seq: int, **data) -> list[bytes]:
+    msg = {"schema": 1, "topic": topic, "seq": seq, "topic_seq": seq, "t_s": float(seq), "utc_s": 0.0, **data}
+    return [topic.encode(), json.dumps(msg).encode()]
+
+
+def drive(call, answers: list):
+    """Run a core call on scripted I/O: each step gets the next answer. Returns (the
+    call's result or the exception it raised, the steps it took)."""
+    steps = []
+    try:
+        step = next(call)
+        while True:
+            steps.append(step)
+            step = call.send(answers.pop(0))
+    except StopIteration as end:
+        return end.value, steps
+    except Exception as exc:  # noqa: BLE001 - what the call raised is the result here
+        return exc, steps
+
+
+def ok(**fields) -> bytes:
+    return json.dumps({"ok": True, **fields}).encode()
+
+
+# ------------------------------------------------------------------ the core, step by step
+def test_a_request_waits_for_the_welcome_and_an_error_reply_is_refused():
+    session = Session("cmd", "pub", timeout_s=2.0, event_timeout_s=60.0)
+    before = event("state", 1, cycle_id=0)
+    reply, steps = drive(session.request({"cmd": "status"}), [before, [WELCOME], ok(state="idle")])
+    assert reply == {"ok": True, "state": "idle"} and session.attached
+    assert [type(s) for s in steps] == [Listen, Listen, Exchange] and steps[2].timeout_s == 2.0
+    assert json.loads(steps[2].body) == {"cmd": "status"}
+    refused, steps = drive(session.request({"cmd": "grip"}), [json.dumps({"ok": False, "error": "busy"}).encode()])
+    assert isinstance(refused, Refused) and refused.reply["error"] == "busy" and len(steps) == 1
+    late, _ = drive(session.request({"cmd": "status"}, timeout_s=0.5), [None])
+    assert isinstance(late, NoReply) and "no reply to 'status' from cmd" in str(late)
+
+
+def test_a_request_only_client_never_listens():
+    session = Session("cmd", None, timeout_s=2.0, event_timeout_s=60.0)
+    reply, steps = drive(session.status(), [ok(state="idle")])
+    assert reply["state"] == "idle" and [type(s) for s in steps] == [Exchange]
+    failed, steps = drive(session.next_event(1.0), [])
+    assert isinstance(failed, ValueError) and "subscribes to nothing" in str(failed) and steps == []
+
+
+def test_a_wait_keeps_the_other_events_in_order_for_later():
+    session = Session("cmd", "pub", timeout_s=2.0, event_timeout_s=60.0)
+    session.attached = True
+    script = [event("contact", 1, cycle_id=3), event("state", 2, cycle_id=3), [b"garbage"],
+              event("grasp", 3, cycle_id=3)]
+    grasp, steps = drive(session.wait_for("grasp", 3, 10.0), script)
+    assert grasp.topic == "grasp" and grasp.seq == 3 and len(steps) == 4
+    assert all(isinstance(s, Listen) and 0 < s.timeout_s <= 10.0 for s in steps)
+    assert [drive(session.next_event(0), [])[0].topic for _ in range(2)] == ["contact", "state"]
+    nothing, steps = drive(session.next_event(0), [None])
+    assert nothing is None and steps == [Listen(0.0)]
+
+
+def test_a_grip_whose_cycle_ends_first_says_how_it_ended():
+    session = Session("cmd", "pub", timeout_s=2.0, event_timeout_s=60.0)
+    session.attached = True
+    released = event("released", 1, cycle_id=4, command="grip", at_s=1.0, reason="fault: leak", held_s=None, ok=False)
+    ended, steps = drive(session.grip(timeout_s=30.0), [ok(cycle_id=4, p0_kpa=63.0, reference=True), released])
+    assert isinstance(ended, GripEnded) and ended.released.reason == "fault: leak" and not ended.released.ok
+    assert steps[1].timeout_s <= 30.0 + 2.0  # the grip's own timeout plus a reply's
+    assert drive(session.next_event(0), [])[0].topic == "released"  # kept for whoever reads the events
+
+
+# ------------------------------------------------------------------ the faces on a real socket
+class Router:
+    """A ROUTER on a thread of its own: it leaves the first request unanswered, and
+    answers each later one with ``reply``."""
+
+    def __init__(self, ctx: zmq.Context, endpoint: str, reply: dict):
+        self.sock = ctx.socket(zmq.ROUTER)
+        self.sock.setsockopt(zmq.LINGER, 0)
+        self.sock.bind(endpoint)
+        self.reply, self.seen = reply, []
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+        self.thread.start()
+
+    def _serve(self) -> None:
+        try:
+            while True:
+                *envelope, body = self.sock.recv_multipart()
+                self.seen.append(json.loads(body))
+                if len(self.seen) > 1:
+                    self.sock.send_multipart([*envelope, json.dumps(self.reply).encode()])
+        except zmq.ContextTerminated:
+            self.sock.close()
+
+
+def test_the_blocking_face_makes_its_request_socket_again_after_a_timeout(tmp_path):
+    ctx = zmq.Context()
+    Router(ctx, f"ipc://{tmp_path}/cmd", {"ok": True, "state": "idle"})
+    with Gripper(f"ipc://{tmp_path}/cmd", None, timeout_s=0.05, context=ctx) as g:
+        with pytest.raises(NoReply):
+            g.status()
+        assert g.request({"cmd": "status"}, timeout_s=30.0)["state"] == "idle"  # a stuck REQ could not send
+    ctx.term()
+
+
+def test_the_asyncio_face_makes_its_request_socket_again_after_a_timeout(tmp_path):
+    ctx = zmq.Context()
+    router = Router(ctx, f"ipc://{tmp_path}/cmd", {"ok": True, "aborted": False})
+
+    async def body():
+        async with AsyncGripper(f"ipc://{tmp_path}/cmd", None, timeout_s=0.05) as g:
+            with pytest.raises(NoReply):
+                await g.abort("first")
+            return await g.request({"cmd": "abort", "reason": "second"}, timeout_s=30.0)
+
+    assert asyncio.run(body())["aborted"] is False
+    assert [m["reason"] for m in router.seen] == ["first", "second"]
+    ctx.term()
+
+
+def test_send_command_gives_an_error_reply_as_it_came_and_a_silence_as_a_timeout(tmp_path):
+    from fluidsense.cli.monitor import send_command
+
+    ctx = zmq.Context()
+    Router(ctx, f"ipc://{tmp_path}/cmd", {"ok": False, "error": "busy: cycle 2 is in hold"})
+    with pytest.raises(TimeoutError, match=r"no reply from ipc://.* within 0.05 s: the daemon may not be running"):
+        send_command(f"ipc://{tmp_path}/cmd", {"cmd": "cycle"}, 0.05)
+    assert send_command(f"ipc://{tmp_path}/cmd", {"cmd": "cycle"}, 30.0) == {"ok": False,
+                                                                             "error": "busy: cycle 2 is in hold"}
+    ctx.term()

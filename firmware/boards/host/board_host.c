@@ -20,22 +20,21 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/file.h>
 #include <sys/prctl.h>
 #include <sys/signalfd.h>
 #include <sys/timerfd.h>
-#include <termios.h>
 #include <time.h>
 #include <unistd.h>
 
 #include "../../core/fs_core.h"
 #include "../../core/fs_wire.h"
-#include "plant_link.h"
+#include "../pc/hist.h"
+#include "../pc/pty_link.h"
+#include "../pc/plant_link.h"
 
 #define MAX_RATE_HZ 10000
 #define TX_RING 8192
 #define BACKLOG_MAX 50 /* ticks caught up after a stall; older ones are skipped (a gap) */
-#define HIST_US 10000
 
 static struct fs_core core;
 static struct fs_board_info info = {.name = "host", .adc_bits = 10, .n_adc = 8, .n_outputs = 8, .n_aout = 2,
@@ -54,7 +53,7 @@ static uint8_t tx[TX_RING];
 static size_t tx_head, tx_len;
 static struct {
     uint64_t ticks, stale, skipped, tx_dropped, plant_dropped, resets, vents;
-    uint32_t hist[HIST_US + 1];
+    struct hist wake_late;
 } stats;
 
 static uint64_t now_ns(void) {
@@ -184,7 +183,7 @@ static void board_reset(void) {
     tx_head = tx_len = 0; /* a reset loses what the UART had not sent */
     info.reset_cause = FS_RESET_EXTERNAL;
     fs_core_init(&core, &info);
-    to_plant(REC_RESET, 0, 0, now_ns(), 0);
+    to_plant(REC_RESET, 0, FS_RESET_EXTERNAL, now_ns(), 0);
 }
 
 /* ---------------------------------------------------------------- sampling */
@@ -206,7 +205,7 @@ static void on_timer(void) {
     if (read(timer, &expired, sizeof expired) != (ssize_t)sizeof expired)
         return;
     uint64_t late = (now_ns() - (t0_ns + (uint64_t)next_tick * period_ns)) / 1000;
-    stats.hist[late < HIST_US ? late : HIST_US]++;
+    hist_add(&stats.wake_late, late);
     if (expired > BACKLOG_MAX) { /* the process was not scheduled: those ticks have no sample */
         stats.skipped += expired - BACKLOG_MAX;
         next_tick += (uint32_t)(expired - BACKLOG_MAX);
@@ -233,75 +232,18 @@ static void on_timer(void) {
 }
 
 static void print_stats(void) {
-    uint64_t total = 0, acc = 0;
-    for (int i = 0; i <= HIST_US; i++)
-        total += stats.hist[i];
-    int p50 = -1, p99 = -1, max = 0;
-    for (int i = 0; i <= HIST_US; i++) {
-        acc += stats.hist[i];
-        if (p50 < 0 && acc * 2 >= total)
-            p50 = i;
-        if (p99 < 0 && acc * 100 >= total * 99)
-            p99 = i;
-        if (stats.hist[i])
-            max = i;
-    }
     fprintf(stderr, "stats {\"ticks\": %llu, \"stale\": %llu, \"skipped\": %llu, \"tx_dropped\": %llu, "
-            "\"plant_dropped\": %llu, \"resets\": %llu, \"vents\": %llu, \"rx_errors\": %u, "
-            "\"wake_late_us\": {\"p50\": %d, \"p99\": %d, \"max\": %d%s}}\n",
+            "\"plant_dropped\": %llu, \"resets\": %llu, \"vents\": %llu, \"rx_errors\": %u, \"wake_late_us\": ",
             (unsigned long long)stats.ticks, (unsigned long long)stats.stale, (unsigned long long)stats.skipped,
             (unsigned long long)stats.tx_dropped, (unsigned long long)stats.plant_dropped,
-            (unsigned long long)stats.resets, (unsigned long long)stats.vents, core.rx_errors, p50, p99, max,
-            max == HIST_US ? ", \"max_is_at_least\": true" : "");
+            (unsigned long long)stats.resets, (unsigned long long)stats.vents, core.rx_errors);
+    hist_json(&stats.wake_late, stderr);
+    fprintf(stderr, "}\n");
     fflush(stderr);
 }
 
 /* ---------------------------------------------------------------- set-up */
-static char link_path[4096], lock_path[4200], slave_name[256];
-
-static void cleanup(void) {
-    char target[256];
-    ssize_t n = readlink(link_path, target, sizeof target - 1);
-    if (n > 0) {
-        target[n] = 0;
-        if (strcmp(target, slave_name) == 0)
-            unlink(link_path); /* only our own: a newer board may have replaced it */
-    }
-}
-
-static void open_pty(void) {
-    master = posix_openpt(O_RDWR | O_NOCTTY | O_NONBLOCK);
-    if (master < 0 || grantpt(master) != 0 || unlockpt(master) != 0)
-        die("posix_openpt");
-    if (ptsname_r(master, slave_name, sizeof slave_name) != 0)
-        die("ptsname_r");
-    /* keep the slave open: the line discipline must be raw before any byte goes through
-     * (a fresh pty echoes), and a master with no slave open reads EIO */
-    int slave = open(slave_name, O_RDWR | O_NOCTTY);
-    struct termios tio;
-    if (slave < 0 || tcgetattr(slave, &tio) != 0)
-        die("opening the pty slave");
-    cfmakeraw(&tio);
-    if (tcsetattr(slave, TCSANOW, &tio) != 0)
-        die("tcsetattr");
-    char tmp[4200];
-    snprintf(tmp, sizeof tmp, "%s.%d.tmp", link_path, (int)getpid());
-    unlink(tmp);
-    if (symlink(slave_name, tmp) != 0 || rename(tmp, link_path) != 0)
-        die(link_path);
-    atexit(cleanup);
-}
-
-static void lock_link(void) {
-    snprintf(lock_path, sizeof lock_path, "%s.lock", link_path);
-    int fd = open(lock_path, O_CREAT | O_RDWR | O_CLOEXEC, 0644);
-    if (fd < 0)
-        die(lock_path);
-    if (flock(fd, LOCK_EX | LOCK_NB) != 0) {
-        fprintf(stderr, "fsboard-host: another board serves %s (%s is locked)\n", link_path, lock_path);
-        exit(2);
-    }
-}
+static char link_path[4096], slave_name[256];
 
 static void realtime(int prio) {
     prctl(PR_SET_TIMERSLACK, 1UL, 0, 0, 0);
@@ -341,8 +283,7 @@ int main(int argc, char **argv) {
     if (!link_path[0] || info.adc_bits < 8 || info.adc_bits > 16 || info.n_adc < 1 || info.n_adc > FS_MAX_CH ||
         adc_wait_us < 0 || adc_wait_us > 100000)
         usage();
-    lock_link();
-    open_pty();
+    master = pty_link_open("fsboard-host", link_path, slave_name, sizeof slave_name);
     realtime(rt);
     fcntl(STDIN_FILENO, F_SETFL, fcntl(STDIN_FILENO, F_GETFL) | O_NONBLOCK);
     fcntl(STDOUT_FILENO, F_SETFL, fcntl(STDOUT_FILENO, F_GETFL) | O_NONBLOCK);

@@ -297,6 +297,37 @@ def test_the_firmware_vents_when_the_daemon_dies(tmp_path, simserial, board):
         d.close()
 
 
+@needs_avr
+def test_a_stalled_main_loop_is_reset_by_the_hardware_watchdog(tmp_path, simserial):
+    """The AVR image's main loop stops while the gripper inflates (its interrupts go on):
+    the MCU's own watchdog resets it, it comes up with every output low (the valves'
+    power-on state: the actuator vents), says why (reset cause watchdog), and the daemon
+    latches a driver fault, reconnects and confirms the safe positions."""
+    config = serial_config(tmp_path)
+    sim = simserial(config, "--board", "avr")
+    d = Daemon(config)
+    try:
+        d.wait_welcome()
+        assert d.request({"cmd": "cycle"})["ok"]
+        while d.next_message("state")[1]["to"] != "actuate":
+            pass
+        assert sim.control(cmd="state")["valves"]["actuate"] is True  # inflating
+        sim.control(cmd="stall")
+        _, fault = d.next_message("fault")
+        assert fault["kind"] == "driver" and "the device reset (watchdog)" in fault["detail"], fault
+        state = sim.control(cmd="state")
+        assert state["reset_causes"] == ["watchdog"] and state["vents"] == []  # its watchdog, not the heartbeat's
+        assert state["valves"]["actuate"] is False
+        _wait_vented_log(d)
+        assert d.request({"cmd": "reset"})["ok"]
+        status = d.request({"cmd": "status"})
+        link = status["source_link"]
+        assert link["resets"] == 1 and link["connections"] == 2 and link["device"]["reset_cause"] == "watchdog"
+        assert status["fault"] is None and status["valves"] == {"supply": False, "actuate": False}
+    finally:
+        assert d.close() == 0
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

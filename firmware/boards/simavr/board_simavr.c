@@ -222,8 +222,10 @@ static void print_stats(void) {
     hist_json(&S.stats.lag, e);
     fprintf(e, ", \"set_outputs_to_pins_us\": ");
     hist_json(&S.stats.cmd_to_pin, e);
-    fprintf(e, ", \"heartbeat_to_vent_us\": ");
-    hist_json(&S.stats.hb_to_vent, e);
+    fprintf(e, ", \"heartbeat_to_vent_us\": [");
+    for (uint64_t i = 0; i < S.stats.vents && i < 16; i++)
+        fprintf(e, "%s%llu", i ? ", " : "", (unsigned long long)S.stats.hb_to_vent_us[i]);
+    fprintf(e, "]");
     fprintf(e, ", \"cycles_by_function\": ");
     profile_json(&S.prof, e);
     fprintf(e, "}\n");

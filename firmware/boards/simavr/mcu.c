@@ -135,7 +135,8 @@ static void device_frame(const uint8_t *p, int n) {
         if (S.vent_pending && (p[9] & FS_F_VENTED)) {
             uint64_t since = S.hb_end && S.vent_pins > S.hb_end ? S.vent_pins - S.hb_end : 0;
             to_plant(REC_VENT, S.dev_tick, S.hb_tick, cycle_ns(S.vent_pins), cycle_ns(since) - S.t0_ns);
-            hist_add(&S.stats.hb_to_vent, cycles_us(since));
+            if (S.stats.vents < 16)
+                S.stats.hb_to_vent_us[S.stats.vents] = cycles_us(since);
             S.stats.vents++;
             fprintf(stderr, "fsboard-simavr: no heartbeat since tick %u: vented at tick %u, on the pins %.3f ms "
                     "after the heartbeat's last byte\n", S.hb_tick, S.dev_tick, (double)since * 1e3 / S.avr->frequency);

@@ -50,7 +50,8 @@ struct sim {
     struct {
         uint64_t ticks, stale, samples, resets, watchdog_resets, vents, tx_bytes, rx_bytes, tx_dropped, rx_dropped,
             plant_dropped;
-        struct hist lag, cmd_to_pin, hb_to_vent;
+        struct hist lag, cmd_to_pin;
+        uint64_t hb_to_vent_us[16]; /* the first vents' */
     } stats;
 };
 

@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 # installed package; they are not in the wheel
 LAB := $(BIN)/python -m lab
 
-.PHONY: demo test install clean wheel wheelhouse-check lint-imports report speed-accuracy stability timing faults fuzz busy grips soak firmware firmware-host
+.PHONY: demo test install clean wheel wheelhouse-check lint-imports report speed-accuracy stability timing faults fuzz busy grips soak firmware firmware-host firmware-sim firmware-deps
 
 $(STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
@@ -21,10 +21,14 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/fluidsense demo
 
-# the serial driver's tests run the firmware's host board (gcc only); the AVR image is
-# built by `make firmware`, when avr-gcc is there
+# The serial driver's tests run the firmware's host board (gcc only) and, where Debian's
+# AVR packages are installed, the AVR image in simavr. CI (CI=true, a fresh machine)
+# installs those packages first (firmware-deps; firmware/README.md says why); elsewhere
+# `make firmware-deps` does, and without them the AVR tests are skipped, said in one line.
 test: $(STAMP) firmware-host
-	@command -v avr-gcc >/dev/null || echo "make test: avr-gcc not found: the AVR image is not built (make firmware builds it; apt-get install gcc-avr avr-libc)"
+	@if [ "$$CI" = true ]; then $(MAKE) -s firmware-deps || echo "make test: installing $(AVR_DEBS) failed"; fi
+	@if $(AVR_READY); then $(MAKE) -s firmware-sim; else echo "make test: $(AVR_DEBS) not installed (make \
+	firmware-deps): the AVR image's tests are skipped, the host board's run"; fi
 	$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder
 
 # The serial streamer's firmware (firmware/README.md): the AVR image (size reported; needs
@@ -34,6 +38,21 @@ firmware:
 
 firmware-host:
 	$(MAKE) -C firmware host
+
+# The AVR image and the simulated board that runs it in simavr (python -m lab simserial --board avr).
+firmware-sim:
+	$(MAKE) -C firmware sim
+
+# Debian's packages for the AVR image and its simulator, installed with apt-get when
+# missing (as root, as on CI and the developers' machines); ~15-30 s.
+AVR_DEBS := gcc-avr avr-libc simavr libsimavr-dev
+AVR_READY := command -v avr-gcc >/dev/null 2>&1 && test -f /usr/include/simavr/sim_avr.h
+firmware-deps:
+	@if $(AVR_READY); then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+		echo "make firmware-deps: apt-get install $(AVR_DEBS)"; \
+		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(AVR_DEBS) >/dev/null; \
+	else echo "make firmware-deps: as root: apt-get install $(AVR_DEBS)"; exit 1; fi
 
 # Regenerates docs/reproduction (the paper's numbers beside ours; a few minutes).
 report: $(STAMP)

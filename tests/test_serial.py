@@ -260,17 +260,22 @@ def test_a_silent_link_latches_link_lost_and_the_daemon_reconnects(tmp_path, sim
         proxy.close()
 
 
+def _inflate(d: Daemon, sim: SimSerialProcess) -> None:
+    """A cycle started, up to its inflation: the actuate valve open on the device's pin."""
+    d.wait_welcome()
+    assert d.request({"cmd": "cycle"})["ok"]
+    while d.next_message("state")[1]["to"] != "actuate":
+        pass
+    assert sim.control(cmd="state")["valves"]["actuate"] is True
+
+
 @pytest.mark.parametrize("board", BOARDS)
 def test_the_firmware_vents_when_the_daemon_dies(tmp_path, simserial, board):
     config = serial_config(tmp_path)
     sim = simserial(config, "--board", board)
     d = Daemon(config, new_session=True)
     try:
-        d.wait_welcome()
-        assert d.request({"cmd": "cycle"})["ok"]
-        while d.next_message("state")[1]["to"] != "actuate":
-            pass
-        assert sim.control(cmd="state")["valves"]["actuate"] is True  # inflating
+        _inflate(d, sim)
         os.killpg(d.proc.pid, signal.SIGKILL)  # the daemon and its helpers: no STOP, no heartbeat
         d.proc.wait(30)
         # the board says when its watchdog fires (stderr): wait for that event
@@ -307,11 +312,7 @@ def test_a_stalled_main_loop_is_reset_by_the_hardware_watchdog(tmp_path, simseri
     sim = simserial(config, "--board", "avr")
     d = Daemon(config)
     try:
-        d.wait_welcome()
-        assert d.request({"cmd": "cycle"})["ok"]
-        while d.next_message("state")[1]["to"] != "actuate":
-            pass
-        assert sim.control(cmd="state")["valves"]["actuate"] is True  # inflating
+        _inflate(d, sim)
         sim.control(cmd="stall")
         _, fault = d.next_message("fault")
         assert fault["kind"] == "driver" and "the device reset (watchdog)" in fault["detail"], fault

@@ -15,12 +15,10 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <poll.h>
-#include <sched.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/prctl.h>
 #include <sys/signalfd.h>
 #include <sys/timerfd.h>
 #include <time.h>
@@ -29,6 +27,7 @@
 #include "../../core/fs_core.h"
 #include "../../core/fs_wire.h"
 #include "../pc/hist.h"
+#include "../pc/pc_io.h"
 #include "../pc/pty_link.h"
 #include "../pc/plant_link.h"
 
@@ -56,11 +55,7 @@ static struct {
     struct hist wake_late;
 } stats;
 
-static uint64_t now_ns(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (uint64_t)ts.tv_sec * 1000000000ull + (uint64_t)ts.tv_nsec;
-}
+static uint64_t now_ns(void) { return pc_now_ns(); }
 
 static void die(const char *what) {
     fprintf(stderr, "fsboard-host: %s: %s\n", what, strerror(errno));
@@ -69,55 +64,27 @@ static void die(const char *what) {
 
 /* ---------------------------------------------------------------- the plant link */
 static void to_plant(uint8_t kind, uint32_t tick, uint32_t extra, uint64_t t_ns, uint64_t next_ns) {
-    uint8_t r[PLANT_REC] = {0};
-    r[0] = kind;
-    r[1] = outputs;
-    r[2] = (uint8_t)((core.armed ? FS_F_ARMED : 0) | (core.vented ? FS_F_VENTED : 0) |
-                     (core.streaming ? REC_STREAMING : 0));
-    r[3] = core.session;
-    fs_put_u16(r + 4, aout[0]);
-    fs_put_u16(r + 6, aout[1]);
-    fs_put_u32(r + 8, tick);
-    fs_put_u32(r + 12, extra);
-    fs_put_u32(r + 16, (uint32_t)t_ns);
-    fs_put_u32(r + 20, (uint32_t)(t_ns >> 32));
-    fs_put_u32(r + 24, (uint32_t)next_ns);
-    fs_put_u32(r + 28, (uint32_t)(next_ns >> 32));
-    /* never block on the plant: a full pipe drops the record (counted) */
-    if (write(STDOUT_FILENO, r, sizeof r) != (ssize_t)sizeof r)
+    struct plant_out o = {kind, outputs,
+                          (uint8_t)((core.armed ? FS_F_ARMED : 0) | (core.vented ? FS_F_VENTED : 0) |
+                                    (core.streaming ? REC_STREAMING : 0)),
+                          core.session, {aout[0], aout[1]}, tick, extra, t_ns, next_ns};
+    if (!plant_write(&o))
         stats.plant_dropped++;
 }
 
 static void board_reset(void);
 
-static void from_plant(void) {
-    static uint8_t buf[PLANT_REC * 64];
-    static size_t have;
-    ssize_t n = read(STDIN_FILENO, buf + have, sizeof buf - have);
-    if (n == 0) {
-        fprintf(stderr, "fsboard-host: the plant closed its side: stopping\n");
-        exit(0);
+static void plant_record(const uint8_t *r) {
+    if (r[0] == REC_ADC) {
+        for (int i = 0; i < FS_MAX_CH; i++)
+            analog[i] = fs_get_u16(r + 16 + 2 * i);
+        analog_ns = (uint64_t)fs_get_u32(r + 8) | (uint64_t)fs_get_u32(r + 12) << 32;
+    } else if (r[0] == REC_DO_RESET) {
+        board_reset();
     }
-    if (n < 0) {
-        if (errno == EAGAIN || errno == EINTR)
-            return;
-        die("reading the plant");
-    }
-    have += (size_t)n;
-    size_t off = 0;
-    for (; have - off >= PLANT_REC; off += PLANT_REC) {
-        const uint8_t *r = buf + off;
-        if (r[0] == REC_ADC) {
-            for (int i = 0; i < FS_MAX_CH; i++)
-                analog[i] = fs_get_u16(r + 16 + 2 * i);
-            analog_ns = (uint64_t)fs_get_u32(r + 8) | (uint64_t)fs_get_u32(r + 12) << 32;
-        } else if (r[0] == REC_DO_RESET) {
-            board_reset();
-        }
-    }
-    memmove(buf, buf + off, have - off);
-    have -= off;
 }
+
+static void from_plant(void) { plant_read("fsboard-host", plant_record); }
 
 /* ---------------------------------------------------------------- board hooks */
 void fs_board_outputs(uint8_t levels) {
@@ -164,19 +131,7 @@ void fs_board_vented(uint32_t tick, uint32_t last_hb_tick) {
     to_plant(REC_VENT, tick, last_hb_tick, now_ns(), 0);
 }
 
-static void flush_tx(void) {
-    while (tx_len) {
-        size_t chunk = tx_len < TX_RING - tx_head ? tx_len : TX_RING - tx_head;
-        ssize_t n = write(master, tx + tx_head, chunk);
-        if (n <= 0) {
-            if (n < 0 && errno != EAGAIN && errno != EINTR)
-                die("writing the pty");
-            return; /* the pty is full (nobody reads): frames wait in the ring, then drop */
-        }
-        tx_head = (tx_head + (size_t)n) % TX_RING;
-        tx_len -= (size_t)n;
-    }
-}
+static void flush_tx(void) { ring_flush("fsboard-host", master, tx, TX_RING, &tx_head, &tx_len); }
 
 static void board_reset(void) {
     stats.resets++;
@@ -245,15 +200,6 @@ static void print_stats(void) {
 /* ---------------------------------------------------------------- set-up */
 static char link_path[4096], slave_name[256];
 
-static void realtime(int prio) {
-    prctl(PR_SET_TIMERSLACK, 1UL, 0, 0, 0);
-    if (prio <= 0)
-        return;
-    struct sched_param sp = {.sched_priority = prio};
-    if (sched_setscheduler(0, SCHED_FIFO, &sp) != 0)
-        fprintf(stderr, "fsboard-host: SCHED_FIFO %d refused (%s): normal scheduling\n", prio, strerror(errno));
-}
-
 static void usage(void) {
     fprintf(stderr, "usage: fsboard-host --link PATH [--adc-bits N] [--adc-inputs N] [--rt PRIO] "
             "[--adc-wait-us US]\n");
@@ -284,20 +230,13 @@ int main(int argc, char **argv) {
         adc_wait_us < 0 || adc_wait_us > 100000)
         usage();
     master = pty_link_open("fsboard-host", link_path, slave_name, sizeof slave_name);
-    realtime(rt);
+    pc_realtime("fsboard-host", rt);
     fcntl(STDIN_FILENO, F_SETFL, fcntl(STDIN_FILENO, F_GETFL) | O_NONBLOCK);
     fcntl(STDOUT_FILENO, F_SETFL, fcntl(STDOUT_FILENO, F_GETFL) | O_NONBLOCK);
-    sigset_t sigs;
-    sigemptyset(&sigs);
-    sigaddset(&sigs, SIGTERM);
-    sigaddset(&sigs, SIGINT);
-    sigaddset(&sigs, SIGUSR1);
-    sigaddset(&sigs, SIGPIPE);
-    sigprocmask(SIG_BLOCK, &sigs, NULL);
-    int sfd = signalfd(-1, &sigs, SFD_NONBLOCK | SFD_CLOEXEC);
+    int sfd = pc_signals("fsboard-host");
     timer = timerfd_create(CLOCK_MONOTONIC, TFD_NONBLOCK | TFD_CLOEXEC);
-    if (sfd < 0 || timer < 0)
-        die("signalfd/timerfd");
+    if (timer < 0)
+        die("timerfd_create");
     fs_core_init(&core, &info);
     fprintf(stderr, "ready %s -> %s\n", link_path, slave_name);
     for (;;) {

@@ -19,12 +19,10 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <poll.h>
-#include <sched.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/prctl.h>
 #include <sys/resource.h>
 #include <sys/signalfd.h>
 #include <time.h>
@@ -40,6 +38,7 @@
 
 #include "../../core/fs_core.h"
 #include "../../core/fs_wire.h"
+#include "../pc/pc_io.h"
 #include "../pc/plant_link.h"
 #include "../pc/pty_link.h"
 #include "probe.h"
@@ -48,11 +47,7 @@
 struct sim S;
 
 /* ---------------------------------------------------------------- time */
-uint64_t now_ns(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (uint64_t)ts.tv_sec * 1000000000ull + (uint64_t)ts.tv_nsec;
-}
+uint64_t now_ns(void) { return pc_now_ns(); }
 
 uint64_t cycle_ns(uint64_t cycle) { /* the MCU's time on the host's clock */
     return S.t0_ns + (uint64_t)((unsigned __int128)cycle * 1000000000u / S.avr->frequency);
@@ -69,70 +64,33 @@ static void die(const char *what) {
 
 /* ---------------------------------------------------------------- the plant link */
 void to_plant(uint8_t kind, uint32_t tick, uint32_t extra, uint64_t t_ns, uint64_t next_ns) {
-    uint8_t r[PLANT_REC] = {0};
-    r[0] = kind;
-    r[1] = S.outputs;
-    r[2] = (uint8_t)((S.dev_armed ? FS_F_ARMED : 0) | (S.led ? FS_F_VENTED : 0) | (S.dev_session ? REC_STREAMING : 0));
-    r[3] = S.dev_session;
-    fs_put_u16(r + 4, S.aout[0]);
-    fs_put_u16(r + 6, S.aout[1]);
-    fs_put_u32(r + 8, tick);
-    fs_put_u32(r + 12, extra);
-    fs_put_u32(r + 16, (uint32_t)t_ns);
-    fs_put_u32(r + 20, (uint32_t)(t_ns >> 32));
-    fs_put_u32(r + 24, (uint32_t)next_ns);
-    fs_put_u32(r + 28, (uint32_t)(next_ns >> 32));
-    if (write(STDOUT_FILENO, r, sizeof r) != (ssize_t)sizeof r) /* never block on the plant */
+    struct plant_out o = {kind, S.outputs,
+                          (uint8_t)((S.dev_armed ? FS_F_ARMED : 0) | (S.led ? FS_F_VENTED : 0) |
+                                    (S.dev_session ? REC_STREAMING : 0)),
+                          S.dev_session, {S.aout[0], S.aout[1]}, tick, extra, t_ns, next_ns};
+    if (!plant_write(&o))
         S.stats.plant_dropped++;
 }
 
-/* Reads what the plant sent: the newest inputs are kept for the next sample's conversions. */
-void from_plant(void) {
-    static uint8_t buf[PLANT_REC * 64];
-    static size_t have;
-    ssize_t n = read(STDIN_FILENO, buf + have, sizeof buf - have);
-    if (n == 0) {
-        fprintf(stderr, "fsboard-simavr: the plant closed its side: stopping\n");
-        exit(0);
+/* The newest inputs are kept for the next sample's conversions; the rest waits for the
+ * next instruction boundary. */
+static void plant_record(const uint8_t *r) {
+    if (r[0] == REC_ADC) {
+        for (int i = 0; i < FS_MAX_CH; i++)
+            S.adc_next[i] = fs_get_u16(r + 16 + 2 * i);
+        S.adc_next_ns = (uint64_t)fs_get_u32(r + 8) | (uint64_t)fs_get_u32(r + 12) << 32;
+    } else if (r[0] == REC_DO_RESET) {
+        S.reset_request = 1;
+    } else if (r[0] == REC_DO_STALL) {
+        S.stall = 1;
+        fprintf(stderr, "fsboard-simavr: the firmware's main loop stalls (as a hung firmware would)\n");
     }
-    if (n < 0) {
-        if (errno == EAGAIN || errno == EINTR)
-            return;
-        die("reading the plant");
-    }
-    have += (size_t)n;
-    size_t off = 0;
-    for (; have - off >= PLANT_REC; off += PLANT_REC) {
-        const uint8_t *r = buf + off;
-        if (r[0] == REC_ADC) {
-            for (int i = 0; i < FS_MAX_CH; i++)
-                S.adc_next[i] = fs_get_u16(r + 16 + 2 * i);
-            S.adc_next_ns = (uint64_t)fs_get_u32(r + 8) | (uint64_t)fs_get_u32(r + 12) << 32;
-        } else if (r[0] == REC_DO_RESET) {
-            S.reset_request = 1; /* between two instructions, never inside one */
-        } else if (r[0] == REC_DO_STALL) {
-            S.stall = 1;
-            fprintf(stderr, "fsboard-simavr: the firmware's main loop stalls (as a hung firmware would)\n");
-        }
-    }
-    memmove(buf, buf + off, have - off);
-    have -= off;
 }
 
+void from_plant(void) { plant_read("fsboard-simavr", plant_record); }
+
 /* ---------------------------------------------------------------- the pty */
-static void flush_tx(void) {
-    while (S.tx_len) {
-        size_t chunk = S.tx_len < TX_RING - S.tx_head ? S.tx_len : TX_RING - S.tx_head;
-        ssize_t n = write(S.master, S.tx + S.tx_head, chunk);
-        if (n <= 0) {
-            if (n < 0 && errno != EAGAIN && errno != EINTR)
-                die("writing the pty");
-            return; /* the pty is full (nobody reads): bytes wait in the ring, then drop */
-        }
-        S.tx_head = (S.tx_head + (size_t)n) % TX_RING;
-        S.tx_len -= (size_t)n;
-    }
-}
+static void flush_tx(void) { ring_flush("fsboard-simavr", S.master, S.tx, TX_RING, &S.tx_head, &S.tx_len); }
 
 static void read_pty(void) {
     uint8_t buf[512];
@@ -189,15 +147,6 @@ static void run_until(uint64_t target) {
             exit(4);
         }
     }
-}
-
-static void realtime(int prio) {
-    prctl(PR_SET_TIMERSLACK, 1UL, 0, 0, 0);
-    if (prio <= 0)
-        return;
-    struct sched_param sp = {.sched_priority = prio};
-    if (sched_setscheduler(0, SCHED_FIFO, &sp) != 0)
-        fprintf(stderr, "fsboard-simavr: SCHED_FIFO %d refused (%s): normal scheduling\n", prio, strerror(errno));
 }
 
 static void print_stats(void) {
@@ -270,18 +219,9 @@ int main(int argc, char **argv) {
     char slave[256];
     S.master = pty_link_open("fsboard-simavr", link, slave, sizeof slave);
     mcu_load(elf, (uint32_t)f_cpu, (uint32_t)vref_mv);
-    realtime(rt);
+    pc_realtime("fsboard-simavr", rt);
     S.avr->sleep = sleep_hook;
-    sigset_t sigs;
-    sigemptyset(&sigs);
-    sigaddset(&sigs, SIGTERM);
-    sigaddset(&sigs, SIGINT);
-    sigaddset(&sigs, SIGUSR1);
-    sigaddset(&sigs, SIGPIPE);
-    sigprocmask(SIG_BLOCK, &sigs, NULL);
-    int sfd = signalfd(-1, &sigs, SFD_NONBLOCK | SFD_CLOEXEC);
-    if (sfd < 0)
-        die("signalfd");
+    int sfd = pc_signals("fsboard-simavr");
     fcntl(STDIN_FILENO, F_SETFL, fcntl(STDIN_FILENO, F_GETFL) | O_NONBLOCK);
     fcntl(STDOUT_FILENO, F_SETFL, fcntl(STDOUT_FILENO, F_GETFL) | O_NONBLOCK);
     S.t0_ns = now_ns();

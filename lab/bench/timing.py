@@ -381,9 +381,12 @@ def run(args: argparse.Namespace) -> int:
               f"{100 * avr['share_of_period']:.1f} % of the {avr['cycles_per_period']:.0f} cycles of a period (awake "
               f"{100 * avr['awake_share']:.1f} %); link {avr['frame_bytes']} bytes per sample = "
               f"{100 * avr['link_share']:.1f} % of {avr['link_bytes_per_s']:.0f} bytes/s (limit "
-              f"{avr['link_limit_hz']:.0f} Hz); MCU behind the clock p99/max {board['lag_us']['p99']}/"
-              f"{board['lag_us']['max']} us; SET_OUTPUTS last byte -> pins {board['set_outputs_to_pins_us']}; "
-              f"heartbeat -> vent {board['heartbeat_to_vent_us']}")
+              f"{avr['link_limit_hz']:.0f} Hz); on its TX line {board['samples_sent']} samples, "
+              f"{board['seq_gaps']} seq gaps, {board['tick_gaps']} tick gaps, {board['bad_frames_out']} bad frames, "
+              f"{board['flagged_tx_dropped']} TX_DROPPED, {board['flagged_adc_late']} ADC_LATE; MCU behind the clock "
+              f"p99/max {board['lag_us']['p99']}/{board['lag_max_us']} us ({board['lag_over_100ms']} slices over "
+              f"100 ms); SET_OUTPUTS last byte -> pins {board['set_outputs_to_pins_us']}; heartbeat -> vent "
+              f"{board['heartbeat_to_vent_us']} us")
         for part, cycles in avr["cycles_per_sample"].items():
             print(f"  {cycles:8.1f} cycles  {part}")
     return 0

@@ -159,15 +159,19 @@ static void print_stats(void) {
             "\"stalled\": %llu, \"ticks\": %llu, \"stale\": %llu, \"samples_sent\": %llu, \"resets\": %llu, "
             "\"watchdog_resets\": %llu, \"vents\": %llu, \"tx_bytes\": %llu, \"rx_bytes\": %llu, "
             "\"tx_dropped\": %llu, \"rx_dropped\": %llu, \"plant_dropped\": %llu, \"frames_out\": %u, "
-            "\"bad_frames_out\": %u, \"frames_in\": %u, \"uart_cycles_per_byte\": %llu, \"cpu_s\": %.3f, "
-            "\"lag_us\": ", S.avr->mmcu, S.avr->frequency, (unsigned long long)S.avr->cycle,
+            "\"bad_frames_out\": %u, \"frames_in\": %u, \"seq_gaps\": %llu, \"tick_gaps\": %llu, "
+            "\"flagged_tx_dropped\": %llu, \"flagged_adc_late\": %llu, \"uart_cycles_per_byte\": %llu, "
+            "\"cpu_s\": %.3f, \"lag_max_us\": %llu, \"lag_over_100ms\": %llu, \"lag_us\": ", S.avr->mmcu, S.avr->frequency, (unsigned long long)S.avr->cycle,
             (unsigned long long)S.prof.asleep, (unsigned long long)S.prof.stalled, (unsigned long long)S.stats.ticks,
             (unsigned long long)S.stats.stale, (unsigned long long)S.stats.samples,
             (unsigned long long)S.stats.resets, (unsigned long long)S.stats.watchdog_resets,
             (unsigned long long)S.stats.vents, (unsigned long long)S.stats.tx_bytes,
             (unsigned long long)S.stats.rx_bytes, (unsigned long long)S.stats.tx_dropped,
             (unsigned long long)S.stats.rx_dropped, (unsigned long long)S.stats.plant_dropped, S.tx_line.frames,
-            S.tx_line.bad, S.rx_line.frames, (unsigned long long)S.uart->cycles_per_byte, cpu_s);
+            S.tx_line.bad, S.rx_line.frames, (unsigned long long)S.stats.seq_gaps,
+            (unsigned long long)S.stats.tick_gaps, (unsigned long long)S.stats.flagged_tx_dropped,
+            (unsigned long long)S.stats.flagged_adc_late, (unsigned long long)S.uart->cycles_per_byte, cpu_s,
+            (unsigned long long)S.stats.lag_max_us, (unsigned long long)S.stats.lag_over_100ms);
     hist_json(&S.stats.lag, e);
     fprintf(e, ", \"set_outputs_to_pins_us\": ");
     hist_json(&S.stats.cmd_to_pin, e);
@@ -231,7 +235,10 @@ int main(int argc, char **argv) {
     for (;;) {
         uint64_t now = now_ns(), at = cycle_ns(S.avr->cycle);
         if (at < now) {
-            hist_add(&S.stats.lag, (now - at) / 1000); /* how far behind the host's clock the MCU is */
+            uint64_t lag_us = (now - at) / 1000; /* how far behind the host's clock the MCU is */
+            hist_add(&S.stats.lag, lag_us);
+            S.stats.lag_max_us = lag_us > S.stats.lag_max_us ? lag_us : S.stats.lag_max_us;
+            S.stats.lag_over_100ms += lag_us > 100000;
             run_until(cycle_at(now));
         }
         flush_tx();

@@ -127,9 +127,20 @@ static void adc_trigger(avr_irq_t *irq, uint32_t value, void *param) {
 /* ---------------------------------------------------------------- the serial line */
 static void device_frame(const uint8_t *p, int n) {
     uint8_t type = p[0], was_armed = S.dev_armed;
+    uint16_t seq = fs_get_u16(p + 2);
+    S.stats.seq_gaps += S.have_seq && seq != (uint16_t)(S.dev_seq + 1); /* every frame counts in seq */
+    S.dev_seq = seq;
+    S.have_seq = 1;
+    if (p[1] != S.dev_session)
+        S.have_tick = 0;
     S.dev_session = p[1];
     if (type == 0x01 && n >= 15) { /* SAMPLE */
-        S.dev_tick = fs_get_u32(p + 4);
+        uint32_t tick = fs_get_u32(p + 4);
+        S.stats.tick_gaps += S.have_tick && tick != S.dev_tick + 1;
+        S.stats.flagged_tx_dropped += !!(p[9] & FS_F_TX_DROPPED);
+        S.stats.flagged_adc_late += !!(p[9] & FS_F_ADC_LATE);
+        S.dev_tick = tick;
+        S.have_tick = 1;
         S.dev_armed = p[9] & FS_F_ARMED;
         S.stats.samples++;
         if (S.vent_pending && (p[9] & FS_F_VENTED)) {
@@ -150,6 +161,8 @@ static void device_frame(const uint8_t *p, int n) {
             S.hb_tick = tick == 0xFFFFFFFFu ? 0 : tick;
         if (cmd == FS_STOP && status == FS_OK)
             S.dev_session = 0;
+        if (cmd == FS_START && status == FS_OK)
+            S.have_tick = 0; /* its ticks start again at 0 */
         if (cmd == FS_SET_OUTPUTS)
             S.set_pending = 0; /* answered: a SET that moved no pin is not matched to a later change */
     }
@@ -191,11 +204,18 @@ static avr_cycle_count_t rx_feed(struct avr_t *avr, avr_cycle_count_t when, void
     S.stats.rx_bytes++;
     avr_raise_irq(uart_in, b);
     int n = line_byte(&S.rx_line, b, p);
-    if (n >= 1 && (p[0] == FS_HEARTBEAT || p[0] == FS_ARM)) {
-        S.hb_end = when + cpb;
-    } else if (n >= 1 && p[0] == FS_SET_OUTPUTS) {
-        S.set_end = when + cpb;
-        S.set_pending = 1;
+    if (n >= 3) {
+        /* a retry (the type and seq of the command before) is acknowledged, not applied again */
+        uint16_t seq = fs_get_u16(p + 1);
+        int retry = p[0] == S.cmd_type && seq == S.cmd_seq;
+        S.cmd_type = p[0];
+        S.cmd_seq = seq;
+        if (!retry && (p[0] == FS_HEARTBEAT || p[0] == FS_ARM)) {
+            S.hb_end = when + cpb;
+        } else if (!retry && p[0] == FS_SET_OUTPUTS) {
+            S.set_end = when + cpb;
+            S.set_pending = 1;
+        }
     }
     return when + cpb;
 }
@@ -226,7 +246,7 @@ static void after_reset(void) {
     avr_extint_set_strict_lvl_trig(S.avr, 1, 0);
     line_clear(&S.tx_line);
     line_clear(&S.rx_line);
-    S.dev_session = S.dev_armed = 0;
+    S.dev_session = S.dev_armed = S.have_seq = S.have_tick = 0;
     S.stall = S.vent_pending = S.set_pending = 0;
     S.rx_feeding = S.xoff = 0; /* simavr dropped its cycle timers: the line starts again */
     S.last_start = 0;

@@ -37,11 +37,14 @@ struct sim {
     uint64_t adc_next_ns;
     uint64_t last_start; /* cycle of the last sample's first conversion */
     /* what the device's frames say (a protocol analyser on TXD) */
-    uint8_t dev_session, dev_armed;
+    uint8_t dev_session, dev_armed, have_seq, have_tick;
+    uint16_t dev_seq;
     uint32_t dev_tick, hb_tick;
     /* events on the host's line, by cycle of the last byte's stop bit */
     uint64_t set_end, hb_end, vent_pins;
     int set_pending, vent_pending;
+    uint8_t cmd_type; /* the last command on the host's line */
+    uint16_t cmd_seq;
     /* control */
     volatile int reset_request, stall;
     int fn_main, fn_timer;
@@ -50,6 +53,9 @@ struct sim {
     struct {
         uint64_t ticks, stale, samples, resets, watchdog_resets, vents, tx_bytes, rx_bytes, tx_dropped, rx_dropped,
             plant_dropped;
+        /* the device's frames as a protocol analyser checks them */
+        uint64_t seq_gaps, tick_gaps, flagged_tx_dropped, flagged_adc_late;
+        uint64_t lag_max_us, lag_over_100ms; /* the MCU behind the host's clock */
         struct hist lag, cmd_to_pin;
         uint64_t hb_to_vent_us[16]; /* the first vents' */
     } stats;

@@ -35,11 +35,10 @@ def register(sub) -> None:
     p.add_argument("--config", "-c", required=True, help="cell config with driver kind serial")
     p.add_argument("--seed", type=int, default=1, help="seed of the simulated cell (default 1)")
     add_scene_options(p)
-    p.add_argument("--rt-priority", type=int, default=None, metavar="N",
+    p.add_argument("--rt-priority", type=int, default=30, metavar="N",
                    help="SCHED_FIFO priority of the board when permitted (the plant gets N-1), 0 for normal "
-                   "scheduling (default 30 for the host board: a microcontroller runs on its own CPU, here it "
-                   "shares two; 10 for the AVR, below the daemon's sample loop (20): simulating every cycle takes "
-                   "a quarter of a core, and when it catches up it must not starve the daemon it serves)")
+                   "scheduling (default 30, above the daemon's sample loop: a microcontroller runs on its own CPU; "
+                   "here it shares two, and the simulated AVR needs a quarter to a third of one to keep time)")
     p.add_argument("--adc-wait-us", type=int, default=200, metavar="US",
                    help="how long after a tick the board waits for the plant's inputs before it samples the newest "
                    "it has (default 200: the AVR's two conversions take 208 us)")
@@ -53,8 +52,6 @@ def main(args: argparse.Namespace) -> int:
 
     from ..serialboard import AVR_IMAGE, SerialPlant, SimSerial, build_board
 
-    if args.rt_priority is None:
-        args.rt_priority = 10 if args.board == "avr" else 30
     cfg = load_cell_config(args.config)
     driver = cfg.driver
     if driver.kind != "serial":

@@ -4,7 +4,7 @@
  * (../pc/plant_link.h, the same records as the host board's).
  *
  *   fsboard-simavr --elf PATH --link PATH [--f-cpu 16000000] [--vref-mv 5000] [--rt PRIO]
- *                  [--adc-wait-us 200] [--slice-us 250]
+ *                  [--adc-wait-us 200] [--slice-us 500]
  *
  * Pins: the valve outputs are read where the firmware drives them (PORT and DDR of PD2-PD7,
  * PB0, PB3; an undriven pin reads low, as through the MOSFET module's pull-down), the
@@ -193,7 +193,7 @@ static void usage(void) {
 
 int main(int argc, char **argv) {
     const char *elf = NULL, *link = NULL;
-    int rt = 0, vref_mv = 5000, slice_us = 250;
+    int rt = 0, vref_mv = 5000, slice_us = 500;
     long f_cpu = 16000000;
     S.adc_wait_us = 200;
     for (int i = 1; i < argc; i += 2) {

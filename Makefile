@@ -66,7 +66,8 @@ speed-accuracy: $(STAMP)
 stability: $(STAMP)
 	$(LAB) bench stability --out docs/stability
 
-# 1 kHz timing figures of docs/performance.md (TIMING_S seconds per run; 600 in the doc).
+# 1 kHz timing figures of docs/performance.md (TIMING_S seconds per run; 600 in the doc; the
+# AVR image's run needs `make firmware-deps`).
 TIMING_S ?= 600
 timing: $(STAMP)
 	mkdir -p docs/performance
@@ -74,6 +75,7 @@ timing: $(STAMP)
 	$(LAB) bench timing --source sim --seconds $(TIMING_S) --json > docs/performance/timing-sim.json
 	$(LAB) bench timing --source modbus --seconds $(TIMING_S) --json > docs/performance/timing-modbus.json
 	$(LAB) bench timing --source serial --seconds $(TIMING_S) --json > docs/performance/timing-serial.json
+	$(LAB) bench timing --source serial --board avr --seconds $(TIMING_S) --json > docs/performance/timing-serial-avr.json
 	$(LAB) bench sampler --seconds 60 --json > docs/performance/sampler.json
 
 # Fault-injection figures of docs/safety.md: in-process faults, then what only the box can

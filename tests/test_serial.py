@@ -264,8 +264,8 @@ def _inflate(d: Daemon, sim: SimSerialProcess) -> None:
     """A cycle started, up to its inflation: the actuate valve open on the device's pin."""
     d.wait_welcome()
     assert d.request({"cmd": "cycle"})["ok"]
-    while d.next_message("state")[1]["to"] != "actuate":
-        pass
+    while (to := d.next_message("state")[1]["to"]) != "actuate":
+        assert to != "fault", d.request({"cmd": "status"})["fault"]
     assert sim.control(cmd="state")["valves"]["actuate"] is True
 
 
@@ -353,7 +353,7 @@ def test_sorting_cycles_through_the_serial_driver_read_sensible_pressures(tmp_pa
             assert d.request({"cmd": "scene", "scene": scene})["ok"]
             assert d.request({"cmd": "cycle"})["ok"]
             _, result = d.next_message("cycle", timeout_s=60)
-            assert result["ok"] and result["missed"] == 0, (result, d.request({"cmd": "status"}))
+            assert result["ok"] and result["missed"] == 0, (result, d.request({"cmd": "status"})["fault"])
             got.append(result["p_eq_kpa"])
         assert d.request({"cmd": "status"})["source_link"]["lost_frames"] == 0
     finally:

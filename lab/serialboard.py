@@ -1,20 +1,27 @@
-"""A simulated serial device (``python -m lab simserial``): the firmware's host board (the C
-program of firmware/boards/host, behind a pseudo-terminal) with the simulated cell on its
-pins. It lives with the CLI, not in drivers/: the serial driver is a production driver
-and never imports the simulator.
+"""A simulated serial device (``python -m lab simserial``): a board process behind a
+pseudo-terminal with the simulated cell on its pins. Two boards (``--board``):
+
+- ``host``: the firmware's core compiled for Linux (firmware/boards/host), sampling on a
+  timerfd;
+- ``avr``: the AVR image itself (build/avr/fluidsense.elf, what a user flashes) executed
+  cycle by cycle by simavr as an ATmega328P at 16 MHz (firmware/boards/simavr).
+
+It lives with the studies, not in drivers/: the serial driver is a production driver and
+never imports the simulator.
 
 The board process owns the pty and the protocol; this process owns the plant. They talk
-over the board's stdin/stdout in fixed 32-byte records (firmware/boards/host/plant_link.h):
+over the board's stdin/stdout in fixed 32-byte records (firmware/boards/pc/plant_link.h):
 at every tick the board reports its outputs and asks for the analog inputs at the next
-tick's deadline; the plant steps the simulated cell to that time (its clock is the board's
-CLOCK_MONOTONIC deadlines) and answers with ADC counts through each sensor's transfer
-function. Output changes arrive as they happen and move the plant's valves and
-regulator at that instant (the plant has computed one tick ahead: a command may land up
-to one period late, beside the valves' 12 ms switching delay).
+tick's time; the plant steps the simulated cell to that time (the host board's
+CLOCK_MONOTONIC deadlines, the AVR's cycles mapped onto that clock) and answers with ADC
+counts through each sensor's transfer function. Output changes arrive as they happen and
+move the plant's valves and regulator at that instant (the plant has computed one tick
+ahead: a command may land up to one period late, beside the valves' 12 ms switching delay).
 
 The sim control channel (JSON lines on stdin, and on TCP ``driver.sim_control_port``)
-answers ``state`` (valves, outputs, the board's watchdog vents, pressures), ``scene``,
-``truth`` and ``reset`` (the board resets as a brown-out would).
+answers ``state`` (valves, outputs, the board's watchdog vents, resets, pressures),
+``scene``, ``truth``, ``reset`` (the board resets as its reset pin would) and, on the AVR,
+``stall`` (the firmware's main loop stops; its hardware watchdog must reset it).
 """
 
 from __future__ import annotations
@@ -43,20 +50,28 @@ from lab import REPO
 log = logging.getLogger(__name__)
 
 FIRMWARE = REPO / "firmware"
-BOARD = FIRMWARE / "build" / "host" / "fsboard-host"
+BUILD = FIRMWARE / "build"
+#: the board programs and the make target that builds each (firmware/Makefile)
+BOARDS = {"host": (BUILD / "host" / "fsboard-host", "host"), "avr": (BUILD / "sim" / "fsboard-simavr", "sim")}
+AVR_IMAGE = BUILD / "avr" / "fluidsense.elf"
 REC = struct.Struct("<BBBBHHIIQQ")  # board -> plant
 ADC = struct.Struct("<BBHIQ8H")  # plant -> board
 TICK, OUTPUTS, VENT, RESET = 1, 2, 3, 4
-REC_ADC, REC_DO_RESET = 1, 2
+REC_ADC, REC_DO_RESET, REC_DO_STALL = 1, 2, 3
+RESET_CAUSES = {0: "power-on", 1: "external", 2: "brown-out", 3: "watchdog", 4: "software"}
 _SCENE = TypeAdapter(Scene)
 
 
-def build_board() -> Path:
-    """The host board image, built by ``make -C firmware host`` when missing or stale."""
-    out = subprocess.run(["make", "-s", "-C", str(FIRMWARE), "host"], capture_output=True, text=True)
+def build_board(kind: str = "host") -> Path:
+    """The board program, built by make when missing or stale (``avr``: the AVR image and
+    the simavr harness, which need Debian's gcc-avr, avr-libc, simavr and libsimavr-dev)."""
+    path, target = BOARDS[kind]
+    out = subprocess.run(["make", "-s", "-C", str(FIRMWARE), target], capture_output=True, text=True)
     if out.returncode != 0:
-        raise RuntimeError(f"building the host board failed (needs make and a C compiler):\n{out.stderr}")
-    return BOARD
+        needs = "make and a C compiler" if kind == "host" else \
+            "Debian's gcc-avr, avr-libc, simavr and libsimavr-dev (make firmware-deps)"
+        raise RuntimeError(f"building the {kind} board failed (needs {needs}):\n{out.stderr}")
+    return path
 
 
 class SerialPlant:
@@ -74,6 +89,7 @@ class SerialPlant:
         self.flags = self.session = 0
         self.vents: list[dict[str, Any]] = []
         self.resets = 0
+        self.reset_causes: list[str] = []
         self.ticks = 0
 
     def now(self, t_ns: int) -> float:
@@ -89,10 +105,13 @@ class SerialPlant:
         if kind in (TICK, OUTPUTS, RESET):
             self._outputs(outputs, (a0, a1), t)
         if kind == VENT:
-            self.vents.append({"tick": tick, "last_heartbeat_tick": extra, "t_s": t})
+            # the simulated AVR also measures, in its own cycles, the heartbeat frame's last byte to the pins
+            self.vents.append({"tick": tick, "last_heartbeat_tick": extra, "t_s": t,
+                               "since_heartbeat_s": next_ns / 1e9 if next_ns else None})
             log.warning("the board vented by its heartbeat watchdog at tick %d (last heartbeat: tick %d)", tick, extra)
-        elif kind == RESET:
+        elif kind == RESET and extra != 0:  # not the simulated AVR's first power-on
             self.resets += 1
+            self.reset_causes.append(RESET_CAUSES.get(extra, f"cause {extra}"))
         if kind != TICK:
             return b""
         self.ticks += tick != 0xFFFFFFFF  # not the request for the first tick after a (re)start
@@ -127,15 +146,16 @@ class SerialPlant:
         true = self.cell.true_values() if self.cell.k_next else {}
         return {"t_s": self.cell.t_last, "valves": dict(self.cell.outputs), "outputs": self.outputs,
                 "session": self.session, "armed": bool(self.flags & 1), "vented": bool(self.flags & 2),
-                "streaming": bool(self.flags & 0x80), "vents": self.vents, "resets": self.resets, "ticks": self.ticks,
+                "streaming": bool(self.flags & 0x80), "vents": self.vents, "resets": self.resets, "reset_causes": self.reset_causes, "ticks": self.ticks,
                 "pressures_kpa": {k: v / KPA for k, v in true.items()}}
 
 
 class SimSerial:
     """The board process and the plant, with the sim control channel."""
 
-    def __init__(self, plant: SerialPlant, board_argv: list[str]):
+    def __init__(self, plant: SerialPlant, board_argv: list[str], board: str = "host"):
         self.plant = plant
+        self.board = board
         self.argv = board_argv
         self.proc: subprocess.Popen[bytes] | None = None
         self.ready = asyncio.Event()
@@ -193,6 +213,9 @@ class SimSerial:
     def reset_board(self) -> None:
         os.write(self.proc.stdin.fileno(), ADC.pack(REC_DO_RESET, 0, 0, 0, 0, *[0] * 8))
 
+    def stall_board(self) -> None:
+        os.write(self.proc.stdin.fileno(), ADC.pack(REC_DO_STALL, 0, 0, 0, 0, *[0] * 8))
+
     async def stop(self) -> int:
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
@@ -210,7 +233,7 @@ class SimSerial:
             req = json.loads(line)
             cmd = req.get("cmd") if isinstance(req, dict) else None
             if cmd == "state":
-                return {"ok": True, **self.plant.state(), "board_pid": self.proc.pid}
+                return {"ok": True, **self.plant.state(), "board": self.board, "board_pid": self.proc.pid}
             if cmd == "scene":
                 self.plant.cell.set_scene(_SCENE.validate_python(req.get("scene")), self.plant.cell.t_last)
                 return {"ok": True}
@@ -219,6 +242,10 @@ class SimSerial:
             if cmd == "reset":
                 self.reset_board()
                 return {"ok": True}
-            return {"ok": False, "error": f"unknown command {cmd!r}; known: state, scene, truth, reset"}
+            if cmd == "stall" and self.board == "avr":
+                self.stall_board()
+                return {"ok": True}
+            known = "state, scene, truth, reset" + (", stall" if self.board == "avr" else "")
+            return {"ok": False, "error": f"unknown command {cmd!r}; known: {known}"}
         except (ValueError, ValidationError) as exc:
             return {"ok": False, "error": str(exc).splitlines()[0]}

@@ -1,7 +1,7 @@
 """The NI-DAQmx driver (``driver: {kind: nidaqmx}``).
 
-Mocked: only ``nidaqmx.Task`` (tests/daqmx_fake.py), because NI's driver library cannot
-be installed here. The config validation, the channel and scale mapping, the read loop,
+Mocked: only ``nidaqmx.Task`` and ``nidaqmx.system.WatchdogTask``
+(tests/support/daqmx_fake.py), because NI's driver library cannot be installed here. The config validation, the channel and scale mapping, the read loop,
 the error translation and the output tasks are the driver's real code, calling a
 stand-in whose every method is bound against the real nidaqmx signatures. A test against
 a real device is marked ``hardware``.
@@ -21,6 +21,7 @@ import yaml
 from fluidsense.common.errors import (
     ConfigError,
     DeviceTimeoutError,
+    DriverError,
     LinkLostError,
     SafetyError,
 )
@@ -28,9 +29,11 @@ from fluidsense.controller.config import load_cell_config
 from fluidsense.drivers.daqmx.backend import BufferOverflowError, build
 from nidaqmx.constants import (
     AcquisitionType,
+    Level,
     LineGrouping,
     OverwriteMode,
     TerminalConfiguration,
+    WatchdogAOExpirState,
 )
 from nidaqmx.error_codes import DAQmxErrors
 from nidaqmx.errors import DaqNotFoundError
@@ -52,7 +55,7 @@ def _config(tmp_path: Path, **driver) -> Path:
 def _backend(tmp_path: Path, **driver):
     cfg = load_cell_config(_config(tmp_path, **driver))
     rig = FakeRig()
-    return build(cfg.driver, cfg.profile.hardware, task_factory=rig), rig, cfg
+    return build(cfg.driver, cfg.profile.hardware, task_factory=rig, watchdog_factory=rig.watchdog), rig, cfg
 
 
 def _signals(cfg, pressures_pa: np.ndarray) -> list[tuple[float, ...]]:
@@ -235,6 +238,68 @@ def test_valves_and_regulator_write_levels_and_volts_and_read_back(tmp_path):
 
 
 @pytest.mark.hardware
+def test_the_daqs_watchdog_holds_the_safe_levels_and_the_sample_loop_resets_it(tmp_path):
+    """Armed at set-up, after the safe levels are written: on expiry the device sets the
+    supply line high (a normally-open valve energised: tank isolated), the actuate line
+    low (actuator vented) and ao0 to the regulator's 0 kPa; the controller's kicks reset
+    its timer; an expiry is a driver fault, cleared before the next cycle."""
+    backend, rig, _ = _backend(tmp_path)
+
+    async def body():
+        await backend.setup()
+        try:
+            (dog,) = rig.watchdogs
+            assert (dog.device, dog.timeout, dog.started) == ("Dev1", 0.5, True)
+            assert dog.do_states == {"Dev1/port0/line0": Level.HIGH, "Dev1/port0/line1": Level.LOW}
+            assert dog.ao_states == {"Dev1/ao0": (0.0, WatchdogAOExpirState.VOLTAGE)}
+            assert rig.task("do").written and rig.task("ao").written  # the safe levels were written before
+            for _ in range(4):
+                await backend.watchdog.kick()
+            assert dog.resets == 4
+            await backend.valves.set("actuate", True, 0.0)  # inflating when the loop hangs
+            dog.expire()
+            with pytest.raises(DriverError, match="watchdog expired"):
+                await backend.watchdog.kick()
+            assert await backend.valves.read_back() == {"supply": False, "actuate": False}
+            await backend.watchdog.ensure_running()
+            assert dog.clears == 1 and not dog.expired
+            await backend.watchdog.kick()
+            assert dog.resets == 5
+        finally:
+            await backend.stop()
+        assert dog.closed and not dog.started
+
+    asyncio.run(body())
+
+
+def test_a_daq_without_a_watchdog_is_a_config_error_unless_the_config_says_so(tmp_path):
+    backend, rig, _ = _backend(tmp_path)
+    rig.fail_on["WatchdogTask"] = daq_error(DAQmxErrors.WATCHDOG_TIMER_NOT_SUPPORTED, "Watchdog timer not supported.")
+    with pytest.raises(ConfigError, match="has no watchdog timer.*driver.watchdog.enabled: false"):
+        asyncio.run(backend.setup())
+    assert all(t.closed for t in rig.tasks)  # the valves and the regulator closed again
+    backend, rig, _ = _backend(tmp_path, watchdog={"enabled": False})
+    assert backend.watchdog is None and rig.watchdogs == []
+
+
+def test_a_daq_that_guards_only_its_digital_lines_still_arms_them(tmp_path):
+    """An X Series board takes digital expiration states only: the regulator keeps its
+    setpoint on expiry while the valves isolate it; the lines are armed all the same."""
+    backend, rig, _ = _backend(tmp_path)
+    rig.fail_on["cfg_watchdog_ao_expir_states"] = daq_error(DAQmxErrors.WATCHDOG_TIMER_NOT_SUPPORTED)
+
+    async def body():
+        await backend.setup()
+        try:
+            (dog,) = rig.watchdogs
+            assert dog.started and len(dog.do_states) == 2 and dog.ao_states == {}
+            assert not backend.watchdog.guards_regulator
+        finally:
+            await backend.stop()
+
+    asyncio.run(body())
+
+
 def test_a_real_daq_samples_at_its_rate():
     """On a real NI DAQ: FLUIDSENSE_NIDAQMX_CONFIG names a cell config with driver kind
     nidaqmx. Samples come at the configured rate with no slot missed."""

@@ -1,11 +1,15 @@
-"""The serial driver over a real pty against the firmware's host board (the C protocol code,
-built here by make), fed by the simulated cell: frames round-trip, damaged bytes cost
-only their frames, a reset device and a silent link latch their faults, the firmware
-vents by itself when the daemon dies, and a sorting-style cycle reads sensible pressures.
+"""The serial driver over a real pty against the firmware, fed by the simulated cell: frames
+round-trip, damaged bytes cost only their frames, a reset device and a silent link latch
+their faults, the firmware vents by itself when the daemon dies, and a sorting-style cycle
+reads sensible pressures. Two boards: the host board (the C protocol code compiled for
+Linux) for everything, and the AVR image itself run by simavr (an ATmega328P at 16 MHz,
+``--board avr``) for what only a device can show: round trip, venting, a sorting task, and
+a reset by its hardware watchdog. The driver-side behaviours (damaged frames, a silent
+link, a device that does not fit) are the same whatever the board and run on the host one.
 
 Timing is never asserted on the wall clock: slots are counted from the device's ticks,
-the vent is measured in device ticks, and waits are for events (frames, messages, the
-board's own report), each with a generous bound against hangs."""
+the vent is measured in device ticks (and, on the AVR, in its cycles), and waits are for
+events (frames, messages, the board's own report), each with a generous bound against hangs."""
 
 from __future__ import annotations
 
@@ -14,14 +18,16 @@ import os
 import select
 import signal
 import socket
+import tty
 
 import numpy as np
 import pytest
 from fluidsense.common.errors import DriverError, LinkLostError
 from fluidsense.controller.config import load_cell_config
 from fluidsense.drivers.config import build_backend
+from fluidsense.drivers.serial import protocol as p
 from support.harness import Daemon, profile_controller
-from support.serial import Proxy, SimSerialProcess, serial_config
+from support.serial import BOARD_NAMES, BOARDS, Proxy, SimSerialProcess, needs_avr, serial_config
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -56,10 +62,11 @@ def _slots(blocks) -> np.ndarray:
     return np.round(np.concatenate([b.t for b in blocks]) * 1000).astype(int)
 
 
-@pytest.mark.parametrize("reader", ["thread", "loop"])
-def test_frames_round_trip(tmp_path, simserial, reader):
+@pytest.mark.parametrize(("reader", "board"), [("thread", "host"), ("loop", "host"),
+                                               pytest.param("thread", "avr", marks=needs_avr)])
+def test_frames_round_trip(tmp_path, simserial, reader, board):
     config = serial_config(tmp_path, driver={"reader": reader})
-    sim = simserial(config)
+    sim = simserial(config, "--board", board)
     cell = load_cell_config(config)
 
     async def main():
@@ -73,7 +80,11 @@ def test_frames_round_trip(tmp_path, simserial, reader):
             slots = _slots(blocks)
             assert np.array_equal(np.diff(slots), np.ones(len(slots) - 1))  # every tick, once, in order
             t = np.concatenate([b.t for b in blocks])
-            assert np.array_equal(t, slots / 1000.0)  # on the device's grid (the host board samples on time)
+            late = t - slots / 1000.0  # each sample stamped from its tick plus the conversion's reported delay
+            if board == "host":
+                assert np.array_equal(late, np.zeros(len(t)))  # the host board evaluates its inputs at the tick
+            else:  # the AVR: the timer interrupt's latency (TCNT2 read in the ISR), a few us
+                assert np.all((late > 0) & (late < 10e-6)), late
             assert sum(b.missed for b in blocks[1:]) == 0 and blocks[0].missed == slots[0]  # only before the first
             assert all(b.channels == ("p_act", "p_tank") and b.values.shape == (10, 2) for b in blocks)
 
@@ -89,13 +100,59 @@ def test_frames_round_trip(tmp_path, simserial, reader):
             assert abs(p_tank.mean() - truth["p_tank"]) < 0.5  # 10-bit counts of a settled tank: the plant's truth
             stats = backend.source.link_stats()
             assert stats["lost_frames"] == 0 and stats["corrupt_frames"] == 0 and stats["retries"] == 0
-            assert stats["device"]["board"] == "host" and stats["device"]["adc_bits"] == 10
+            assert stats["device"]["board"] == BOARD_NAMES[board] and stats["device"]["adc_bits"] == 10
         finally:
             await backend.stop()
         state = sim.control(cmd="state")  # STOP at the end left the device safe and quiet
         assert state["outputs"] == 0b01 and not state["streaming"] and not state["armed"]
 
     asyncio.run(main())
+
+
+class _Port:
+    """The device's pty, spoken to frame by frame with the protocol module (no driver)."""
+
+    def __init__(self, path: str):
+        self.fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
+        tty.setraw(self.fd)
+        self.splitter = p.Splitter()
+        self.pending: list[bytes] = []
+        self.seq = 0
+
+    def command(self, kind: int, args: bytes = b"") -> p.Ack:
+        """One command and its ACK (frames before the ACK are dropped)."""
+        self.seq += 1
+        os.write(self.fd, p.command(kind, self.seq, args))
+        while not (isinstance(f := self.next(), p.Ack) and f.command_seq == self.seq):
+            pass
+        return f
+
+    def next(self):
+        while not self.pending:
+            assert select.select([self.fd], [], [], 30)[0], "the device went quiet"
+            self.pending += self.splitter.feed(os.read(self.fd, 4096))
+        return p.parse(self.pending.pop(0))
+
+
+@pytest.mark.parametrize("board", BOARDS)
+def test_every_session_starts_at_tick_0(tmp_path, simserial, board):
+    """40 sessions in a row, each STARTed wherever the device's sampling happens to be:
+    the first sample of each is tick 0, of that session, without an ADC overrun. (The AVR
+    image once sent the sample its ADC was converting when START came, ticked by the old
+    count: a tick going backwards, which the driver takes for a reset.)"""
+    sim = simserial(serial_config(tmp_path), "--board", board)
+    port = _Port(sim.port)
+    try:
+        for session in range(1, 41):
+            ack = port.command(p.START, p.start_args(session, 1000, 500, 0, 0x03, 0x03, (0, 0)))
+            assert ack.status == p.OK and ack.session == session
+            first = port.next()
+            while not isinstance(first, p.Sample):
+                first = port.next()
+            assert (first.session, first.tick, first.flags & p.F_ADC_LATE) == (session, 0, 0), first
+            assert port.command(p.STOP).status == p.OK
+    finally:
+        os.close(port.fd)
 
 
 def _proxied(tmp_path, simserial, **driver):
@@ -203,16 +260,22 @@ def test_a_silent_link_latches_link_lost_and_the_daemon_reconnects(tmp_path, sim
         proxy.close()
 
 
-def test_the_firmware_vents_when_the_daemon_dies(tmp_path, simserial):
+def _inflate(d: Daemon, sim: SimSerialProcess) -> None:
+    """A cycle started, up to its inflation: the actuate valve open on the device's pin."""
+    d.wait_welcome()
+    assert d.request({"cmd": "cycle"})["ok"]
+    while (to := d.next_message("state")[1]["to"]) != "actuate":
+        assert to != "fault", d.request({"cmd": "status"})["fault"]
+    assert sim.control(cmd="state")["valves"]["actuate"] is True
+
+
+@pytest.mark.parametrize("board", BOARDS)
+def test_the_firmware_vents_when_the_daemon_dies(tmp_path, simserial, board):
     config = serial_config(tmp_path)
-    sim = simserial(config)
+    sim = simserial(config, "--board", board)
     d = Daemon(config, new_session=True)
     try:
-        d.wait_welcome()
-        assert d.request({"cmd": "cycle"})["ok"]
-        while d.next_message("state")[1]["to"] != "actuate":
-            pass
-        assert sim.control(cmd="state")["valves"]["actuate"] is True  # inflating
+        _inflate(d, sim)
         os.killpg(d.proc.pid, signal.SIGKILL)  # the daemon and its helpers: no STOP, no heartbeat
         d.proc.wait(30)
         # the board says when its watchdog fires (stderr): wait for that event
@@ -225,6 +288,8 @@ def test_the_firmware_vents_when_the_daemon_dies(tmp_path, simserial):
         (vent,) = state["vents"]
         # 0.5 s at 1 kHz: the watchdog fires on the first tick more than 500 ticks after the last heartbeat
         assert vent["tick"] - vent["last_heartbeat_tick"] == 501
+        if board == "avr":  # in the MCU's cycles: the heartbeat frame's last byte to the valve pins
+            assert 0.500 < vent["since_heartbeat_s"] < 0.5013, vent
         assert state["outputs"] == 0b01 and state["valves"] == {"supply": False, "actuate": False}
         assert state["vented"] and state["streaming"]
         for _ in range(400):  # the actuator empties through the 3/2 valve's vent port
@@ -237,19 +302,47 @@ def test_the_firmware_vents_when_the_daemon_dies(tmp_path, simserial):
         d.close()
 
 
+@needs_avr
+def test_a_stalled_main_loop_is_reset_by_the_hardware_watchdog(tmp_path, simserial):
+    """The AVR image's main loop stops while the gripper inflates (its interrupts go on):
+    the MCU's own watchdog resets it, it comes up with every output low (the valves'
+    power-on state: the actuator vents), says why (reset cause watchdog), and the daemon
+    latches a driver fault, reconnects and confirms the safe positions."""
+    config = serial_config(tmp_path)
+    sim = simserial(config, "--board", "avr")
+    d = Daemon(config)
+    try:
+        _inflate(d, sim)
+        sim.control(cmd="stall")
+        _, fault = d.next_message("fault")
+        assert fault["kind"] == "driver" and "the device reset (watchdog)" in fault["detail"], fault
+        state = sim.control(cmd="state")
+        assert state["reset_causes"] == ["watchdog"] and state["vents"] == []  # its watchdog, not the heartbeat's
+        assert state["valves"]["actuate"] is False
+        _wait_vented_log(d)
+        assert d.request({"cmd": "reset"})["ok"]
+        status = d.request({"cmd": "status"})
+        link = status["source_link"]
+        assert link["resets"] == 1 and link["connections"] == 2 and link["device"]["reset_cause"] == "watchdog"
+        assert status["fault"] is None and status["valves"] == {"supply": False, "actuate": False}
+    finally:
+        assert d.close() == 0
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
 
 
-def test_sorting_cycles_through_the_serial_driver_read_sensible_pressures(tmp_path, simserial):
+@pytest.mark.parametrize("board", BOARDS)
+def test_sorting_cycles_through_the_serial_driver_read_sensible_pressures(tmp_path, simserial, board):
     """Free air, then 40 and 100 mm cylinders, through daemon -> pty -> firmware -> plant:
     each P_eq within 0.4 kPa of the same cycle on the in-process simulated cell (10-bit
     ADC: 0.084 kPa per count for p_act, plus the regulator's cycle-to-cycle spread), bigger
     objects higher, and not one sample missed."""
     config = serial_config(tmp_path, control_port=_free_port())
-    simserial(config)
+    simserial(config, "--board", board)
     d = Daemon(config)
     scenes = [{"kind": "none"}, {"kind": "cylinder", "diameter_mm": 40}, {"kind": "cylinder", "diameter_mm": 100}]
     got = []
@@ -260,7 +353,7 @@ def test_sorting_cycles_through_the_serial_driver_read_sensible_pressures(tmp_pa
             assert d.request({"cmd": "scene", "scene": scene})["ok"]
             assert d.request({"cmd": "cycle"})["ok"]
             _, result = d.next_message("cycle", timeout_s=60)
-            assert result["ok"] and result["missed"] == 0, (result, d.request({"cmd": "status"}))
+            assert result["ok"] and result["missed"] == 0, (result, d.request({"cmd": "status"})["fault"])
             got.append(result["p_eq_kpa"])
         assert d.request({"cmd": "status"})["source_link"]["lost_frames"] == 0
     finally:

@@ -10,8 +10,10 @@ processes (``clock_origin_s``). Every DAQmx call that can wait runs on a thread 
 own, never in the event loop: the read waits for a block by design, and a USB device's
 on-demand write takes a round trip.
 
-The tasks come from ``task_factory`` (``nidaqmx.Task`` on a real machine): the tests put
-a stand-in there, because NI's driver library cannot run where they run.
+The tasks come from ``task_factory`` (``nidaqmx.Task`` on a real machine) and the
+device's watchdog task from ``watchdog_factory`` (``nidaqmx.system.WatchdogTask``,
+watchdog.py): the tests put stand-ins there, because NI's driver library cannot run
+where they run.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from fluidsense.common.samples import SampleBlock
 from ..backend import Backend
 from ..base import Regulator, SampleSource, ValveBank
 from .config import DaqRegulatorWiring, NiDaqDriverConfig
+from .watchdog import DaqWatchdog
 
 log = logging.getLogger(__name__)
 
@@ -297,7 +300,7 @@ class DaqRegulator(Regulator):
 
 
 def build(cfg: NiDaqDriverConfig, hw: Hardware, task_factory: TaskFactory | None = None,
-          read_only: bool = False) -> Backend:
+          read_only: bool = False, watchdog_factory: Callable[..., Any] | None = None) -> Backend:
     if read_only:  # set-up writes the valves' safe levels to the digital lines
         raise ConfigError("driver: the nidaqmx driver has no read-only mode (set-up writes the safe levels); "
                           "use fluidsense check --actuate")
@@ -305,4 +308,12 @@ def build(cfg: NiDaqDriverConfig, hw: Hardware, task_factory: TaskFactory | None
     valves = DaqValves(cfg, hw.circuit.safe_valves, factory)
     regulated = isinstance(hw.circuit, (TankCircuit, RegulatedCircuit)) and cfg.wiring.regulator is not None
     regulator = DaqRegulator(cfg, cfg.wiring.regulator, factory) if regulated else None
-    return Backend(name="nidaqmx", source=DaqSource(cfg, hw, factory), valves=valves, regulator=regulator)
+    watchdog = None
+    if cfg.watchdog.enabled:  # set up after the valves and the regulator: their safe levels are written first
+        if watchdog_factory is None:
+            _daqmx()
+            from nidaqmx.system import WatchdogTask as watchdog_factory  # noqa: PLC0415, N813
+        watchdog = DaqWatchdog(cfg, valves.wiring, hw.circuit.safe_valves, cfg.wiring.regulator if regulated else None,
+                               watchdog_factory, _Worker("daqmx-wdt"))
+    return Backend(name="nidaqmx", source=DaqSource(cfg, hw, factory), valves=valves, regulator=regulator,
+                   watchdog=watchdog)

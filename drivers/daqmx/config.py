@@ -93,6 +93,16 @@ class DaqWiring(StrictModel):
         return wiring_problems(self, valves, channels, regulated)
 
 
+class DaqWatchdogConfig(StrictModel):
+    """The DAQ's own watchdog timer: it sets the valve lines (and the regulator's output,
+    where the device can) to their safe levels when the service stops resetting it."""
+
+    enabled: bool = Field(True, description="false only for a device without a watchdog timer (set-up says so): its "
+                          "lines then keep their last level when the PC or the daemon dies")
+    timeout_s: Real = Field(0.5, ge=0.02, le=30, description="no reset for this long (s): the device sets the safe "
+                            "levels by itself")
+
+
 class NiDaqDriverConfig(StrictModel):
     """An NI DAQ sampling on its own clock into a buffer the driver reads in blocks;
     valves on digital lines and the regulator on an analog output, set on demand."""
@@ -113,6 +123,7 @@ class NiDaqDriverConfig(StrictModel):
     do_read_back: bool = Field(True, description="read the valve lines' output state back (most devices can; set "
                                "false where reading an output task is not supported)")
     wiring: DaqWiring
+    watchdog: DaqWatchdogConfig = DaqWatchdogConfig()
 
     @model_validator(mode="after")
     def _buffer(self) -> NiDaqDriverConfig:

@@ -15,7 +15,11 @@ reports, for the samples it received:
   device: the board process and the plant, which a real device does not take);
 - for serial, the link's counts from the daemon (frames lost and corrupt, retries,
   clock offset and drift) and the board's (its timer's wake-up lateness, ticks whose
-  plant inputs came late, frames it dropped).
+  plant inputs came late, frames it dropped); for the AVR image, its CPU budget per
+  sample in AVR cycles by part (timer, ADC and USART interrupts, framing and CRC), the
+  link's bytes against its baud rate, and the latencies it measures in its own cycles
+  (a valve command's last byte to the pins with ``--cycles``; at the end the daemon is
+  killed, and the heartbeat's last frame to the vent on the pins).
 Blocks are published as they come (``pressure_batch_s`` = one block). The daemon records
 as it does in production (MCAP, flushed every second), into the benchmark's temporary
 directory, which is removed at the end; ``--no-record`` measures without it.
@@ -49,6 +53,10 @@ DESCRIPTION = __doc__
 def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seconds", type=float, default=60.0, help="measurement length (default 60)")
     p.add_argument("--source", choices=["sim", "modbus", "serial"], default="sim")
+    p.add_argument("--board", choices=["host", "avr"], default="host",
+                   help="serial: the host board (default) or the AVR image in simavr")
+    p.add_argument("--cycles", action="store_true",
+                   help="ask the daemon for a gripper cycle every 5 s during the run (valve commands)")
     p.add_argument("--reader", choices=["thread", "loop"], default=None,
                    help="serial: the driver's reader (default: the config's, thread)")
     p.add_argument("--rate-hz", type=float, default=None,
@@ -123,24 +131,30 @@ def _cell_config(tmp: Path, source: str, rate: float, record: bool = True, reade
 
 
 def run_bench(seconds: float = 60.0, source: str = "sim", rate: float = 1000.0, load: int = 0,
-              late_us: float = 50.0, record: bool = True, reader: str | None = None) -> dict[str, Any]:
+              late_us: float = 50.0, record: bool = True, reader: str | None = None, board: str = "host",
+              cycles: bool = False) -> dict[str, Any]:
     tmp = Path(tempfile.mkdtemp(prefix="fluidsense-timing-"))
     try:
         cfg = _cell_config(tmp, source, rate, record, reader)
-        res = _measure(tmp, cfg, seconds, source, rate, load, late_us, record)
+        res = _measure(tmp, cfg, seconds, source, rate, load, late_us, record, board, cycles)
         if source == "serial":
-            res["reader"] = yaml.safe_load(cfg.read_text())["driver"].get("reader", "thread")
+            driver = yaml.safe_load(cfg.read_text())["driver"]
+            res["reader"] = driver.get("reader", "thread")
+            res["board_kind"] = board
+            if board == "avr" and res["board"]:
+                res["avr"] = avr_budget(res["board"], rate, len(driver["wiring"]["sensors"]), driver["baudrate"])
         return res
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, load: int, late_us: float,
-             record: bool) -> dict[str, Any]:
+             record: bool, board: str = "host", cycles: bool = False) -> dict[str, Any]:
     extra: list[subprocess.Popen] = []
     rtt = device = None
+    kill_at_end = source == "serial" and board == "avr"  # then the board measures its heartbeat watchdog
     if source == "serial":
-        device = subprocess.Popen([sys.executable, "-m", "lab", "simserial", "--config", str(cfg)],
+        device = subprocess.Popen([sys.executable, "-m", "lab", "simserial", "--config", str(cfg), "--board", board],
                                   stdin=subprocess.DEVNULL, stdout=subprocess.PIPE)
         extra.append(device)
         ready = select.select([device.stdout], [], [], 60)[0] and device.stdout.readline().decode()
@@ -157,7 +171,7 @@ def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, loa
             raise RuntimeError(f"fluidsense simcell did not start (said {ready!r}); is another box on its ports?")
         rtt = _modbus_read_times(cfg)
     daemon = subprocess.Popen([sys.executable, "-m", "fluidsense", "run", "--config", str(cfg)],
-                              stderr=subprocess.PIPE)
+                              stderr=subprocess.PIPE, start_new_session=kill_at_end)
     ctx = zmq.Context()
     sub = ctx.socket(zmq.SUB)
     sub.setsockopt(zmq.RCVHWM, 100_000)
@@ -177,7 +191,11 @@ def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, loa
         cpu0, wall0 = _cpu_s(daemon.pid), time.monotonic()
         dev_cpu0 = _cpu_s(device.pid) if device is not None else 0.0
         times, newest_age, oldest_age, in_daemon = [], [], [], []
+        next_cycle = time.monotonic() + 2.0 if cycles else float("inf")
         while time.monotonic() < stop_at:
+            if time.monotonic() >= next_cycle:
+                _request(ctx, tmp, {"cmd": "cycle"})  # refused while one runs: the next try is 5 s on
+                next_cycle += 5.0
             if not sub.poll(1000):
                 continue
             frames = sub.recv_multipart()
@@ -197,6 +215,9 @@ def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, loa
     finally:
         for pr in burners:
             pr.join(5)
+        if kill_at_end:  # no STOP, no heartbeat: the device's watchdog vents (measured in its cycles)
+            os.killpg(daemon.pid, signal.SIGKILL)
+            time.sleep(1.0)  # past the 0.5 s heartbeat timeout: the vent happens meanwhile
         daemon.send_signal(signal.SIGTERM)
         try:
             daemon.wait(30)
@@ -242,14 +263,58 @@ def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, loa
 
 def _status(ctx: zmq.Context, tmp: Path) -> dict[str, Any]:
     """The daemon's status (its link counts), asked on its command socket."""
+    return _request(ctx, tmp, {"cmd": "status"})
+
+
+def _request(ctx: zmq.Context, tmp: Path, request: dict[str, Any]) -> dict[str, Any]:
     req = ctx.socket(zmq.REQ)
     req.setsockopt(zmq.LINGER, 0)
     req.connect(f"ipc://{tmp}/cmd")
     try:
-        req.send(json.dumps({"cmd": "status"}).encode())
+        req.send(json.dumps(request).encode())
         return json.loads(req.recv()) if req.poll(10_000) else {}
     finally:
         req.close()
+
+
+#: the AVR image's functions by part of a sample's cost (symbols of build/avr/fluidsense.elf)
+AVR_PARTS = {
+    "timer interrupt (10 kHz, starts the conversions)": ("__vector_7",),
+    "ADC interrupt (one per channel)": ("__vector_21",),
+    "USART interrupts (one per byte sent, per byte received)": ("__vector_19", "__vector_18"),
+    "framing: sample frame, CRC, COBS, queueing": ("fs_core_tick", "send_payload", "fs_crc16", "fs_cobs_encode",
+                                                   "fs_board_send", "flags", "header"),
+    "commands: decoding, acks, outputs": ("fs_core_rx", "fs_cobs_decode", "send_ack", "send_info", "go_safe",
+                                          "guard", "fs_board_outputs", "fs_board_aout", "fs_board_configure",
+                                          "fs_core_init"),
+    "main loop (copying the sample, watchdog, LED)": ("main",),
+}
+
+
+def avr_budget(board: dict[str, Any], rate: float, channels: int, baud: int) -> dict[str, Any]:
+    """The AVR image's cost per sample from the simulated board's cycle counts: per tick of
+    its sample timer (every tick sends a sample while a session streams; the seconds
+    before the daemon's session, which cost less, are a few of the run's)."""
+    f_cpu, samples = board["f_cpu"], max(1, board["ticks"])
+    by_fn = board["cycles_by_function"]
+    parts = {name: sum(by_fn.get(fn, 0) for fn in fns) / samples for name, fns in AVR_PARTS.items()}
+    known = {fn for fns in AVR_PARTS.values() for fn in fns}
+    parts["other (runtime library, start-up)"] = sum(v for fn, v in by_fn.items() if fn not in known) / samples
+    period = f_cpu / rate
+    awake = board["cycles"] - board["asleep"] - board["stalled"]
+    frame_bytes = 19 + 2 * channels  # 15 + 2n payload, 2 CRC, 1 COBS, 1 delimiter
+    return {
+        "cycles_per_period": period,
+        "cycles_per_sample": {k: round(v, 1) for k, v in parts.items()},
+        "cycles_per_sample_total": round(sum(parts.values()), 1),
+        "share_of_period": sum(parts.values()) / period,
+        "awake_share": awake / board["cycles"],
+        "frame_bytes": frame_bytes,
+        "link_bytes_per_s": baud / 10,  # 8N1: ten bit times a byte
+        "link_share": frame_bytes * rate / (baud / 10),
+        "link_limit_hz": baud / 10 / frame_bytes,
+        "tx_bytes_per_mcu_s": board["tx_bytes"] / (board["cycles"] / f_cpu),
+    }
 
 
 def _modbus_read_times(cfg: Path, n: int = 5000) -> dict[str, float]:
@@ -290,7 +355,8 @@ def _pcts(x: np.ndarray, p999: bool = False) -> dict[str, float]:
 
 def run(args: argparse.Namespace) -> int:
     rate = args.rate_hz or (500.0 if args.source == "modbus" else 1000.0)
-    res = run_bench(args.seconds, args.source, rate, args.load, args.late_us, args.record, args.reader)
+    res = run_bench(args.seconds, args.source, rate, args.load, args.late_us, args.record, args.reader, args.board,
+                    args.cycles)
     if args.json:
         print(json.dumps(res, indent=1))
         return 0
@@ -309,4 +375,18 @@ def run(args: argparse.Namespace) -> int:
               f"{board.get('stale')} with late plant inputs, {board.get('skipped')} skipped, {board.get('tx_dropped')} "
               f"frames dropped, timer wake-up lateness p50/p99/max {wake.get('p50')}/{wake.get('p99')}/"
               f"{wake.get('max')} us; simulated device CPU {res['device_cpu_percent']:.1f} %")
+    if res.get("avr"):
+        avr, board = res["avr"], res["board"]
+        print(f"AVR image: {avr['cycles_per_sample_total']:.0f} cycles per sample = "
+              f"{100 * avr['share_of_period']:.1f} % of the {avr['cycles_per_period']:.0f} cycles of a period (awake "
+              f"{100 * avr['awake_share']:.1f} %); link {avr['frame_bytes']} bytes per sample = "
+              f"{100 * avr['link_share']:.1f} % of {avr['link_bytes_per_s']:.0f} bytes/s (limit "
+              f"{avr['link_limit_hz']:.0f} Hz); on its TX line {board['samples_sent']} samples, "
+              f"{board['seq_gaps']} seq gaps, {board['tick_gaps']} tick gaps, {board['bad_frames_out']} bad frames, "
+              f"{board['flagged_tx_dropped']} TX_DROPPED, {board['flagged_adc_late']} ADC_LATE; MCU behind the clock "
+              f"p99/max {board['lag_us']['p99']}/{board['lag_max_us']} us ({board['lag_over_100ms']} slices over "
+              f"100 ms); SET_OUTPUTS last byte -> pins {board['set_outputs_to_pins_us']}; heartbeat -> vent "
+              f"{board['heartbeat_to_vent_us']} us")
+        for part, cycles in avr["cycles_per_sample"].items():
+            print(f"  {cycles:8.1f} cycles  {part}")
     return 0

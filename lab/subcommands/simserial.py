@@ -1,5 +1,5 @@
-"""``python -m lab simserial``: the serial streamer's firmware (host board, behind a pty) on
-the simulated cell, for the ``serial`` driver."""
+"""``python -m lab simserial``: the serial streamer's firmware behind a pty on the simulated
+cell, for the ``serial`` driver: the host board, or the AVR image run by simavr (``--board avr``)."""
 
 from __future__ import annotations
 
@@ -22,17 +22,23 @@ log = logging.getLogger(__name__)
 def register(sub) -> None:
     p = sub.add_parser(
         "simserial", help="the serial streamer's firmware on a pty, fed by the simulated cell (for the serial driver)",
-        description="Build and start the firmware's host board (firmware/boards/host: the real protocol code as a "
-        "Linux process) behind a pseudo-terminal linked at the config's driver.port, with the simulated cell of "
-        "the config's profile on its pins as driver.wiring says. Prints 'ready PORT' once the link exists; "
-        "SIGTERM or Ctrl-C stops it and prints 'stats {...}'. Sim control: JSON lines on stdin (and TCP on "
-        "driver.sim_control_port): state, scene, truth, reset (the device resets as a brown-out would).")
+        description="Build and start a board behind a pseudo-terminal linked at the config's driver.port, with the "
+        "simulated cell of the config's profile on its pins as driver.wiring says: the firmware's host board "
+        "(firmware/boards/host: the protocol code as a Linux process) or, with --board avr, the AVR image itself "
+        "executed by simavr as an ATmega328P at 16 MHz (firmware/boards/simavr). Prints 'ready PORT' once the link "
+        "exists; SIGTERM or Ctrl-C stops it and prints 'stats {...}'. Sim control: JSON lines on stdin (and TCP on "
+        "driver.sim_control_port): state, scene, truth, reset (the device resets as its reset pin would), stall "
+        "(avr: the firmware's main loop stops; its hardware watchdog resets it).")
+    p.add_argument("--board", choices=["host", "avr"], default="host",
+                   help="host: the core compiled for Linux (default); avr: the AVR image (build/avr/fluidsense.elf) "
+                   "in simavr, which needs Debian's gcc-avr, avr-libc, simavr and libsimavr-dev")
     p.add_argument("--config", "-c", required=True, help="cell config with driver kind serial")
     p.add_argument("--seed", type=int, default=1, help="seed of the simulated cell (default 1)")
     add_scene_options(p)
     p.add_argument("--rt-priority", type=int, default=30, metavar="N",
                    help="SCHED_FIFO priority of the board when permitted (the plant gets N-1), 0 for normal "
-                   "scheduling (default 30: a microcontroller runs on its own CPU; here it shares two)")
+                   "scheduling (default 30, above the daemon's sample loop: a microcontroller runs on its own CPU; "
+                   "here it shares two, and the simulated AVR needs a quarter to a third of one to keep time)")
     p.add_argument("--adc-wait-us", type=int, default=200, metavar="US",
                    help="how long after a tick the board waits for the plant's inputs before it samples the newest "
                    "it has (default 200: the AVR's two conversions take 208 us)")
@@ -44,7 +50,7 @@ def main(args: argparse.Namespace) -> int:
     from fluidsense.controller.config import load_cell_config
     from fluidsense.drivers.config import SimDriverConfig
 
-    from ..serialboard import SerialPlant, SimSerial, build_board
+    from ..serialboard import AVR_IMAGE, SerialPlant, SimSerial, build_board
 
     cfg = load_cell_config(args.config)
     driver = cfg.driver
@@ -52,19 +58,22 @@ def main(args: argparse.Namespace) -> int:
         raise ConfigError(f"{args.config}: driver.kind: simserial emulates the device of a serial driver, this "
                           f"config's driver is {driver.kind!r}")
     setup_logging(args.log_level)
-    board = build_board()
+    board = build_board(args.board)
     sim = SimDriverConfig(clock="realtime", rate_hz=float(driver.rate_hz), block_size=1, seed=args.seed,
                           **({"scene": s} if (s := scene_from_args(args)) is not None else {}))
     plant = SerialPlant(cfg.profile.hardware, driver, sim)
-    argv = [str(board), "--link", driver.port, "--adc-bits", str(driver.adc.bits), "--rt", str(args.rt_priority),
-            "--adc-wait-us", str(args.adc_wait_us)]
+    argv = [str(board), "--link", driver.port, "--rt", str(args.rt_priority), "--adc-wait-us", str(args.adc_wait_us)]
+    if args.board == "avr":  # the image says its ADC's bits itself; its reference is the board's AVcc
+        argv += ["--elf", str(AVR_IMAGE), "--vref-mv", str(round(driver.adc.reference_v * 1000))]
+    else:
+        argv += ["--adc-bits", str(driver.adc.bits)]
     if args.rt_priority > 1:
         from fluidsense.drivers.sampler.realtime import set_fifo
 
         result = set_fifo(args.rt_priority - 1)
         log.log(logging.INFO if result["applied"] else logging.WARNING, "simserial scheduling: %s", result["detail"])
     try:
-        return asyncio.run(_serve(SimSerial(plant, argv), driver))
+        return asyncio.run(_serve(SimSerial(plant, argv, args.board), driver))
     except KeyboardInterrupt:
         return 0
 
@@ -80,7 +89,7 @@ async def _serve(sim, driver) -> int:
     await asyncio.wait([ended, ready], timeout=30, return_when=asyncio.FIRST_COMPLETED)
     if not sim.ready.is_set():
         code = await sim.stop()
-        print(f"fluidsense: error: the host board did not start (exit {code})", file=sys.stderr)
+        print(f"fluidsense: error: the {sim.board} board did not start (exit {code})", file=sys.stderr)
         return 2 if code == 2 else 1
     print(f"ready {driver.port}", flush=True)
     server = None
@@ -94,9 +103,10 @@ async def _serve(sim, driver) -> int:
     board_ended = sim.done.is_set()
     code = await sim.stop()
     print("stats " + json.dumps({"board": sim.board_stats, "plant": {"ticks": sim.plant.ticks,
-                                 "vents": sim.plant.vents, "resets": sim.plant.resets}}), flush=True)
+                                 "vents": sim.plant.vents, "resets": sim.plant.resets,
+                                 "reset_causes": sim.plant.reset_causes}}), flush=True)
     if board_ended:
-        print(f"fluidsense: error: the host board ended by itself (exit {code})", file=sys.stderr)
+        print(f"fluidsense: error: the {sim.board} board ended by itself (exit {code})", file=sys.stderr)
         return 1
     return 0
 

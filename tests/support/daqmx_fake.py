@@ -1,4 +1,5 @@
-"""A stand-in for ``nidaqmx.Task``, the only thing mocked in the nidaqmx driver's tests.
+"""Stand-ins for ``nidaqmx.Task`` and ``nidaqmx.system.WatchdogTask``, the only things
+mocked in the nidaqmx driver's tests.
 
 NI's driver library (libnidaqmx, the NI-DAQmx runtime) cannot be installed on this
 machine, and without it ``nidaqmx.Task()`` raises DaqNotFoundError. Everything above the
@@ -13,6 +14,11 @@ channel) in the device's buffer; a read wanting more than the buffer holds fails
 DAQmx does when its timeout passes (SAMPLES_NOT_YET_AVAILABLE), and more unread samples
 than the buffer holds stop the acquisition (SAMPLES_NO_LONGER_AVAILABLE), as DAQmx does
 with "do not overwrite unread samples".
+
+The watchdog task takes its expiration states as nidaqmx's own named tuples with its
+enums (``DOExpirationState`` with a ``Level``, ``AOExpirationState`` with a
+``WatchdogAOExpirState``), and ``expire()`` is the device's timer running out: the
+digital lines take their expiration levels, and ``expired`` reads true until cleared.
 """
 
 from __future__ import annotations
@@ -23,10 +29,13 @@ from collections import deque
 from typing import Any
 
 import nidaqmx
+from nidaqmx.constants import Level, WatchdogAOExpirState
 from nidaqmx.error_codes import DAQmxErrors
 from nidaqmx.errors import DaqError, DaqReadError
 from nidaqmx.task import _in_stream, _timing
+from nidaqmx.system.watchdog import WatchdogTask
 from nidaqmx.task import collections as ni_collections
+from nidaqmx.types import AOExpirationState, DOExpirationState
 
 
 def _bind(real: Any, *args: Any, **kwargs: Any) -> dict[str, Any]:
@@ -79,8 +88,7 @@ class FakeTask:
         self._overflowed = False
 
     def on_call(self, name: str) -> None:
-        if name in self.rig.fail_on:
-            raise self.rig.fail_on.pop(name)
+        self.rig.on_call(name)
 
     def channels(self, kind: str) -> list[dict[str, Any]]:
         return [args for name, args in self.calls if name.startswith(f"add_{kind}")]
@@ -130,11 +138,78 @@ class FakeTask:
                 self._overflowed = True
 
 
+class FakeWatchdog:
+    """``nidaqmx.system.WatchdogTask`` of one device."""
+
+    def __init__(self, rig: FakeRig, *args: Any, **kwargs: Any):
+        got = _bind(WatchdogTask.__init__, *args, **kwargs)
+        self.rig, self.device, self.name, self.timeout = rig, got["device_name"], got["task_name"], got["timeout"]
+        rig.on_call("WatchdogTask")
+        self.do_states: dict[str, Level] = {}
+        self.ao_states: dict[str, tuple[float, WatchdogAOExpirState]] = {}
+        self.started = self.closed = False
+        self.resets = self.clears = 0
+        self._expired = False
+
+    def cfg_watchdog_do_expir_states(self, *args: Any, **kwargs: Any) -> list:
+        states = _bind(WatchdogTask.cfg_watchdog_do_expir_states, *args, **kwargs)["expiration_states"]
+        self.rig.on_call("cfg_watchdog_do_expir_states")
+        for e in states:
+            assert isinstance(e, DOExpirationState) and isinstance(e.expiration_state, Level), e
+            self.do_states[e.physical_channel] = e.expiration_state
+        return []
+
+    def cfg_watchdog_ao_expir_states(self, *args: Any, **kwargs: Any) -> list:
+        states = _bind(WatchdogTask.cfg_watchdog_ao_expir_states, *args, **kwargs)["expiration_states"]
+        self.rig.on_call("cfg_watchdog_ao_expir_states")
+        for e in states:
+            assert isinstance(e, AOExpirationState) and isinstance(e.output_type, WatchdogAOExpirState), e
+            self.ao_states[e.physical_channel] = (float(e.expiration_state), e.output_type)
+        return []
+
+    def start(self) -> None:
+        _bind(WatchdogTask.start)
+        self.started = True
+
+    def stop(self) -> None:
+        _bind(WatchdogTask.stop)
+        self.started = False
+
+    def close(self) -> None:
+        _bind(WatchdogTask.close)
+        self.closed = True
+
+    def reset_timer(self) -> None:
+        _bind(WatchdogTask.reset_timer)
+        self.resets += 1
+
+    def clear_expiration(self) -> None:
+        _bind(WatchdogTask.clear_expiration)
+        self._expired = False
+        self.clears += 1
+
+    @property
+    def expired(self) -> bool:
+        if not self.started:  # DAQmx reads it only while the task runs
+            raise DaqError("Specified property cannot be read while the task is not running.",
+                           DAQmxErrors.INVALID_ATTRIBUTE_VALUE.value)
+        return self._expired
+
+    def expire(self) -> None:
+        """The device's timer ran out: its lines take their expiration levels."""
+        self._expired = True
+        do = self.rig.task("do")
+        lines = [args["lines"] for name, args in do.calls if name == "add_do_chan"]
+        self.rig.line_levels = [self.do_states[line] == Level.HIGH for line in lines]
+
+
 class FakeRig:
-    """The tasks one backend made, by role (``ai``, ``do``, ``ao`` from their names)."""
+    """The tasks one backend made, by role (``ai``, ``do``, ``ao`` from their names), and
+    its device's watchdog tasks (``watchdogs``; make them with ``watchdog``)."""
 
     def __init__(self) -> None:
         self.tasks: list[FakeTask] = []
+        self.watchdogs: list[FakeWatchdog] = []
         self.fail_on: dict[str, Exception] = {}  # the next call of that name raises this
         self.line_levels: list[bool] | None = None  # what a DO read reports (default: as written)
         self.lock = threading.Lock()
@@ -143,6 +218,15 @@ class FakeRig:
         task = FakeTask(self, name)
         self.tasks.append(task)
         return task
+
+    def on_call(self, name: str) -> None:
+        if name in self.fail_on:
+            raise self.fail_on.pop(name)
+
+    def watchdog(self, *args: Any, **kwargs: Any) -> FakeWatchdog:
+        dog = FakeWatchdog(self, *args, **kwargs)
+        self.watchdogs.append(dog)
+        return dog
 
     def task(self, role: str) -> FakeTask:
         """The newest task of a role."""

@@ -1,14 +1,16 @@
-"""The serial path's test equipment: ``python -m lab simserial`` (the firmware's host board on
-a pty, fed by the simulated cell) as a subprocess, and a byte-level proxy that sits
-between the board's pty and the driver on a second pty pair and damages chosen frames,
-as a bad cable would. Nothing here is mocked: the driver reads a real tty, the board is
-the real C protocol code."""
+"""The serial path's test equipment: ``python -m lab simserial`` (a board on a pty, fed by
+the simulated cell: the firmware's host board, or the AVR image run by simavr) as a
+subprocess, and a byte-level proxy that sits between the board's pty and the driver on a
+second pty pair and damages chosen frames, as a bad cable would. Nothing here is mocked:
+the driver reads a real tty, the board is the real C protocol code (on the AVR, the very
+image a user flashes)."""
 
 from __future__ import annotations
 
 import json
 import os
 import select
+import shutil
 import subprocess
 import sys
 import threading
@@ -17,11 +19,20 @@ import uuid
 from pathlib import Path
 from typing import Any
 
+import pytest
 import yaml
 
 from support.harness import CONFIG, REPO, ipc_endpoints
 
 SAMPLE = 0x01  # the protocol's sample frame type (firmware/README.md)
+#: what ``--board avr`` builds and runs on (Debian packages; ``make firmware-deps`` installs them)
+AVR_PACKAGES = "gcc-avr avr-libc simavr libsimavr-dev"
+AVR_READY = shutil.which("avr-gcc") is not None and Path("/usr/include/simavr/sim_avr.h").exists()
+needs_avr = pytest.mark.skipif(not AVR_READY, reason=f"the AVR image in simavr needs Debian's {AVR_PACKAGES}")
+#: the boards the tests run the serial driver against: the core compiled for Linux, the AVR image
+BOARDS = [pytest.param("host"), pytest.param("avr", marks=needs_avr)]
+#: the name each board gives in INFO
+BOARD_NAMES = {"host": "host", "avr": "avr328p"}
 
 
 def serial_config(tmp_path: Path, *, profile: str = "sorting-gripper-quick", port: Path | None = None,

@@ -12,9 +12,13 @@
  *   status LED     D13 (PB5): lit while the outputs are held safe by the heartbeat watchdog
  *   hang guard     the hardware watchdog (60 ms) resets a firmware that stops running its
  *                  main loop; every reset starts with all outputs low (power-on state)
+ *   idle           the CPU sleeps (idle mode: timers, ADC and USART run on) whenever nothing
+ *                  waits; every interrupt wakes it. Awake cycles are the CPU's work, which a
+ *                  cycle count (boards/simavr) measures, and which a simulator need not spin
  */
 #include <avr/interrupt.h>
 #include <avr/io.h>
+#include <avr/sleep.h>
 #include <avr/wdt.h>
 #include <util/atomic.h>
 
@@ -36,7 +40,7 @@ static volatile uint8_t tx[TX_RING], tx_head, tx_len;
 static volatile uint16_t divider = BASE_HZ / 1000, sub;
 static volatile uint32_t tick_counter;
 static volatile uint8_t channels[FS_MAX_CH], n_channels = 1;
-static volatile uint8_t adc_busy, adc_index, adc_late;
+static volatile uint8_t adc_busy, adc_index, adc_late, adc_drop;
 static volatile uint32_t adc_tick;
 static volatile uint16_t adc_counts[FS_MAX_CH];
 static volatile uint8_t ready, ready_late, overrun;
@@ -86,12 +90,17 @@ ISR(TIMER2_COMPA_vect) {
     uint8_t since = TCNT2; /* 0.5 us per count since the compare match */
     if (++sub < divider)
         return;
-    sub = 0;
-    if (adc_busy) { /* the last sample's conversions still run: this tick has no sample */
+    if (adc_busy) {
+        if (adc_drop) { /* a conversion from before START still runs: tick 0 waits for its end */
+            sub = divider - 1;
+            return;
+        }
+        sub = 0; /* the last sample's conversions still run: this tick has no sample */
         overrun = 1;
         tick_counter++;
         return;
     }
+    sub = 0;
     adc_tick = tick_counter++;
     adc_late = since / 2;
     adc_index = 0;
@@ -101,6 +110,11 @@ ISR(TIMER2_COMPA_vect) {
 }
 
 ISR(ADC_vect) {
+    if (adc_drop) { /* started before the timer restarted: its sample belongs to no session */
+        adc_drop = 0;
+        adc_busy = 0;
+        return;
+    }
     adc_counts[adc_index++] = ADC;
     if (adc_index < n_channels) {
         ADMUX = (uint8_t)(_BV(REFS0) | channels[adc_index]);
@@ -148,6 +162,7 @@ int fs_board_configure(uint16_t rate_hz, uint8_t mask) {
         sub = divider - 1; /* the next timer interrupt takes sample 0 */
         tick_counter = 0;
         ready = overrun = 0;
+        adc_drop = adc_busy; /* else its sample, ticked by the old count, would come first */
         DIDR0 = (uint8_t)(mask & 0x3F); /* no digital input buffers on analog pins */
     }
     return 0;
@@ -206,6 +221,7 @@ int main(void) {
     hardware_init();
     fs_core_init(&core, &info);
     wdt_enable(WDTO_60MS);
+    set_sleep_mode(SLEEP_MODE_IDLE);
     sei();
     for (;;) {
         wdt_reset();
@@ -234,5 +250,13 @@ int main(void) {
             PORTB |= _BV(PB5);
         else
             PORTB &= (uint8_t)~_BV(PB5);
+        cli();
+        if (rx_tail == rx_head && !ready) {
+            sleep_enable();
+            sei(); /* the instruction after SEI runs before any interrupt: no wake-up is lost */
+            sleep_cpu();
+            sleep_disable();
+        }
+        sei();
     }
 }

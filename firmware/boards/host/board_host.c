@@ -15,27 +15,25 @@
 #include <errno.h>
 #include <fcntl.h>
 #include <poll.h>
-#include <sched.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/file.h>
-#include <sys/prctl.h>
 #include <sys/signalfd.h>
 #include <sys/timerfd.h>
-#include <termios.h>
 #include <time.h>
 #include <unistd.h>
 
 #include "../../core/fs_core.h"
 #include "../../core/fs_wire.h"
-#include "plant_link.h"
+#include "../pc/hist.h"
+#include "../pc/pc_io.h"
+#include "../pc/pty_link.h"
+#include "../pc/plant_link.h"
 
 #define MAX_RATE_HZ 10000
 #define TX_RING 8192
 #define BACKLOG_MAX 50 /* ticks caught up after a stall; older ones are skipped (a gap) */
-#define HIST_US 10000
 
 static struct fs_core core;
 static struct fs_board_info info = {.name = "host", .adc_bits = 10, .n_adc = 8, .n_outputs = 8, .n_aout = 2,
@@ -54,14 +52,10 @@ static uint8_t tx[TX_RING];
 static size_t tx_head, tx_len;
 static struct {
     uint64_t ticks, stale, skipped, tx_dropped, plant_dropped, resets, vents;
-    uint32_t hist[HIST_US + 1];
+    struct hist wake_late;
 } stats;
 
-static uint64_t now_ns(void) {
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (uint64_t)ts.tv_sec * 1000000000ull + (uint64_t)ts.tv_nsec;
-}
+static uint64_t now_ns(void) { return pc_now_ns(); }
 
 static void die(const char *what) {
     fprintf(stderr, "fsboard-host: %s: %s\n", what, strerror(errno));
@@ -70,55 +64,27 @@ static void die(const char *what) {
 
 /* ---------------------------------------------------------------- the plant link */
 static void to_plant(uint8_t kind, uint32_t tick, uint32_t extra, uint64_t t_ns, uint64_t next_ns) {
-    uint8_t r[PLANT_REC] = {0};
-    r[0] = kind;
-    r[1] = outputs;
-    r[2] = (uint8_t)((core.armed ? FS_F_ARMED : 0) | (core.vented ? FS_F_VENTED : 0) |
-                     (core.streaming ? REC_STREAMING : 0));
-    r[3] = core.session;
-    fs_put_u16(r + 4, aout[0]);
-    fs_put_u16(r + 6, aout[1]);
-    fs_put_u32(r + 8, tick);
-    fs_put_u32(r + 12, extra);
-    fs_put_u32(r + 16, (uint32_t)t_ns);
-    fs_put_u32(r + 20, (uint32_t)(t_ns >> 32));
-    fs_put_u32(r + 24, (uint32_t)next_ns);
-    fs_put_u32(r + 28, (uint32_t)(next_ns >> 32));
-    /* never block on the plant: a full pipe drops the record (counted) */
-    if (write(STDOUT_FILENO, r, sizeof r) != (ssize_t)sizeof r)
+    struct plant_out o = {kind, outputs,
+                          (uint8_t)((core.armed ? FS_F_ARMED : 0) | (core.vented ? FS_F_VENTED : 0) |
+                                    (core.streaming ? REC_STREAMING : 0)),
+                          core.session, {aout[0], aout[1]}, tick, extra, t_ns, next_ns};
+    if (!plant_write(&o))
         stats.plant_dropped++;
 }
 
 static void board_reset(void);
 
-static void from_plant(void) {
-    static uint8_t buf[PLANT_REC * 64];
-    static size_t have;
-    ssize_t n = read(STDIN_FILENO, buf + have, sizeof buf - have);
-    if (n == 0) {
-        fprintf(stderr, "fsboard-host: the plant closed its side: stopping\n");
-        exit(0);
+static void plant_record(const uint8_t *r) {
+    if (r[0] == REC_ADC) {
+        for (int i = 0; i < FS_MAX_CH; i++)
+            analog[i] = fs_get_u16(r + 16 + 2 * i);
+        analog_ns = (uint64_t)fs_get_u32(r + 8) | (uint64_t)fs_get_u32(r + 12) << 32;
+    } else if (r[0] == REC_DO_RESET) {
+        board_reset();
     }
-    if (n < 0) {
-        if (errno == EAGAIN || errno == EINTR)
-            return;
-        die("reading the plant");
-    }
-    have += (size_t)n;
-    size_t off = 0;
-    for (; have - off >= PLANT_REC; off += PLANT_REC) {
-        const uint8_t *r = buf + off;
-        if (r[0] == REC_ADC) {
-            for (int i = 0; i < FS_MAX_CH; i++)
-                analog[i] = fs_get_u16(r + 16 + 2 * i);
-            analog_ns = (uint64_t)fs_get_u32(r + 8) | (uint64_t)fs_get_u32(r + 12) << 32;
-        } else if (r[0] == REC_DO_RESET) {
-            board_reset();
-        }
-    }
-    memmove(buf, buf + off, have - off);
-    have -= off;
 }
+
+static void from_plant(void) { plant_read("fsboard-host", plant_record); }
 
 /* ---------------------------------------------------------------- board hooks */
 void fs_board_outputs(uint8_t levels) {
@@ -165,26 +131,14 @@ void fs_board_vented(uint32_t tick, uint32_t last_hb_tick) {
     to_plant(REC_VENT, tick, last_hb_tick, now_ns(), 0);
 }
 
-static void flush_tx(void) {
-    while (tx_len) {
-        size_t chunk = tx_len < TX_RING - tx_head ? tx_len : TX_RING - tx_head;
-        ssize_t n = write(master, tx + tx_head, chunk);
-        if (n <= 0) {
-            if (n < 0 && errno != EAGAIN && errno != EINTR)
-                die("writing the pty");
-            return; /* the pty is full (nobody reads): frames wait in the ring, then drop */
-        }
-        tx_head = (tx_head + (size_t)n) % TX_RING;
-        tx_len -= (size_t)n;
-    }
-}
+static void flush_tx(void) { ring_flush("fsboard-host", master, tx, TX_RING, &tx_head, &tx_len); }
 
 static void board_reset(void) {
     stats.resets++;
     tx_head = tx_len = 0; /* a reset loses what the UART had not sent */
     info.reset_cause = FS_RESET_EXTERNAL;
     fs_core_init(&core, &info);
-    to_plant(REC_RESET, 0, 0, now_ns(), 0);
+    to_plant(REC_RESET, 0, FS_RESET_EXTERNAL, now_ns(), 0);
 }
 
 /* ---------------------------------------------------------------- sampling */
@@ -206,7 +160,7 @@ static void on_timer(void) {
     if (read(timer, &expired, sizeof expired) != (ssize_t)sizeof expired)
         return;
     uint64_t late = (now_ns() - (t0_ns + (uint64_t)next_tick * period_ns)) / 1000;
-    stats.hist[late < HIST_US ? late : HIST_US]++;
+    hist_add(&stats.wake_late, late);
     if (expired > BACKLOG_MAX) { /* the process was not scheduled: those ticks have no sample */
         stats.skipped += expired - BACKLOG_MAX;
         next_tick += (uint32_t)(expired - BACKLOG_MAX);
@@ -233,84 +187,18 @@ static void on_timer(void) {
 }
 
 static void print_stats(void) {
-    uint64_t total = 0, acc = 0;
-    for (int i = 0; i <= HIST_US; i++)
-        total += stats.hist[i];
-    int p50 = -1, p99 = -1, max = 0;
-    for (int i = 0; i <= HIST_US; i++) {
-        acc += stats.hist[i];
-        if (p50 < 0 && acc * 2 >= total)
-            p50 = i;
-        if (p99 < 0 && acc * 100 >= total * 99)
-            p99 = i;
-        if (stats.hist[i])
-            max = i;
-    }
     fprintf(stderr, "stats {\"ticks\": %llu, \"stale\": %llu, \"skipped\": %llu, \"tx_dropped\": %llu, "
-            "\"plant_dropped\": %llu, \"resets\": %llu, \"vents\": %llu, \"rx_errors\": %u, "
-            "\"wake_late_us\": {\"p50\": %d, \"p99\": %d, \"max\": %d%s}}\n",
+            "\"plant_dropped\": %llu, \"resets\": %llu, \"vents\": %llu, \"rx_errors\": %u, \"wake_late_us\": ",
             (unsigned long long)stats.ticks, (unsigned long long)stats.stale, (unsigned long long)stats.skipped,
             (unsigned long long)stats.tx_dropped, (unsigned long long)stats.plant_dropped,
-            (unsigned long long)stats.resets, (unsigned long long)stats.vents, core.rx_errors, p50, p99, max,
-            max == HIST_US ? ", \"max_is_at_least\": true" : "");
+            (unsigned long long)stats.resets, (unsigned long long)stats.vents, core.rx_errors);
+    hist_json(&stats.wake_late, stderr);
+    fprintf(stderr, "}\n");
     fflush(stderr);
 }
 
 /* ---------------------------------------------------------------- set-up */
-static char link_path[4096], lock_path[4200], slave_name[256];
-
-static void cleanup(void) {
-    char target[256];
-    ssize_t n = readlink(link_path, target, sizeof target - 1);
-    if (n > 0) {
-        target[n] = 0;
-        if (strcmp(target, slave_name) == 0)
-            unlink(link_path); /* only our own: a newer board may have replaced it */
-    }
-}
-
-static void open_pty(void) {
-    master = posix_openpt(O_RDWR | O_NOCTTY | O_NONBLOCK);
-    if (master < 0 || grantpt(master) != 0 || unlockpt(master) != 0)
-        die("posix_openpt");
-    if (ptsname_r(master, slave_name, sizeof slave_name) != 0)
-        die("ptsname_r");
-    /* keep the slave open: the line discipline must be raw before any byte goes through
-     * (a fresh pty echoes), and a master with no slave open reads EIO */
-    int slave = open(slave_name, O_RDWR | O_NOCTTY);
-    struct termios tio;
-    if (slave < 0 || tcgetattr(slave, &tio) != 0)
-        die("opening the pty slave");
-    cfmakeraw(&tio);
-    if (tcsetattr(slave, TCSANOW, &tio) != 0)
-        die("tcsetattr");
-    char tmp[4200];
-    snprintf(tmp, sizeof tmp, "%s.%d.tmp", link_path, (int)getpid());
-    unlink(tmp);
-    if (symlink(slave_name, tmp) != 0 || rename(tmp, link_path) != 0)
-        die(link_path);
-    atexit(cleanup);
-}
-
-static void lock_link(void) {
-    snprintf(lock_path, sizeof lock_path, "%s.lock", link_path);
-    int fd = open(lock_path, O_CREAT | O_RDWR | O_CLOEXEC, 0644);
-    if (fd < 0)
-        die(lock_path);
-    if (flock(fd, LOCK_EX | LOCK_NB) != 0) {
-        fprintf(stderr, "fsboard-host: another board serves %s (%s is locked)\n", link_path, lock_path);
-        exit(2);
-    }
-}
-
-static void realtime(int prio) {
-    prctl(PR_SET_TIMERSLACK, 1UL, 0, 0, 0);
-    if (prio <= 0)
-        return;
-    struct sched_param sp = {.sched_priority = prio};
-    if (sched_setscheduler(0, SCHED_FIFO, &sp) != 0)
-        fprintf(stderr, "fsboard-host: SCHED_FIFO %d refused (%s): normal scheduling\n", prio, strerror(errno));
-}
+static char link_path[4096], slave_name[256];
 
 static void usage(void) {
     fprintf(stderr, "usage: fsboard-host --link PATH [--adc-bits N] [--adc-inputs N] [--rt PRIO] "
@@ -341,22 +229,14 @@ int main(int argc, char **argv) {
     if (!link_path[0] || info.adc_bits < 8 || info.adc_bits > 16 || info.n_adc < 1 || info.n_adc > FS_MAX_CH ||
         adc_wait_us < 0 || adc_wait_us > 100000)
         usage();
-    lock_link();
-    open_pty();
-    realtime(rt);
+    master = pty_link_open("fsboard-host", link_path, slave_name, sizeof slave_name);
+    pc_realtime("fsboard-host", rt);
     fcntl(STDIN_FILENO, F_SETFL, fcntl(STDIN_FILENO, F_GETFL) | O_NONBLOCK);
     fcntl(STDOUT_FILENO, F_SETFL, fcntl(STDOUT_FILENO, F_GETFL) | O_NONBLOCK);
-    sigset_t sigs;
-    sigemptyset(&sigs);
-    sigaddset(&sigs, SIGTERM);
-    sigaddset(&sigs, SIGINT);
-    sigaddset(&sigs, SIGUSR1);
-    sigaddset(&sigs, SIGPIPE);
-    sigprocmask(SIG_BLOCK, &sigs, NULL);
-    int sfd = signalfd(-1, &sigs, SFD_NONBLOCK | SFD_CLOEXEC);
+    int sfd = pc_signals("fsboard-host");
     timer = timerfd_create(CLOCK_MONOTONIC, TFD_NONBLOCK | TFD_CLOEXEC);
-    if (sfd < 0 || timer < 0)
-        die("signalfd/timerfd");
+    if (timer < 0)
+        die("timerfd_create");
     fs_core_init(&core, &info);
     fprintf(stderr, "ready %s -> %s\n", link_path, slave_name);
     for (;;) {

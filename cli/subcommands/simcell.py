@@ -35,19 +35,20 @@ def register(sub) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from fluidsense.controller.config import load_cell_config
-    from fluidsense.drivers.config import SimDriverConfig
+    from fluidsense.drivers.config import DriverEntry, SimDriverConfig, kinds
     from fluidsense.simulator.controlbox.__main__ import main_async
     from fluidsense.simulator.controlbox.config import ControlBoxConfig
     from fluidsense.simulator.controlbox.plant import PlantModel
 
     cfg = load_cell_config(args.config)
-    driver = cfg.driver
-    if driver.kind not in ("ur", "modbus"):
-        raise ConfigError(f"{args.config}: driver.kind: simcell emulates the control box of a ur or modbus "
-                          f"driver, this config's driver is {driver.kind!r}")
+    driver = cfg.driver.control_box()
+    if driver is None:
+        raise ConfigError(f"{args.config}: driver.kind: simcell emulates the control box of a "
+                          f"{' or '.join(kinds(DriverEntry.control_box))} driver, this config's driver is "
+                          f"{cfg.driver.kind!r}")
     setup_logging(args.log_level)
     logging.getLogger("pymodbus").setLevel(logging.WARNING)
-    modbus_port = args.modbus_port or (driver.port if driver.kind == "modbus" else 5020)
+    modbus_port = args.modbus_port or driver.modbus_port or 5020
     # the box refreshes its I/O at its generation's control rate; a Modbus I/O module's
     # registers are served at the polled rate (the slowest its data sheet may promise)
     io_module = driver.controller == "io-module"

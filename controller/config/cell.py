@@ -235,8 +235,8 @@ def load_profile(path: str | Path) -> Profile:
 def _check_files(cfg: CellConfig, path: Path) -> None:
     """What must exist on disk when a cell config is loaded from a file (a recorded config
     is validated without these: its files belong to another machine and time)."""
-    if cfg.driver.kind == "replay":  # relative to the working directory (docs/recording.md)
-        referenced_file(cfg.driver.file, path, "driver.file")
+    for field, name in cfg.driver.files().items():  # relative to the working directory (docs/recording.md)
+        referenced_file(name, path, f"driver.{field}")
     if not cfg.recording.enabled:
         return
     try:

@@ -3,30 +3,29 @@ does not import ur_rtde."""
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
-from fluidsense.common.models import Host, Integer, Port, Real, StrictModel
-from fluidsense.common.wiring import AnalogScale, Wiring
-from fluidsense.drivers.io import (
-    BLOCK_SIZE,
-    CONTROLLER_HZ,
-    BoxWatchdogConfig,
-    Reconnect,
-    SamplerOptions,
-    UrArmConfig,
-    check_controller_rate,
-)
+from fluidsense.common.models import Host, Integer, Port, Real
+from fluidsense.common.wiring import CONTROLLER_HZ, AnalogScale, Wiring
 from pydantic import Field, ValidationInfo, field_validator
+
+from ..entry import BLOCK_SIZE
+from ..reconnect import Reconnect
+from ..sampler.config import SamplerOptions
+from .box import BoxWatchdogConfig, UrArmConfig, UrBoxEntry, check_controller_rate
+from .dashboard import Robot
 
 #: highest RTDE output rate per controller generation (UR's RTDE guide): the control rate
 RTDE_MAX_HZ = CONTROLLER_HZ
 
 
-class UrDriverConfig(StrictModel):
+class UrDriverConfig(UrBoxEntry):
     """A UR control box reached with ur_rtde: valves on its digital outputs, the
     regulator on an analog output (RTDE IO interface), pressure sensors on its analog
     inputs (RTDE receive, polled in the sampler process), the arm through the RTDE
     control interface."""
+
+    backend_module: ClassVar[str] = "fluidsense.drivers.ur.backend"
 
     kind: Literal["ur"] = "ur"
     host: Host
@@ -53,3 +52,13 @@ class UrDriverConfig(StrictModel):
     @classmethod
     def _rtde_rate(cls, rate_hz: float, info: ValidationInfo) -> float:
         return check_controller_rate(rate_hz, info.data.get("controller", "e-series"), "RTDE")
+
+    def where(self) -> str:
+        return f"the robot at {self.host} (RTDE port 30004)"
+
+    def what_to_check(self) -> str:
+        return (f"check that the robot is on and booted, that `ping {self.host}` answers, that nothing else "
+                "holds its RTDE inputs, and driver.host in the config")
+
+    def robot(self) -> Robot:
+        return Robot(self.arm.host or self.host, generation=self.controller)

@@ -21,6 +21,7 @@ from .backend import Backend
 from .daqmx.config import NiDaqDriverConfig
 from .entry import BLOCK_SIZE, DriverEntry
 from .modbus.config import ModbusDriverConfig
+from .recording.config import ReplayDriverConfig
 from .serial.config import SerialDriverConfig
 from .ur.config import UrDriverConfig
 
@@ -55,20 +56,6 @@ class SimDriverConfig(DriverEntry):
 
     def for_job(self, seed: int) -> SimDriverConfig:
         return self.model_copy(update={"clock": "virtual", "seed": seed})
-
-
-class ReplayDriverConfig(DriverEntry):
-    """A recording (``fluidsense run`` writes them) played back in virtual time: its
-    samples as they were delivered; valves cannot be commanded (docs/recording.md)."""
-
-    backend_module: ClassVar[str] = "fluidsense.drivers.replay"
-    live: ClassVar[bool] = False
-
-    kind: Literal["replay"] = "replay"
-    file: str = Field(min_length=1, description="the recording (.mcap)")
-
-    def files(self) -> dict[str, str]:
-        return {"file": self.file}
 
 
 # the registry: one entry per driver

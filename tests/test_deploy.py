@@ -14,7 +14,7 @@ from types import SimpleNamespace
 
 import pytest
 from fluidsense.controller.config import load_cell_config
-from fluidsense.controller.telemetry.replay import replay_file
+from fluidsense.controller.cycles.reanalysis import replay_file
 from fluidsense.daemon.notify import (
     LoopWatchdog,
     Notifier,

@@ -1,6 +1,7 @@
 """A driver is one registry entry (drivers/config.py): its config model names its backend
 and answers what the commands ask of a cell, so nothing outside drivers/ switches on
-``driver.kind`` (docs/architecture.md, "Adding a driver")."""
+``driver.kind``; the recording's format lives in one package (docs/architecture.md,
+"Adding a driver" and "Recording")."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import ast
 import importlib
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from fluidsense.controller.config import load_cell_config
@@ -138,3 +140,16 @@ def test_a_replay_entry_is_not_live_and_names_its_file(tmp_path):
     replay = load_cell_config(write_cell(tmp_path, data)).driver
     assert not replay.live and replay.files() == {"file": str(tmp_path / "gone.mcap")}
     assert replay.samples_seed() is None and replay.for_job(3) is replay
+
+
+def test_the_mcap_format_is_handled_in_one_package():
+    """Only drivers/recording/ imports the MCAP library: the format is written, read and
+    bounded there and nowhere else."""
+    users = []
+    for path, tree in _sources((*OUTSIDE, "drivers")):
+        for node in ast.walk(tree):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            if any(n == "mcap" or n.startswith("mcap.") for n in names):
+                users.append(str(path.relative_to(REPO)))
+    assert users and all(Path(u).parts[:2] == ("drivers", "recording") for u in users), users

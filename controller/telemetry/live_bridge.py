@@ -24,7 +24,7 @@ import sys
 from typing import Any
 
 import zmq
-from fluidsense.drivers.recording_schema import SAMPLES, event_schema
+from fluidsense.drivers.recording.schema import SAMPLES, event_schema
 
 log = logging.getLogger("fluidsense.controller.telemetry.live_bridge")
 

@@ -29,7 +29,6 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
-
 from fluidsense.common.errors import ConfigError, RecordingError
 from fluidsense.common.samples import SampleBlock
 

@@ -11,7 +11,8 @@ from pydantic import Field, ValidationInfo, field_validator, model_validator
 from ..entry import BLOCK_SIZE
 from ..reconnect import Reconnect
 from ..sampler.config import SamplerOptions
-from ..ur.box import BoxWatchdogConfig, UrArmConfig, UrBoxEntry, check_controller_rate
+from ..ur.box import BoxWatchdogConfig, UrArmConfig, check_controller_rate
+from ..ur.config import UrBoxEntry
 from ..ur.dashboard import Robot
 
 Register = Annotated[Integer, Field(ge=0, le=65535)]

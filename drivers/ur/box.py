@@ -1,8 +1,9 @@
 """The UR control box as the ur and modbus drivers reach it: the arm's limits, the box's
-own vent watchdog, the rate its generation serves, and what both drivers' registry
-entries tell the commands about the box (``ControlBox``, ``UrBoxEntry``). The wiring
-itself (what is connected where) is common/wiring.py: the emulated box reads it too.
-Pydantic only: importing this imports neither ur_rtde nor pymodbus."""
+own vent watchdog, the rate its generation serves, and ``ControlBox``, what both
+drivers' entries tell the commands about the box (their shared base, ``UrBoxEntry``, is
+in config.py). The wiring itself (what is connected where) is common/wiring.py: the
+emulated box reads it too. Pydantic only: importing this imports neither ur_rtde nor
+pymodbus."""
 
 from __future__ import annotations
 
@@ -12,7 +13,6 @@ from fluidsense.common.models import Host, Integer, Port, Real, StrictModel
 from fluidsense.common.wiring import CONTROLLER_HZ, AnalogScale, Wiring
 from pydantic import Field
 
-from ..entry import DriverEntry
 
 
 def check_controller_rate(rate_hz: float, controller: str, path: str) -> float:
@@ -62,21 +62,3 @@ class ControlBox:
     arm: bool  # an arm moved through ur_rtde (its control script carries the RTDE watchdog)
     modbus_port: int | None  # the driver's Modbus port; None: the driver does not use Modbus
     sim_control_port: int | None  # a simulated cell's control port; None on a real box
-
-
-class UrBoxEntry(DriverEntry):
-    """What the ur and modbus drivers' entries share: a UR control box at ``host``, wired
-    as ``wiring`` says, with an optional ``sim_control_port`` when it is emulated. Methods
-    only (the drivers' own fields keep their order)."""
-
-    def _modbus_port(self) -> int | None:
-        return None
-
-    def control_box(self) -> ControlBox:
-        return ControlBox(host=self.host, controller=self.controller, rate_hz=self.rate_hz, wiring=self.wiring,
-                          analog=self.analog, watchdog=self.watchdog, arm=self.arm is not None,
-                          modbus_port=self._modbus_port(), sim_control_port=self.sim_control_port)
-
-    def needs_operator(self) -> bool:
-        # an emulated box's control port lays the scene out; a real box has nobody else
-        return self.sim_control_port is None

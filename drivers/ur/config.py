@@ -1,4 +1,5 @@
-"""Settings of the ur-rtde driver (``driver: {kind: ur}``). Pydantic only: importing this
+"""Settings of the ur-rtde driver (``driver: {kind: ur}``), and ``UrBoxEntry``, what its
+entry shares with the modbus driver's (a UR control box). Pydantic only: importing this
 does not import ur_rtde."""
 
 from __future__ import annotations
@@ -9,14 +10,32 @@ from fluidsense.common.models import Host, Integer, Port, Real
 from fluidsense.common.wiring import CONTROLLER_HZ, AnalogScale, Wiring
 from pydantic import Field, ValidationInfo, field_validator
 
-from ..entry import BLOCK_SIZE
+from ..entry import BLOCK_SIZE, DriverEntry
 from ..reconnect import Reconnect
 from ..sampler.config import SamplerOptions
-from .box import BoxWatchdogConfig, UrArmConfig, UrBoxEntry, check_controller_rate
+from .box import BoxWatchdogConfig, ControlBox, UrArmConfig, check_controller_rate
 from .dashboard import Robot
 
 #: highest RTDE output rate per controller generation (UR's RTDE guide): the control rate
 RTDE_MAX_HZ = CONTROLLER_HZ
+
+
+class UrBoxEntry(DriverEntry):
+    """What the ur and modbus drivers' entries share: a UR control box at ``host``, wired
+    as ``wiring`` says, with an optional ``sim_control_port`` when it is emulated. Methods
+    only (the drivers' own fields keep their order)."""
+
+    def _modbus_port(self) -> int | None:
+        return None
+
+    def control_box(self) -> ControlBox:
+        return ControlBox(host=self.host, controller=self.controller, rate_hz=self.rate_hz, wiring=self.wiring,
+                          analog=self.analog, watchdog=self.watchdog, arm=self.arm is not None,
+                          modbus_port=self._modbus_port(), sim_control_port=self.sim_control_port)
+
+    def needs_operator(self) -> bool:
+        # an emulated box's control port lays the scene out; a real box has nobody else
+        return self.sim_control_port is None
 
 
 class UrDriverConfig(UrBoxEntry):

@@ -51,10 +51,7 @@ def cell_config(args: argparse.Namespace, default_profile: str | None = None):
 
     if args.config:
         cfg = load_cell_config(args.config)
-        if cfg.driver.kind == "sim":
-            cfg = cfg.model_copy(update={"driver": cfg.driver.model_copy(update={"clock": "virtual",
-                                                                                  "seed": args.seed})})
-        return cfg
+        return cfg.model_copy(update={"driver": cfg.driver.for_job(args.seed)})
     name = args.profile or default_profile
     if name is None:
         raise ConfigError("give --profile NAME (a file in config/profiles/) or --config CELL.yaml")

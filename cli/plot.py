@@ -17,8 +17,8 @@ from typing import Any
 import numpy as np
 from fluidsense.common.errors import RecordingError
 from fluidsense.common.units import KPA
-from fluidsense.drivers.recording import RecordingReader
-from fluidsense.drivers.recording_schema import REFERENCE
+from fluidsense.drivers.recording.reader import RecordingReader
+from fluidsense.drivers.recording.schema import REFERENCE
 
 
 @dataclass

@@ -19,9 +19,9 @@ from fluidsense.common.errors import (
 )
 from fluidsense.common.exitcodes import EXIT_FAILURE, EXIT_OK
 from fluidsense.config import SHIPPED
+from fluidsense.controller.config import CellConfig, load_cell_config
 from fluidsense.controller.requests.server import CommandServer
 from fluidsense.controller.requests.wiring import wire
-from fluidsense.controller.config import CellConfig, load_cell_config
 from fluidsense.controller.safety.latch import vented_word
 from fluidsense.controller.service import Controller
 from fluidsense.controller.telemetry.publisher import Publisher
@@ -98,11 +98,12 @@ async def controller(cfg: CellConfig, publish: bool = False, record: bool = Fals
         try:
             if record and cfg.recording.enabled:
                 from fluidsense.controller.telemetry.queued import QueuedSink
-                from fluidsense.controller.telemetry.recording import RecordingSink
+                from fluidsense.drivers.recording.sink import RecordingSink
 
                 # no await since start(): the loop has not handled a block yet. The writer
                 # thread reads the references: dict() copies them in one step under the GIL
-                sink = RecordingSink(cfg, backend.source, lambda: dict(ctrl.cycles.references))
+                sink = RecordingSink(cfg.recording, cfg.model_dump(mode="json"), CellConfig.model_json_schema(),
+                                     backend.source, lambda: dict(ctrl.cycles.references))
                 ctrl.add_sink(QueuedSink(sink, wait_when_full=backend.source.virtual))
             yield ctrl
         finally:

@@ -1,11 +1,16 @@
-"""Driver selection: a pydantic discriminated union on ``kind`` (``sim``, ``ur``,
-``modbus``, ``serial``, ``nidaqmx``, ``replay``); the chosen backend's module is imported only when it is
-built, so a cell that does not ask for the simulated plant (or for ur_rtde, pymodbus, nidaqmx) never imports it."""
+"""The registry of drivers: a cell config's ``driver:`` section is one of the entries
+below, chosen by its ``kind`` (a pydantic discriminated union). Each entry is a config
+model (drivers/entry.py's ``DriverEntry``) that names its backend's module, imported only
+when the backend is built, so a cell that does not ask for the simulated plant (or for
+ur_rtde, pymodbus, nidaqmx) never imports it. Adding a driver adds one line to the union
+(docs/architecture.md, "Adding a driver").
+
+The simulated cell's entry is written here rather than in drivers/sim/: that package
+loads the plant, and reading a config must not."""
 
 from __future__ import annotations
 
-import importlib
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal, get_args
 
 from fluidsense.common.hardware import Hardware
 from fluidsense.common.models import Integer, Real, StrictModel
@@ -14,8 +19,9 @@ from pydantic import Field
 
 from .backend import Backend
 from .daqmx.config import NiDaqDriverConfig
-from .io import BLOCK_SIZE
+from .entry import BLOCK_SIZE, DriverEntry
 from .modbus.config import ModbusDriverConfig
+from .recording.config import ReplayDriverConfig
 from .serial.config import SerialDriverConfig
 from .ur.config import UrDriverConfig
 
@@ -31,8 +37,10 @@ class Perturbations(StrictModel):
                                "pressure (a tube a previous run left not yet vented); it vents from there")
 
 
-class SimDriverConfig(StrictModel):
+class SimDriverConfig(DriverEntry):
     """The simulated cell built from the paper's physics."""
+
+    backend_module: ClassVar[str] = "fluidsense.drivers.sim.backend"
 
     kind: Literal["sim"] = "sim"
     clock: Literal["virtual", "realtime"] = Field(
@@ -43,27 +51,25 @@ class SimDriverConfig(StrictModel):
     scene: Scene = EmptyScene()
     perturb: Perturbations = Perturbations()
 
+    def samples_seed(self) -> int:
+        return self.seed
 
-class ReplayDriverConfig(StrictModel):
-    """A recording (``fluidsense run`` writes them) played back in virtual time: its
-    samples as they were delivered; valves cannot be commanded (docs/recording.md)."""
-
-    kind: Literal["replay"] = "replay"
-    file: str = Field(min_length=1, description="the recording (.mcap)")
+    def for_job(self, seed: int) -> SimDriverConfig:
+        return self.model_copy(update={"clock": "virtual", "seed": seed})
 
 
+# the registry: one entry per driver
 AnyDriverConfig = (SimDriverConfig | UrDriverConfig | ModbusDriverConfig | SerialDriverConfig | NiDaqDriverConfig
                    | ReplayDriverConfig)
 DriverConfig = Annotated[AnyDriverConfig, Field(discriminator="kind")]
+ENTRIES: tuple[type[DriverEntry], ...] = get_args(AnyDriverConfig)
 
-_BACKEND_MODULES = {
-    "sim": "fluidsense.drivers.sim",
-    "ur": "fluidsense.drivers.ur.backend",
-    "modbus": "fluidsense.drivers.modbus.backend",
-    "serial": "fluidsense.drivers.serial.backend",
-    "nidaqmx": "fluidsense.drivers.daqmx.backend",
-    "replay": "fluidsense.drivers.replay",
-}
+
+def kinds(overriding: object = None) -> list[str]:
+    """The registered kinds; with ``overriding`` (a method of ``DriverEntry``), those whose
+    entry overrides it: the drivers a command works with, for its messages."""
+    return [entry.model_fields["kind"].default for entry in ENTRIES
+            if overriding is None or getattr(entry, overriding.__name__) is not overriding]
 
 
 def build_backend(cfg: AnyDriverConfig, hardware: Hardware, read_only: bool = False) -> Backend:
@@ -72,5 +78,4 @@ def build_backend(cfg: AnyDriverConfig, hardware: Hardware, read_only: bool = Fa
     at connection, no box watchdog installed, no arm control script uploaded; its valves
     and regulator refuse to move), for ``fluidsense check`` to look at a cell untouched.
     Its ``stop()`` must not be used (it vents): stop its devices one by one."""
-    module = importlib.import_module(_BACKEND_MODULES[cfg.kind])
-    return module.build(cfg, hardware, read_only=read_only)
+    return cfg.build(hardware, read_only=read_only)

@@ -1,5 +1,6 @@
 """Reconnecting a lost link, paced by back-off: what every production sample source does
-after a loss (the polled sources of drivers/remote.py, the serial streamer).
+after a loss (the polled sources of drivers/remote.py, the serial streamer). Its
+settings, ``Reconnect``, are a driver config's ``reconnect`` section.
 
 After ``lose()`` every read asks ``attempt()``, which raises ``LinkLostError`` at once
 until a reconnection has succeeded. Attempts run in a task of their own, because opening
@@ -14,10 +15,19 @@ import logging
 from collections.abc import Awaitable, Callable
 
 from fluidsense.common.errors import LinkLostError
-
-from .io import Reconnect
+from fluidsense.common.models import Real, StrictModel
+from pydantic import Field
 
 log = logging.getLogger(__name__)
+
+
+class Reconnect(StrictModel):
+    """After a lost link the source tries again, waiting ``first_s``, then twice as long
+    each time up to ``max_s``. The cell stays in FAULT until an operator resets it."""
+
+    first_s: Real = Field(0.5, gt=0, le=60)
+    max_s: Real = Field(10.0, gt=0, le=600)
+    connect_timeout_s: Real = Field(15.0, gt=0, le=120, description="time allowed to connect each time")
 
 
 class Reconnector:

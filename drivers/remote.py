@@ -32,9 +32,8 @@ from fluidsense.common.errors import LinkLostError
 from fluidsense.common.samples import SampleBlock
 from fluidsense.drivers.base import SampleSource, ValveBank
 
-from .io import Reconnect, SamplerOptions
-from .reconnect import Reconnector
-from .sampler.config import PollerSpec, SamplerConfig
+from .reconnect import Reconnect, Reconnector
+from .sampler.config import PollerSpec, SamplerConfig, SamplerOptions
 from .sampler.source import SampledSource
 
 log = logging.getLogger(__name__)

@@ -13,7 +13,8 @@ from fluidsense.common.models import StrictModel
 from fluidsense.controller.config import validate
 
 MODULES = ["fluidsense.common.hardware", "fluidsense.common.scenes", "fluidsense.common.world", "fluidsense.drivers.config", "fluidsense.drivers.sampler.config",
-           "fluidsense.drivers.io", "fluidsense.common.wiring", "fluidsense.drivers.ur.config", "fluidsense.drivers.modbus.config", "fluidsense.drivers.serial.config",
+           "fluidsense.drivers.reconnect", "fluidsense.drivers.recording.config",
+           "fluidsense.drivers.ur.box", "fluidsense.common.wiring", "fluidsense.drivers.ur.config", "fluidsense.drivers.modbus.config", "fluidsense.drivers.serial.config",
            "fluidsense.drivers.daqmx.config",
            "fluidsense.controller.config", "fluidsense.controller.requests.dispatch", "fluidsense.controller.sensing.calibration", "fluidsense.tasks.config"]
 for m in MODULES:

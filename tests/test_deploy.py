@@ -10,7 +10,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
-from fluidsense.controller.telemetry.replay import replay_file
+from fluidsense.controller.cycles.reanalysis import replay_file
 from fluidsense.daemon.notify import (
     LoopWatchdog,
     Notifier,

@@ -248,7 +248,8 @@ def test_a_date_shaped_name_stays_a_string(tmp_path):
 
 
 FILE_MODULES = ["fluidsense.common.hardware", "fluidsense.common.scenes", "fluidsense.common.world", "fluidsense.drivers.config", "fluidsense.drivers.sampler.config",
-                "fluidsense.drivers.io", "fluidsense.common.wiring", "fluidsense.drivers.ur.config", "fluidsense.drivers.modbus.config", "fluidsense.controller.config",
+                "fluidsense.drivers.reconnect", "fluidsense.drivers.recording.config",
+                "fluidsense.drivers.ur.box", "fluidsense.common.wiring", "fluidsense.drivers.ur.config", "fluidsense.drivers.modbus.config", "fluidsense.controller.config",
                 "fluidsense.controller.sensing.calibration", "fluidsense.tasks.config"]
 
 

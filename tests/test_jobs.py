@@ -8,6 +8,7 @@ import asyncio
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import yaml
@@ -112,7 +113,7 @@ def test_a_journal_line_edited_moved_or_from_another_journal_is_refused_at_that_
 
     tenfold = json.loads(lines[2])
     tenfold["y"] *= 10
-    assert f"bad.json.cycles.jsonl:3: not a finished cycle of this journal" in \
+    assert "bad.json.cycles.jsonl:3: not a finished cycle of this journal" in \
         refused("\n".join([*lines[:2], json.dumps(tenfold), *lines[3:]]) + "\n")
     assert ":3: " in refused("\n".join([lines[0], lines[1], lines[3], lines[2]]) + "\n")
     other = journal("b.json", [31000.0, 31010.0]).read_text().splitlines()

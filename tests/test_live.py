@@ -13,7 +13,7 @@ import pytest
 import yaml
 from fluidsense.controller.telemetry.live import parse_listen
 from fluidsense.controller.telemetry.live_bridge import LIVE_TOPICS
-from fluidsense.drivers.recording_schema import event_schema
+from fluidsense.drivers.recording.schema import event_schema
 from support.harness import Daemon, sim_config
 from websockets.sync.client import connect
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from fluidsense.cli.plot import plot_cycles, read_cycles
 from fluidsense.common.scenes import CylinderScene
-from fluidsense.drivers.recording import RecordingReader
+from fluidsense.drivers.recording.reader import RecordingReader
 from support.harness import REPO
 from support.recording import record, the_file
 

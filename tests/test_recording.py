@@ -22,13 +22,21 @@ from fluidsense import cli
 from fluidsense.common.errors import ConfigError, EndOfRecording, RecordingError
 from fluidsense.common.scenes import CylinderScene, EmptyScene
 from fluidsense.controller.config import CellConfig, load_cell_config
+from fluidsense.controller.cycles.reanalysis import CycleReplay, comparable, replay_file
 from fluidsense.controller.service import Sink
 from fluidsense.controller.telemetry.queued import QueuedSink
-from fluidsense.controller.telemetry.recording import new_path
-from fluidsense.controller.telemetry.replay import CycleReplay, comparable, replay_file
 from fluidsense.daemon import app
-from fluidsense.drivers.recording import RecordingReader, RecordingWriter
-from fluidsense.drivers.recording_schema import CONFIG, SAMPLES
+from fluidsense.drivers.recording.reader import RecordingReader
+from fluidsense.drivers.recording.schema import (
+    CONFIG,
+    FORMAT,
+    FORMAT_VERSION,
+    SAMPLES,
+    event_schema,
+)
+from fluidsense.drivers.recording.sink import new_path
+from fluidsense.drivers.recording.writer import RecordingWriter
+from mcap.reader import make_reader
 from support.events import fast_profile
 from support.harness import PROFILE, REPO, sim_config
 from support.recording import cell, record, the_file
@@ -441,7 +449,7 @@ def test_a_nearly_full_disk_stops_the_recording_and_says_so(tmp_path, monkeypatc
 
     async def body(ctrl):
         await ctrl.wait(5.0)
-        monkeypatch.setattr("fluidsense.controller.telemetry.recording.shutil.disk_usage",
+        monkeypatch.setattr("fluidsense.drivers.recording.sink.shutil.disk_usage",
                             lambda p: real(p)._replace(free=10 * 2**20))
         await ctrl.run_cycle()
         return ctrl.telemetry.sinks
@@ -509,7 +517,7 @@ def test_replay_driver_feeds_the_recorded_blocks_to_a_controller(tmp_path, good_
         assert got.seq == want.seq and np.array_equal(got.t, want.t) and np.array_equal(got.values, want.values)
 
     async def drain():
-        from fluidsense.drivers.replay import ReplaySource
+        from fluidsense.drivers.recording.backend import ReplaySource
 
         async with ReplaySource(good_file) as src:
             n = 0
@@ -630,7 +638,7 @@ def _rewrite_samples(src: Path, dst: Path, change) -> None:
         w.write_config(reader.config, {})
         for rec in reader.records():
             if rec.topic == SAMPLES:
-                from fluidsense.drivers.recording import block_payload
+                from fluidsense.drivers.recording.messages import block_payload
 
                 w._add(SAMPLES, rec.t_s, json.dumps(change(block_payload(rec.data))).encode(), {})
         w.close()
@@ -700,3 +708,26 @@ def test_cli_replay_of_a_bomb_exits_2_with_one_line_and_little_memory(tmp_path, 
         code, peaks[name] = map(int, run.stdout.split()[-2:])
         assert code == (0 if name == "good" else 2), run.stderr
     assert peaks["bomb"] < peaks["good"] + 50, peaks
+
+
+FORMAT_1 = REPO / "tests" / "data" / "recording-format-1.mcap"
+
+
+def test_a_recording_written_before_the_move_reads_and_replays_the_same():
+    """tests/data/recording-format-1.mcap was written by the daemon's recording at commit
+    6934979, before the format moved into drivers/recording/ (a simulated cell at 200 Hz in
+    virtual time, seed 3, the gripper's 3.5 s cycle: a free-air reference, then a 60 mm
+    cylinder). Files on disk must stay readable: its channels keep their schema names
+    (``fluidsense.Command`` ...), its cycles replay to their recorded results."""
+    report = asyncio.run(replay_file(FORMAT_1))
+    assert report.closed and report.agree and report.samples == 1705
+    assert [(c.label, c.complete, c.agree) for c in report.cycles] == [("free", True, True), ("c60", True, True)]
+    with RecordingReader(FORMAT_1) as rec:
+        assert (rec.metadata["format"], rec.metadata["format_version"]) == (FORMAT, str(FORMAT_VERSION))
+    with FORMAT_1.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    names = {ch.topic.removeprefix("/"): summary.schemas[ch.schema_id].name for ch in summary.channels.values()}
+    assert names.pop(CONFIG) == "CellConfig"
+    assert names == {topic: event_schema(topic)["title"] for topic in names}  # what the writer registers today
+    assert {"samples", "command", "cycle_start", "state", "cycle", "heartbeat"} <= set(names)
+    assert names["command"] == "fluidsense.Command" and names["samples"] == "fluidsense.SampleBlock"

@@ -11,7 +11,13 @@ import asyncio
 
 import pytest
 from fluidsense.common import names
-from fluidsense.common.errors import CommandError, FluidsenseError, NotSupportedError, SafetyError, SequenceError
+from fluidsense.common.errors import (
+    CommandError,
+    FluidsenseError,
+    NotSupportedError,
+    SafetyError,
+    SequenceError,
+)
 from fluidsense.controller.requests.dispatch import NAMES, REQUESTS
 from fluidsense.controller.requests.server import decode
 from support.requests import BAD_REQUESTS, FakeCell, settle

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from fluidsense.common.errors import ConfigError
 from fluidsense.common.units import KPA
-from fluidsense.controller.requests.grip_watch import ContactWatch
 from fluidsense.controller.config import SequenceConfig, validate
 from fluidsense.controller.cycles import features as F
 from fluidsense.controller.cycles.analysis import Reference, analyse
+from fluidsense.controller.requests.grip_watch import ContactWatch
 
 FS = 500.0
 T_OPEN = 3.0

@@ -258,8 +258,8 @@ class FakePush:
 def test_blocks_dropped_on_a_full_queue_are_accounted_for_in_the_next_one():
     from array import array
 
-    from fluidsense.drivers.sampler.loop import Block, Counts
     from fluidsense.drivers.sampler.process import Sender
+    from fluidsense.drivers.sampler.slots import Block, Counts
     from fluidsense.drivers.sampler.wire import decode
 
     def block(seq, begin, end, counts, n):

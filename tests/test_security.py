@@ -17,6 +17,7 @@ import zmq
 import zmq.asyncio
 from fluidsense.cli.monitor import send_command
 from fluidsense.common.errors import ConfigError
+from fluidsense.controller.config import load_cell_config
 from fluidsense.controller.requests.server import (
     MAX_DEPTH,
     MAX_FRAME_BYTES,
@@ -24,7 +25,6 @@ from fluidsense.controller.requests.server import (
     CommandServer,
     too_deep,
 )
-from fluidsense.controller.config import load_cell_config
 from hypothesis import HealthCheck, given, settings
 from support.harness import REPO, Daemon, ipc_endpoints, sim_config
 

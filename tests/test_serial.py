@@ -27,7 +27,14 @@ from fluidsense.controller.config import load_cell_config
 from fluidsense.drivers.config import build_backend
 from fluidsense.drivers.serial import protocol as p
 from support.harness import Daemon, profile_controller
-from support.serial import BOARD_NAMES, BOARDS, Proxy, SimSerialProcess, needs_avr, serial_config
+from support.serial import (
+    BOARD_NAMES,
+    BOARDS,
+    Proxy,
+    SimSerialProcess,
+    needs_avr,
+    serial_config,
+)
 
 pytestmark = pytest.mark.timeout(300)
 

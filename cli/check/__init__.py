@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 from fluidsense.common.errors import ConfigError, LinkLostError
 from fluidsense.drivers.config import build_backend
+from fluidsense.drivers.ur.dashboard import SAFETY_OK, generation
 
 from . import actuate, connect, readings
 from .findings import Findings, Problem
@@ -48,12 +49,12 @@ async def run_check(cfg, path: str, opts: CheckOptions, say: Callable[[str], Non
     """The problems found (none: the cell matches its config). Raises DeviceTimeoutError
     when a device does not answer."""
     driver = cfg.driver
-    if driver.kind == "replay":
+    if not driver.live:
         raise ConfigError(f"{path}: driver.kind: check looks at a live cell; a recording has nothing to connect to")
     out = Findings(say)
     await _look_at_robot(driver, opts, out)
     backend = build_backend(driver, cfg.profile.hardware, read_only=not opts.actuate)
-    out.section(f"connecting to {connect.where(driver)}" + ("" if opts.actuate else " (read-only)"))
+    out.section(f"connecting to {driver.where()}" + ("" if opts.actuate else " (read-only)"))
     await connect.connect(backend, driver, opts.timeout_s)
     if opts.actuate:
         out.info("connected; every valve written to its safe position and read back")
@@ -75,22 +76,22 @@ async def run_check(cfg, path: str, opts: CheckOptions, say: Callable[[str], Non
 
 
 async def _look_at_robot(driver, opts: CheckOptions, out: Findings) -> None:
-    host = connect.robot_host(driver)
-    if host is None:
+    robot = driver.robot()
+    if robot is None:
         return
-    out.section(f"robot at {host} (dashboard port {connect.DASHBOARD_PORT})")
+    out.section(f"robot at {robot.host} (dashboard port {robot.port})")
     try:
-        answers = await connect.ask_dashboard(host, opts.timeout_s)
+        answers = await robot.ask(opts.timeout_s)
     except (OSError, TimeoutError) as exc:
         out.info(f"the dashboard server did not answer ({exc or 'timeout'}): version and modes unknown")
         return
     out.info(f"{answers['model']}, {answers['version']}; robot mode {answers['robot_mode']}, safety mode "
              f"{answers['safety_mode']}; remote control: {answers['remote']}")
-    gen = connect.generation(answers["version"])
-    if driver.kind == "ur" and gen is not None and gen != driver.controller:
-        out.problem("driver.controller", f"the config says {driver.controller}, the robot runs {answers['version']} "
+    gen = generation(answers["version"])
+    if robot.generation is not None and gen is not None and gen != robot.generation:
+        out.problem("driver.controller", f"the config says {robot.generation}, the robot runs {answers['version']} "
                     f"({gen})", f"set driver.controller: {gen} (RTDE rate: e-Series 500 Hz, CB3 125 Hz)")
-    if answers["safety_mode"] not in connect.SAFETY_OK:
+    if answers["safety_mode"] not in SAFETY_OK:
         out.problem("robot", f"safety mode {answers['safety_mode']}",
                     "clear it on the teach pendant before running the daemon (a stopped robot is a fault)")
 

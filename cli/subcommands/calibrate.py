@@ -131,11 +131,6 @@ def _number(line: str) -> float | None:
         return None
 
 
-def _needs_operator(cfg) -> bool:
-    """A real cell: nothing can place the targets but the operator."""
-    return cfg.driver.kind in ("ur", "modbus") and cfg.driver.sim_control_port is None
-
-
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from fluidsense.daemon import app
     from fluidsense.tasks.calibrate import calibrate
@@ -162,7 +157,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     free = cycles if args.free_cycles is None else args.free_cycles
     if free < 0 or (free and drop >= free):
         raise ConfigError(f"--free-cycles {free}: give 0 or more than --drop-first {drop}")
-    operator = Operator(target, args.targets_from, args.yes) if _needs_operator(cfg) else None
+    operator = Operator(target, args.targets_from, args.yes) if cfg.driver.needs_operator() else None
     journal = CycleJournal.open(journal_path(args.out), {
         "profile": cfg.profile.name, "scene": scene.model_dump(), "target": target, "values": values,
         "feature": feature, "fit": fit, "cycles": cycles, "drop_first": drop, "free_cycles": free},
@@ -179,7 +174,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                     operator.bar = bar
                 return await calibrate(ctrl, scene, target, values, feature=feature, fit=fit, cycles=cycles,
                                        drop_first=drop, place=operator.place if operator else None,
-                                       progress=bar.update, seed=args.seed if cfg.driver.kind == "sim" else None,
+                                       progress=bar.update, seed=cfg.driver.samples_seed(),
                                        journal=journal, free_cycles=free)
 
     try:
@@ -219,7 +214,7 @@ def cmd_sense(args: argparse.Namespace) -> int:
     setup_logging(cfg.log_level, quiet=True)
     scene = scene_from_args(args)
 
-    operator = Operator(cal.target, args.targets_from, args.yes) if _needs_operator(cfg) else None
+    operator = Operator(cal.target, args.targets_from, args.yes) if cfg.driver.needs_operator() else None
 
     async def job():
         async with app.controller(cfg, own_process=True) as ctrl:

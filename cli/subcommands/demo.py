@@ -34,7 +34,7 @@ def main(args: argparse.Namespace) -> int:
     overrides: dict[str, Any] = {"driver": {"clock": "virtual", "seed": args.seed}}
     cfg = app.load(args.config, overrides)
     setup_logging(cfg.log_level, quiet=True)
-    if cfg.driver.kind != "sim":
+    if cfg.driver.samples_seed() is None:
         raise FluidsenseError("the demo runs on the simulated cell: use a config with driver: sim")
 
     def progress(line: str) -> None:

@@ -53,7 +53,7 @@ def print_report(report) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from fluidsense.controller.telemetry.replay import replay_file
+    from fluidsense.controller.cycles.reanalysis import replay_file
 
     setup_logging("WARNING")
     report = asyncio.run(replay_file(args.file))

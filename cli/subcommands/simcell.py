@@ -35,35 +35,36 @@ def register(sub) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from fluidsense.controller.config import load_cell_config
-    from fluidsense.drivers.config import SimDriverConfig
+    from fluidsense.drivers.config import DriverEntry, SimDriverConfig, kinds
     from fluidsense.simulator.controlbox.__main__ import main_async
     from fluidsense.simulator.controlbox.config import ControlBoxConfig
     from fluidsense.simulator.controlbox.plant import PlantModel
 
     cfg = load_cell_config(args.config)
-    driver = cfg.driver
-    if driver.kind not in ("ur", "modbus"):
-        raise ConfigError(f"{args.config}: driver.kind: simcell emulates the control box of a ur or modbus "
-                          f"driver, this config's driver is {driver.kind!r}")
+    reached = cfg.driver.control_box()  # the box this config's driver reaches
+    if reached is None:
+        raise ConfigError(f"{args.config}: driver.kind: simcell emulates the control box of a "
+                          f"{' or '.join(kinds(DriverEntry.control_box))} driver, this config's driver is "
+                          f"{cfg.driver.kind!r}")
     setup_logging(args.log_level)
     logging.getLogger("pymodbus").setLevel(logging.WARNING)
-    modbus_port = args.modbus_port or (driver.port if driver.kind == "modbus" else 5020)
+    modbus_port = args.modbus_port or reached.modbus_port or 5020
     # the box refreshes its I/O at its generation's control rate; a Modbus I/O module's
     # registers are served at the polled rate (the slowest its data sheet may promise)
-    io_module = driver.controller == "io-module"
-    box = ControlBoxConfig(host=driver.host, modbus_port=modbus_port, analog=driver.analog,
-                           controller="e-series" if io_module else driver.controller,
-                           io_refresh_hz=driver.rate_hz if io_module else None)
+    io_module = reached.controller == "io-module"
+    box = ControlBoxConfig(host=reached.host, modbus_port=modbus_port, analog=reached.analog,
+                           controller="e-series" if io_module else reached.controller,
+                           io_refresh_hz=reached.rate_hz if io_module else None)
     sim = SimDriverConfig(clock="realtime", rate_hz=1000.0, block_size=1, seed=args.seed,
                           **({"scene": s} if (s := scene_from_args(args)) is not None else {}))
-    model = PlantModel(cfg.profile.hardware, driver.wiring, sim)
+    model = PlantModel(cfg.profile.hardware, reached.wiring, sim)
     if args.rt_priority:
         from fluidsense.drivers.sampler.realtime import set_fifo
 
         result = set_fifo(args.rt_priority)
         log.log(logging.INFO if result["applied"] else logging.WARNING, "simcell scheduling: %s", result["detail"])
     try:
-        asyncio.run(main_async(box, model, driver.sim_control_port))
+        asyncio.run(main_async(box, model, reached.sim_control_port))
     except KeyboardInterrupt:
         pass
     sys.stdout.flush()

@@ -22,18 +22,19 @@ def register(sub) -> None:
 def main(args: argparse.Namespace) -> int:
     from fluidsense.common.errors import ConfigError
     from fluidsense.controller.config import load_cell_config
+    from fluidsense.drivers.config import DriverEntry, kinds
     from fluidsense.drivers.ur.watchdog import box_script, send_script
 
     cfg = load_cell_config(args.config)
-    driver = cfg.driver
-    if driver.kind not in ("ur", "modbus"):
-        raise ConfigError(f"{args.config}: driver.kind: the box watchdog is for a UR control box (ur or modbus), "
-                          f"this config's driver is {driver.kind!r}")
-    if driver.watchdog is None:
+    box = cfg.driver.control_box()
+    if box is None:
+        raise ConfigError(f"{args.config}: driver.kind: the box watchdog is for a UR control box "
+                          f"({' or '.join(kinds(DriverEntry.control_box))}), this config's driver is "
+                          f"{cfg.driver.kind!r}")
+    if box.watchdog is None:
         raise ConfigError(f"{args.config}: driver.watchdog: null: this cell has no box-side watchdog")
-    arm = driver.kind == "ur" or driver.arm is not None
-    script = box_script(driver.wiring.valves, cfg.profile.hardware.circuit.safe_valves, driver.watchdog, arm)
+    script = box_script(box.wiring.valves, cfg.profile.hardware.circuit.safe_valves, box.watchdog, box.arm)
     print(script, end="")
     if args.install:
-        asyncio.run(send_script(driver.host, driver.watchdog.script_port, script))
+        asyncio.run(send_script(box.host, box.watchdog.script_port, script))
     return 0

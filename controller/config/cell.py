@@ -16,6 +16,7 @@ from fluidsense.common.errors import ConfigError
 from fluidsense.common.files import one_line
 from fluidsense.common.models import FieldError, Integer, Real, StrictModel
 from fluidsense.drivers.config import DriverConfig
+from fluidsense.drivers.recording.config import RecordingConfig
 from pydantic import BaseModel, Field, ValidationInfo, field_validator, model_validator
 
 from .curve import ALLOW_ANY, count_public_keys, read_secret_key
@@ -122,26 +123,6 @@ class PublisherConfig(StrictModel):
         return self
 
 
-class RecordingConfig(StrictModel):
-    """What the daemon writes to disk (docs/recording.md): every sample block and event,
-    and the config, in MCAP files named by their start time in ``dir``."""
-
-    enabled: bool = Field(True, description="the daemon records (fluidsense run --no-record turns it off)")
-    dir: str = Field("runs", min_length=1, description="directory of the recordings, relative to the "
-                     "daemon's working directory; created if missing")
-    flush_s: Real = Field(1.0, gt=0, le=10, description="sample time between flushes: a killed daemon "
-                           "loses at most this much")
-    fsync: bool = Field(True, description="also force each flush to storage (power loss), off the sample loop")
-    compression: Literal["zstd", "lz4", "none"] = "zstd"
-    max_file_mb: Real = Field(1024.0, gt=0, le=1_000_000, description="start a new file, between cycles, "
-                               "once a file is this large")
-    max_file_s: Real = Field(3600.0, gt=0, le=7 * 86400, description="start a new file, between cycles, "
-                              "once a file covers this much sample time (the writer's index of a file stays "
-                              "in memory until the file is closed: ~1 KB per flush)")
-    min_free_mb: Real = Field(1024.0, ge=0, le=1_000_000, description="stop recording (and say so) when the "
-                               "disk has less free space than this")
-
-
 class LiveConfig(StrictModel):
     """The live view (docs/recording.md, "Live view"): the Foxglove WebSocket protocol served by a
     process of its own, with the recording's channels, schemas and timestamps. Loopback by
@@ -235,8 +216,8 @@ def load_profile(path: str | Path) -> Profile:
 def _check_files(cfg: CellConfig, path: Path) -> None:
     """What must exist on disk when a cell config is loaded from a file (a recorded config
     is validated without these: its files belong to another machine and time)."""
-    if cfg.driver.kind == "replay":  # relative to the working directory (docs/recording.md)
-        referenced_file(cfg.driver.file, path, "driver.file")
+    for field, name in cfg.driver.files().items():  # relative to the working directory (docs/recording.md)
+        referenced_file(name, path, f"driver.{field}")
     if not cfg.recording.enabled:
         return
     try:

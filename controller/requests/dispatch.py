@@ -14,7 +14,12 @@ import logging
 from collections.abc import Callable
 from typing import Any, ClassVar, Literal
 
-from fluidsense.common.errors import CommandError, FluidsenseError, NotSupportedError, SequenceError
+from fluidsense.common.errors import (
+    CommandError,
+    FluidsenseError,
+    NotSupportedError,
+    SequenceError,
+)
 from fluidsense.common.models import StrictModel
 from fluidsense.common.scenes import Scene
 from pydantic import Field

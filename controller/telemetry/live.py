@@ -25,8 +25,8 @@ from typing import Any
 import zmq
 from fluidsense.common.errors import ConfigError
 from fluidsense.common.samples import SampleBlock
-from fluidsense.drivers.recording import block_payload, to_json
-from fluidsense.drivers.recording_schema import SAMPLES
+from fluidsense.drivers.recording.messages import block_payload, to_json
+from fluidsense.drivers.recording.schema import SAMPLES
 
 from ..config import LiveConfig
 from .fanout import Sink

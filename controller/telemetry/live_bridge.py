@@ -1,7 +1,7 @@
 """The live view's process: ``python -m fluidsense.controller.telemetry.live_bridge ARGS_JSON``.
 
 It serves the Foxglove WebSocket protocol (foxglove-sdk) with the channels, JSON schemas
-and log times of the MCAP recordings (drivers/recording.py), so that a recorded file and
+and log times of the MCAP recordings (drivers/recording/), so that a recorded file and
 the live daemon look the same in Foxglove. It runs apart from the daemon for the same
 reason as the publisher's outlet: viewers are untrusted peers, and however many or slow
 they are they cost the sample loop nothing but a non-blocking PUSH. The SDK queues at most
@@ -24,7 +24,7 @@ import sys
 from typing import Any
 
 import zmq
-from fluidsense.drivers.recording_schema import SAMPLES, event_schema
+from fluidsense.drivers.recording.schema import SAMPLES, event_schema
 
 log = logging.getLogger("fluidsense.controller.telemetry.live_bridge")
 

@@ -4,7 +4,7 @@ its own sample clock, docs/drivers.md."""
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 from fluidsense.common.models import Integer, Real, StrictModel
 from fluidsense.common.wiring import (
@@ -15,7 +15,7 @@ from fluidsense.common.wiring import (
 )
 from pydantic import Field, model_validator
 
-from ..io import BLOCK_SIZE
+from ..entry import BLOCK_SIZE, DriverEntry
 
 Terminal = Literal["default", "rse", "nrse", "differential", "pseudo_differential"]
 
@@ -103,9 +103,11 @@ class DaqWatchdogConfig(StrictModel):
                             "levels by itself")
 
 
-class NiDaqDriverConfig(StrictModel):
+class NiDaqDriverConfig(DriverEntry):
     """An NI DAQ sampling on its own clock into a buffer the driver reads in blocks;
     valves on digital lines and the regulator on an analog output, set on demand."""
+
+    backend_module: ClassVar[str] = "fluidsense.drivers.daqmx.backend"
 
     kind: Literal["nidaqmx"] = "nidaqmx"
     device: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_]+$",

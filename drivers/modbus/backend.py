@@ -9,7 +9,7 @@ import logging
 from fluidsense.common.errors import ConfigError, DriverError, LinkLostError
 from fluidsense.common.hardware import Hardware, RegulatedCircuit, TankCircuit
 from fluidsense.common.wiring import AnalogScale, RegulatorWiring, Wiring
-from fluidsense.drivers.io import BoxWatchdogConfig
+from fluidsense.drivers.ur.box import BoxWatchdogConfig
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ModbusException
 

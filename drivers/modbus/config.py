@@ -2,19 +2,18 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 from fluidsense.common.models import Host, Integer, Port, Real, StrictModel
 from fluidsense.common.wiring import AnalogScale, Wiring
-from fluidsense.drivers.io import (
-    BLOCK_SIZE,
-    BoxWatchdogConfig,
-    Reconnect,
-    SamplerOptions,
-    UrArmConfig,
-    check_controller_rate,
-)
 from pydantic import Field, ValidationInfo, field_validator, model_validator
+
+from ..entry import BLOCK_SIZE
+from ..reconnect import Reconnect
+from ..sampler.config import SamplerOptions
+from ..ur.box import BoxWatchdogConfig, UrArmConfig, check_controller_rate
+from ..ur.config import UrBoxEntry
+from ..ur.dashboard import Robot
 
 Register = Annotated[Integer, Field(ge=0, le=65535)]
 
@@ -42,13 +41,15 @@ class RegisterMap(StrictModel):
         return self
 
 
-class ModbusDriverConfig(StrictModel):
+class ModbusDriverConfig(UrBoxEntry):
     """Valves, regulator and analog inputs through Modbus TCP (pymodbus): by default a UR
     control box's Modbus server. The analog inputs are polled at ``rate_hz`` in the
     sampler process; valves and regulator are written from the daemon. Modbus cannot move
     a UR arm: ``arm`` moves it through ur_rtde (as the paper used Modbus for I/O next to
     a motion library), ``arm: null`` has none; the arm's interface also reports its
     protective stop to the supervisor."""
+
+    backend_module: ClassVar[str] = "fluidsense.drivers.modbus.backend"
 
     kind: Literal["modbus"] = "modbus"
     host: Host
@@ -78,3 +79,19 @@ class ModbusDriverConfig(StrictModel):
     @classmethod
     def _box_rate(cls, rate_hz: float, info: ValidationInfo) -> float:
         return check_controller_rate(rate_hz, info.data.get("controller", "e-series"), "its Modbus server")
+
+    def where(self) -> str:
+        arm = "" if self.arm is None else f", the robot's RTDE port 30004 at {self.arm.host or self.host}"
+        return f"the Modbus server at {self.host}:{self.port}{arm}"
+
+    def what_to_check(self) -> str:
+        return (f"check that the box is on, that `ping {self.host}` answers, that its Modbus server is enabled "
+                f"(PolyScope: Installation > Fieldbus > Modbus) on port {self.port}, and driver.host/port in the "
+                "config")
+
+    def robot(self) -> Robot | None:
+        # controller names what serves the registers (maybe an I/O module), not the robot's generation
+        return None if self.arm is None else Robot(self.arm.host or self.host)
+
+    def _modbus_port(self) -> int:
+        return self.port

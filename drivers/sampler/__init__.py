@@ -2,7 +2,7 @@
 
 - :mod:`.poller`: the interface a device reader implements (built inside the process);
 - :mod:`.synthetic`: a synthetic poller for tests and benchmarks;
-- :mod:`.loop`: the slot loop (absolute deadlines, sleep then spin, on time / late /
+- :mod:`.slots`: the slot loop (absolute deadlines, sleep then spin, on time / late /
   missed / failed accounting), with an injectable clock;
 - :mod:`.process`: the process entry point (real-time settings, ZeroMQ PUSH);
 - :mod:`.source`: ``SampledSource``, the daemon's side;

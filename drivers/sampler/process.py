@@ -31,8 +31,8 @@ from fluidsense.common.errors import ConfigError
 
 from ..child import exit_now
 from . import realtime, wire
-from .loop import Block, SlotLoop, SpinClock
 from .poller import load_poller
+from .slots import Block, SlotLoop, SpinClock
 
 log = logging.getLogger("fluidsense.drivers.sampler.process")
 

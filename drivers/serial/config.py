@@ -3,7 +3,7 @@ running firmware/ on USB serial, docs/drivers.md."""
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 from fluidsense.common.models import Integer, Port, Real, StrictModel
 from fluidsense.common.wiring import (
@@ -16,7 +16,8 @@ from fluidsense.common.wiring import (
 )
 from pydantic import Field, model_validator
 
-from ..io import BLOCK_SIZE, Reconnect
+from ..entry import BLOCK_SIZE, DriverEntry
+from ..reconnect import Reconnect
 
 #: the devices' boards: ADC inputs, digital outputs, analog outputs (firmware/README.md)
 MAX_ADC, MAX_OUTPUTS = 8, 8
@@ -81,10 +82,12 @@ class SerialWatchdog(StrictModel):
                             "wired valve output to its safe level and the regulator's output to 0 kPa")
 
 
-class SerialDriverConfig(StrictModel):
+class SerialDriverConfig(DriverEntry):
     """A microcontroller streaming hardware-timed samples over USB serial (firmware/):
     sample time is the device's timer, valves and the regulator are set by acknowledged
     commands, the device vents by itself when the heartbeat stops."""
+
+    backend_module: ClassVar[str] = "fluidsense.drivers.serial.backend"
 
     kind: Literal["serial"] = "serial"
     port: str = Field(min_length=1, max_length=4096, pattern=r"^[^\x00]+$",

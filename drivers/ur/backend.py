@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from fluidsense.common.hardware import Hardware, RegulatedCircuit, TankCircuit
 from fluidsense.common.wiring import Wiring
-from fluidsense.drivers.io import BoxWatchdogConfig
+from fluidsense.drivers.ur.box import BoxWatchdogConfig
 
 from ..backend import Backend
 from ..remote import PolledCellSource, confirm_safe_on_connect, sampler_config

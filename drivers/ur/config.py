@@ -1,32 +1,50 @@
-"""Settings of the ur-rtde driver (``driver: {kind: ur}``). Pydantic only: importing this
+"""Settings of the ur-rtde driver (``driver: {kind: ur}``), and ``UrBoxEntry``, what its
+entry shares with the modbus driver's (a UR control box). Pydantic only: importing this
 does not import ur_rtde."""
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
-from fluidsense.common.models import Host, Integer, Port, Real, StrictModel
-from fluidsense.common.wiring import AnalogScale, Wiring
-from fluidsense.drivers.io import (
-    BLOCK_SIZE,
-    CONTROLLER_HZ,
-    BoxWatchdogConfig,
-    Reconnect,
-    SamplerOptions,
-    UrArmConfig,
-    check_controller_rate,
-)
+from fluidsense.common.models import Host, Integer, Port, Real
+from fluidsense.common.wiring import CONTROLLER_HZ, AnalogScale, Wiring
 from pydantic import Field, ValidationInfo, field_validator
+
+from ..entry import BLOCK_SIZE, DriverEntry
+from ..reconnect import Reconnect
+from ..sampler.config import SamplerOptions
+from .box import BoxWatchdogConfig, ControlBox, UrArmConfig, check_controller_rate
+from .dashboard import Robot
 
 #: highest RTDE output rate per controller generation (UR's RTDE guide): the control rate
 RTDE_MAX_HZ = CONTROLLER_HZ
 
 
-class UrDriverConfig(StrictModel):
+class UrBoxEntry(DriverEntry):
+    """What the ur and modbus drivers' entries share: a UR control box at ``host``, wired
+    as ``wiring`` says, with an optional ``sim_control_port`` when it is emulated. Methods
+    only (the drivers' own fields keep their order)."""
+
+    def _modbus_port(self) -> int | None:
+        return None
+
+    def control_box(self) -> ControlBox:
+        return ControlBox(host=self.host, controller=self.controller, rate_hz=self.rate_hz, wiring=self.wiring,
+                          analog=self.analog, watchdog=self.watchdog, arm=self.arm is not None,
+                          modbus_port=self._modbus_port(), sim_control_port=self.sim_control_port)
+
+    def needs_operator(self) -> bool:
+        # an emulated box's control port lays the scene out; a real box has nobody else
+        return self.sim_control_port is None
+
+
+class UrDriverConfig(UrBoxEntry):
     """A UR control box reached with ur_rtde: valves on its digital outputs, the
     regulator on an analog output (RTDE IO interface), pressure sensors on its analog
     inputs (RTDE receive, polled in the sampler process), the arm through the RTDE
     control interface."""
+
+    backend_module: ClassVar[str] = "fluidsense.drivers.ur.backend"
 
     kind: Literal["ur"] = "ur"
     host: Host
@@ -53,3 +71,13 @@ class UrDriverConfig(StrictModel):
     @classmethod
     def _rtde_rate(cls, rate_hz: float, info: ValidationInfo) -> float:
         return check_controller_rate(rate_hz, info.data.get("controller", "e-series"), "RTDE")
+
+    def where(self) -> str:
+        return f"the robot at {self.host} (RTDE port 30004)"
+
+    def what_to_check(self) -> str:
+        return (f"check that the robot is on and booted, that `ping {self.host}` answers, that nothing else "
+                "holds its RTDE inputs, and driver.host in the config")
+
+    def robot(self) -> Robot:
+        return Robot(self.arm.host or self.host, generation=self.controller)

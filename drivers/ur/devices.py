@@ -8,7 +8,7 @@ import math
 
 from fluidsense.common.errors import DriverError, SafetyError
 from fluidsense.common.wiring import AnalogScale, RegulatorWiring, ValveWiring
-from fluidsense.drivers.io import BoxWatchdogConfig, UrArmConfig
+from fluidsense.drivers.ur.box import BoxWatchdogConfig, UrArmConfig
 
 from ..base import Arm, BoxWatchdog, Pose, Regulator, ValveBank
 from .link import WorkerConnection

@@ -31,7 +31,7 @@ from collections.abc import Mapping
 
 from fluidsense.common.errors import LinkLostError
 from fluidsense.common.wiring import ValveWiring
-from fluidsense.drivers.io import BoxWatchdogConfig
+from fluidsense.drivers.ur.box import BoxWatchdogConfig
 
 log = logging.getLogger(__name__)
 

@@ -49,12 +49,13 @@ def register(sub) -> None:
 def main(args: argparse.Namespace) -> int:
     from fluidsense.controller.config import load_cell_config
     from fluidsense.drivers.config import SimDriverConfig
+    from fluidsense.drivers.serial.config import SerialDriverConfig
 
     from ..serialboard import AVR_IMAGE, SerialPlant, SimSerial, build_board
 
     cfg = load_cell_config(args.config)
     driver = cfg.driver
-    if driver.kind != "serial":
+    if not isinstance(driver, SerialDriverConfig):  # the one device this emulates
         raise ConfigError(f"{args.config}: driver.kind: simserial emulates the device of a serial driver, this "
                           f"config's driver is {driver.kind!r}")
     setup_logging(args.log_level)

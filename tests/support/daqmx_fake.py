@@ -32,8 +32,8 @@ import nidaqmx
 from nidaqmx.constants import Level, WatchdogAOExpirState
 from nidaqmx.error_codes import DAQmxErrors
 from nidaqmx.errors import DaqError, DaqReadError
-from nidaqmx.task import _in_stream, _timing
 from nidaqmx.system.watchdog import WatchdogTask
+from nidaqmx.task import _in_stream, _timing
 from nidaqmx.task import collections as ni_collections
 from nidaqmx.types import AOExpirationState, DOExpirationState
 

@@ -18,7 +18,7 @@ from mcap.records import Chunk
 from mcap.stream_reader import breakup_chunk
 
 # fluidsense closes a chunk at every flush (1 s of samples, ~60 KB) or at 8 MB
-# (drivers/recording.py CHUNK_BYTES); 64 MB leaves room for other writers' chunks.
+# (writer.py CHUNK_BYTES); 64 MB leaves room for other writers' chunks.
 MAX_CHUNK_BYTES = 64 * 2**20
 # the daemon's JSON compresses about 5:1 with zstd (measured on a recording of cycles);
 # even constant readings keep changing timestamps, so 200:1 is far beyond real data

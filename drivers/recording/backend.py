@@ -1,5 +1,5 @@
-"""The replay driver: a recording's sample blocks, as they were delivered, in virtual time
-(imported only when a config selects ``driver: replay``).
+"""The replay driver (``driver: {kind: replay}``): a recording's sample blocks, as they
+were delivered, in virtual time (imported only when a config selects it).
 
 The source hands over the recorded blocks one by one, unchanged; the events recorded
 between two blocks (transitions, results, commands) wait in ``drain_events()`` for a
@@ -18,10 +18,11 @@ from typing import Any
 from fluidsense.common.errors import EndOfRecording, RecordingError
 from fluidsense.common.hardware import Hardware
 from fluidsense.common.samples import SampleBlock
-from fluidsense.drivers.backend import Backend
-from fluidsense.drivers.base import SampleSource, ValveBank
 
-from .recording import SAMPLES, Record, RecordingReader
+from ..backend import Backend
+from ..base import SampleSource, ValveBank
+from .reader import Record, RecordingReader
+from .schema import SAMPLES
 
 log = logging.getLogger(__name__)
 

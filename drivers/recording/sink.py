@@ -1,8 +1,9 @@
 """The recording sink: the daemon's samples, events and config in MCAP files on disk.
 
-The daemon runs this sink on a thread of its own behind a bounded queue (queued.py): the
-sample loop never waits on compression or the disk; in real time a full queue drops and
-counts (``status`` -> ``sinks``), in virtual time it waits.
+The daemon runs this sink on a thread of its own behind a bounded queue
+(controller/telemetry/queued.py): the sample loop never waits on compression or the
+disk; in real time a full queue drops and counts (``status`` -> ``sinks``), in virtual
+time it waits.
 
 Flush guarantee: every ``flush_s`` of sample time the open chunk is closed and handed to
 the OS, so a daemon killed with SIGKILL loses at most the last ``flush_s`` plus what was
@@ -12,8 +13,9 @@ worker thread also forces it to storage. A file is started between cycles once i
 entry per flushed chunk in memory until the file is closed: ~1 KB per ``flush_s``, 28 MB
 over 8 h in one file, found by python -m lab bench soak); each file carries the config and
 the references it needs to replay on its own. A write error or a nearly full disk logs,
-closes what can be closed and drops the sink (the controller's Sink contract): control
-goes on without recording.
+closes what can be closed and drops the sink (the telemetry's Sink contract): control
+goes on without recording. The controller's telemetry feeds it; it knows nothing of the
+controller (the drivers' layer cannot), only the format.
 """
 
 from __future__ import annotations
@@ -24,20 +26,29 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
+import numpy as np
 from fluidsense.common.errors import ConfigError, RecordingError
 from fluidsense.common.samples import SampleBlock
-from fluidsense.controller.config import CellConfig
-from fluidsense.controller.cycles.analysis import Reference
-from fluidsense.controller.service import Sink
-from fluidsense.drivers.base import SampleSource
-from fluidsense.drivers.recording import RecordingWriter
-from fluidsense.drivers.recording_schema import REFERENCE
+
+from ..base import SampleSource
+from .config import RecordingConfig
+from .schema import REFERENCE
+from .writer import RecordingWriter
 
 log = logging.getLogger(__name__)
 
 MB = 2**20
+
+
+class HeldReference(Protocol):
+    """A free-air reference as the controller holds it (controller/cycles/analysis.py's
+    ``Reference``)."""
+
+    cycle_id: int
+    t_rel: np.ndarray  # s since the valve opened
+    p: np.ndarray  # offset-corrected actuator pressure, Pa
 
 
 def new_path(directory: Path, now: float | None = None) -> Path:
@@ -53,21 +64,23 @@ def new_path(directory: Path, now: float | None = None) -> Path:
     return path
 
 
-class RecordingSink(Sink):
-    """Writes what the controller sees. ``references`` returns the controller's free-air
-    references (written at the top of every file, so a later file replays on its own)."""
+class RecordingSink:
+    """Writes what the controller sees: a sink of the controller's telemetry (its
+    ``on_block``, ``on_event``, ``flush`` and ``close``). ``config``: the cell config as
+    JSON, with its JSON schema, at the top of every file; ``references`` returns the
+    controller's free-air references, written after it (so a later file replays on its
+    own)."""
 
-    def __init__(self, cfg: CellConfig, source: SampleSource | None = None,
-                 references: Callable[[], dict[float, Reference]] = dict):
-        self.cfg = cfg
-        self.rc = cfg.recording
+    def __init__(self, settings: RecordingConfig, config: dict[str, Any], config_schema: dict[str, Any],
+                 source: SampleSource | None = None,
+                 references: Callable[[], dict[float, HeldReference]] = dict):
+        self.rc = settings
         self.dir = Path(self.rc.dir).expanduser()
         self._references = references
         self._meta = {} if source is None else {"rate_hz": repr(float(source.rate_hz)),
                                                 "channels": ",".join(source.channels),
                                                 "virtual": str(bool(source.virtual)).lower()}
-        self._config = cfg.model_dump(mode="json")
-        self._schema = CellConfig.model_json_schema()
+        self._config, self._schema = config, config_schema
         self._t0_ns = time.time_ns()  # sample time 0 on the wall clock (for viewers' timelines)
         self._sync_pool = ThreadPoolExecutor(1, thread_name_prefix="recording-fsync") if self.rc.fsync else None
         self._sync_job: Future | None = None
@@ -91,7 +104,7 @@ class RecordingSink(Sink):
     def path(self) -> Path:
         return self._writer.path
 
-    # ------------------------------------------------------------ Sink
+    # ------------------------------------------------------------ the telemetry's Sink
     def on_block(self, block: SampleBlock) -> None:
         self._guard(self._writer.write_block, block)
         if block.t_end - self._flushed_t >= self.rc.flush_s:

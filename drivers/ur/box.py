@@ -1,18 +1,17 @@
-"""How the production drivers reach a UR control box: where it is, how they reconnect,
-the arm's limits and the box's own watchdog. The wiring itself (what is connected where)
-is common/wiring.py: the emulated box reads it too."""
+"""The UR control box as the ur and modbus drivers reach it: the arm's limits, the box's
+own vent watchdog, the rate its generation serves, and ``ControlBox``, what both
+drivers' entries tell the commands about the box (their shared base, ``UrBoxEntry``, is
+in config.py). The wiring itself (what is connected where) is common/wiring.py: the
+emulated box reads it too. Pydantic only: importing this imports neither ur_rtde nor
+pymodbus."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from fluidsense.common.models import Host, Integer, Port, Real, StrictModel
-from fluidsense.common.wiring import CONTROLLER_HZ, Wiring  # noqa: F401 - the drivers' configs take them from here
+from fluidsense.common.wiring import CONTROLLER_HZ, AnalogScale, Wiring
 from pydantic import Field
-
-from .sampler.config import SamplerOptions  # noqa: F401 - drivers' configs take it from here
-
-BLOCK_SIZE = ("samples per delivered block. The block period block_size / rate_hz must be at least 5 ms (the sample "
-              "loop yields to commands and signals only between blocks) and at most supervision.no_data_s / 5 "
-              "(else waiting for a block is a no_data fault); the cell config checks both")
 
 
 def check_controller_rate(rate_hz: float, controller: str, path: str) -> float:
@@ -23,15 +22,6 @@ def check_controller_rate(rate_hz: float, controller: str, path: str) -> float:
                          f"{controller} controllers (the box's control rate; a faster poll reads each value again "
                          "and stamps it as new); for 1 kHz use kind serial or nidaqmx (docs/drivers.md)")
     return rate_hz
-
-
-class Reconnect(StrictModel):
-    """After a lost link the source tries again, waiting ``first_s``, then twice as long
-    each time up to ``max_s``. The cell stays in FAULT until an operator resets it."""
-
-    first_s: Real = Field(0.5, gt=0, le=60)
-    max_s: Real = Field(10.0, gt=0, le=600)
-    connect_timeout_s: Real = Field(15.0, gt=0, le=120, description="time allowed to connect each time")
 
 
 class UrArmConfig(StrictModel):
@@ -55,3 +45,19 @@ class BoxWatchdogConfig(StrictModel):
     heartbeat_register: Integer = Field(200, ge=128, le=255, description="cells without an arm: the Modbus general "
                                     "purpose register the daemon increments and the box's program watches")
     script_port: Port = Field(30003, description="the box's URScript port (the watchdog is sent there at set-up)")
+
+
+@dataclass(frozen=True)
+class ControlBox:
+    """The UR control box behind a cell config: what ``fluidsense watchdog`` installs on
+    it and what ``fluidsense simcell`` emulates."""
+
+    host: str
+    controller: str  # e-series, cb3, or io-module (a Modbus I/O module serving the registers)
+    rate_hz: float  # the driver's analog input rate
+    wiring: Wiring
+    analog: AnalogScale
+    watchdog: BoxWatchdogConfig | None
+    arm: bool  # an arm moved through ur_rtde (its control script carries the RTDE watchdog)
+    modbus_port: int | None  # the driver's Modbus port; None: the driver does not use Modbus
+    sim_control_port: int | None  # a simulated cell's control port; None on a real box

@@ -1,4 +1,5 @@
-"""Replay: the live feature pipeline run again on a recording.
+"""Reanalysis (``fluidsense replay``): the controller's cycle analysis run again on a
+recording (drivers/recording/), each cycle compared with its live result.
 
 Valves cannot be commanded in a recording, so the sequencer is not re-run. What a cycle's
 features depend on is replayed instead: the recorded samples (through the replay
@@ -7,7 +8,7 @@ cycle's start with its P0, label and reference flag; its transitions, which give
 t_start, t_open and t_end and an abort's reason) and the recorded config's sequence. The
 cycle's blocks are those the live recorder took: after the start, up to the sample time
 at which the result was emitted. The features then come from the same
-``controller.cycle.analyse`` with the same reference handling as the controller
+``analysis.analyse`` with the same reference handling as the controller
 (``store_reference`` cycles make the reference for later cycles at the same P0). For a
 complete cycle the replayed result must equal the recorded one, float for float; a cycle
 cut off by the end of the recording is reported as incomplete with what its samples give.
@@ -34,9 +35,10 @@ from fluidsense.controller.cycles.analysis import (
     make_reference,
 )
 from fluidsense.controller.cycles.runner import reference_key
-from fluidsense.drivers.recording import Record, to_json
-from fluidsense.drivers.recording_schema import REFERENCE
-from fluidsense.drivers.replay import ReplaySource
+from fluidsense.drivers.recording.backend import ReplaySource
+from fluidsense.drivers.recording.messages import to_json
+from fluidsense.drivers.recording.reader import Record
+from fluidsense.drivers.recording.schema import REFERENCE
 
 log = logging.getLogger(__name__)
 

@@ -1,9 +1,21 @@
-"""The JSON schema of every channel a recording holds (MCAP channels carry them, so any
-MCAP tool can read a recording without fluidsense)."""
+"""What a recording holds: the format's name and version (its ``fluidsense`` metadata
+record), its topics, and the JSON schema of every channel (MCAP channels carry them, so
+any MCAP tool can read a recording without fluidsense). Files on disk depend on these
+names: change them only with ``FORMAT_VERSION``.
+
+The topics, in file order: ``/config`` (the first message), ``/reference`` (the free-air
+references held when the file was opened), then ``/samples`` (every block, SI units) and
+every controller event (``/state``, ``/cycle``, ``/fault``, ``/heartbeat``, ``/task``,
+``/cycle_start``, ``/command``), whose payloads are those of the published interface
+plus ``t_s``."""
 
 from __future__ import annotations
 
 from typing import Any
+
+FORMAT = "fluidsense-recording"
+FORMAT_VERSION = 1
+METADATA_NAME = "fluidsense"
 
 SAMPLES, CONFIG, REFERENCE = "samples", "config", "reference"  # topics of the recording itself
 

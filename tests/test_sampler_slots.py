@@ -10,8 +10,8 @@ import logging
 import pytest
 from fluidsense.common.errors import ConfigError
 from fluidsense.drivers.sampler import realtime
-from fluidsense.drivers.sampler.loop import Block, SlotLoop, SpinClock
 from fluidsense.drivers.sampler.poller import NoNewSample
+from fluidsense.drivers.sampler.slots import Block, SlotLoop, SpinClock
 from fluidsense.drivers.sampler.synthetic import SyntheticPoller
 from hypothesis import given, settings
 from hypothesis import strategies as st

@@ -1,0 +1,88 @@
+"""What every driver is to the rest of the house: one registry entry.
+
+A driver's config model (a subclass of ``DriverEntry`` with a ``kind``) names the module
+that builds its backend, and answers what the commands outside drivers/ ask of a cell:
+where it connects and what to check when it does not answer (``fluidsense check``), the
+UR robot and control box behind it, files it reads, whether its samples come from a
+seed. The defaults here describe a cell that has none of these; a driver overrides what
+applies to it. Nothing outside drivers/ looks at ``kind`` to decide anything
+(tests/test_driver_registry.py checks it), so adding a driver touches its config, its
+backend and the registry (drivers/config.py) only: docs/architecture.md, "Adding a
+driver".
+
+Importing this imports pydantic only: the backend's module (and ur_rtde, pymodbus,
+nidaqmx, the simulated plant) is imported when the backend is built.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, ClassVar
+
+from fluidsense.common.hardware import Hardware
+from fluidsense.common.models import StrictModel
+
+if TYPE_CHECKING:
+    from typing import Self
+
+    from .backend import Backend
+    from .ur.box import ControlBox
+    from .ur.dashboard import Robot
+
+BLOCK_SIZE = ("samples per delivered block. The block period block_size / rate_hz must be at least 5 ms (the sample "
+              "loop yields to commands and signals only between blocks) and at most supervision.no_data_s / 5 "
+              "(else waiting for a block is a no_data fault); the cell config checks both")
+
+
+class DriverEntry(StrictModel):
+    """The base of every driver's config (``driver:`` in a cell config). Subclasses add
+    ``kind: Literal[...]`` and their fields; methods only here, so a subclass's fields
+    keep their order."""
+
+    #: the module whose ``build(cfg, hardware, read_only=...)`` makes the Backend
+    backend_module: ClassVar[str]
+    #: a cell to connect to (False: a recording, which ``fluidsense check`` has nothing to look at)
+    live: ClassVar[bool] = True
+
+    def build(self, hardware: Hardware, read_only: bool = False) -> Backend:
+        """Import the backend's module now and build it (drivers/config.py's
+        ``build_backend`` says what ``read_only`` means)."""
+        return importlib.import_module(self.backend_module).build(self, hardware, read_only=read_only)
+
+    def where(self) -> str:
+        """The device ports the driver talks to, for messages."""
+        return f"the {self.kind} cell"  # every entry has a kind (its subclass declares it)
+
+    def what_to_check(self) -> str:
+        """What an operator checks when the device does not answer."""
+        return "check the config"
+
+    def robot(self) -> Robot | None:
+        """The UR robot behind the driver, whose dashboard tells its version and modes;
+        None for a cell without one."""
+        return None
+
+    def control_box(self) -> ControlBox | None:
+        """The UR control box the driver reaches (its vent watchdog, its emulation by
+        ``fluidsense simcell``); None for a cell without one."""
+        return None
+
+    def needs_operator(self) -> bool:
+        """Only an operator can place objects in front of the gripper (a real cell whose
+        scene no software lays out): a calibration then asks for each target."""
+        return False
+
+    def files(self) -> dict[str, str]:
+        """Fields that name a file which must exist when the config is loaded from a file
+        (field -> path, relative to the working directory)."""
+        return {}
+
+    def samples_seed(self) -> int | None:
+        """The seed that decides the cell's samples (same seed, same samples), or None for
+        a device or a recording."""
+        return None
+
+    def for_job(self, seed: int) -> Self:
+        """The driver as a CLI job runs it with ``--seed``: a simulated cell in virtual time
+        with that seed; any other driver as it is."""
+        return self

@@ -45,3 +45,16 @@ def test_controller_and_tasks_do_not_load_the_plant_or_ur_rtde_at_import():
             "print(bad); sys.exit(1 if bad else 0)")
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stdout + out.stderr
+
+
+def test_no_import_circle_in_the_package():
+    """No module of the product imports, through any chain, a module that imports it back
+    (the request layer once did: service <-> dispatch, gripper, status). The graph is
+    import-linter's own (grimp), TYPE_CHECKING imports included; the studies are left out."""
+    import grimp
+
+    graph = grimp.build_graph("fluidsense")
+    ours = {m for m in graph.modules if not m.startswith("fluidsense.lab")}
+    circles = [(a, b) for a in ours for b in graph.find_modules_directly_imported_by(a)
+               if b in ours and b != a and graph.chain_exists(importer=b, imported=a)]
+    assert len(ours) > 150 and not circles, circles[:5]

@@ -18,18 +18,14 @@ where they run.
 
 from __future__ import annotations
 
-import asyncio
 import logging
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
 from fluidsense.common.errors import (
     ConfigError,
-    DeviceTimeoutError,
-    DriverError,
     LinkLostError,
 )
 from fluidsense.common.hardware import Hardware, RegulatedCircuit, TankCircuit
@@ -37,60 +33,19 @@ from fluidsense.common.samples import SampleBlock
 
 from ..backend import Backend
 from ..base import Regulator, SampleSource, ValveBank
+from .calls import (
+    BufferOverflowError,
+    TaskThread,
+    close_task,
+    nidaqmx_package,
+    translate,
+)
 from .config import DaqRegulatorWiring, NiDaqDriverConfig
 from .watchdog import DaqWatchdog
 
 log = logging.getLogger(__name__)
 
 TaskFactory = Callable[[str], Any]
-
-
-class BufferOverflowError(DriverError):
-    """The input buffer filled before the loop read it: samples were lost."""
-
-
-def _daqmx():
-    try:
-        import nidaqmx  # noqa: PLC0415 - only a cell that asks for this driver needs NI's package
-    except ImportError as exc:
-        raise ConfigError("driver.kind: nidaqmx needs NI's Python package: pip install 'fluidsense[nidaqmx]' (and "
-                          "the NI-DAQmx runtime from NI)") from exc
-    return nidaqmx
-
-
-def translate(exc: Exception, what: str) -> Exception:
-    """A DAQmx error as one of ours, by its code (nidaqmx.error_codes.DAQmxErrors)."""
-    from nidaqmx.error_codes import DAQmxErrors as E  # noqa: PLC0415, N817
-    from nidaqmx.errors import DaqNotFoundError  # noqa: PLC0415
-
-    code = getattr(exc, "error_code", None)
-    text = f"{what}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
-    if isinstance(exc, DaqNotFoundError):
-        return ConfigError(f"driver: {text} (install the NI-DAQmx runtime)")
-    if code in (E.SAMPLES_NO_LONGER_AVAILABLE, E.ACQ_STOPPED_TO_PREVENT_INPUT_BUFFER_OVERWRITE,
-                E.ACQ_STOPPED_TO_PREVENT_INPUT_BUFFER_OVERWRITE_ONE_DATA_XFER_MECH):
-        return BufferOverflowError(f"{what}: the input buffer overflowed: samples were lost (the loop fell more "
-                                   "than driver.buffer_s behind); acquisition restarts")
-    if code == E.SAMPLES_NOT_YET_AVAILABLE:
-        return DeviceTimeoutError(text)
-    if code == E.DEVICE_REMOVED:
-        return LinkLostError(f"{text} (unplugged?)")
-    if code in (E.INVALID_DEVICE_ID, E.PHYSICAL_CHAN_DOES_NOT_EXIST):
-        return ConfigError(f"driver: {text}")
-    return DriverError(text)
-
-
-class _Worker:
-    """One thread for one task's blocking calls, in order."""
-
-    def __init__(self, name: str):
-        self._pool = ThreadPoolExecutor(1, thread_name_prefix=name)
-
-    async def run(self, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
-        return await asyncio.get_running_loop().run_in_executor(self._pool, lambda: fn(*args, **kwargs))
-
-    def close(self) -> None:
-        self._pool.shutdown(wait=False)
 
 
 class DaqSource(SampleSource):
@@ -103,7 +58,7 @@ class DaqSource(SampleSource):
         self._offset = np.array([o for _, o in affine])
         self.buffer = int(round(cfg.buffer_s * cfg.rate_hz))
         self._task: Any = None
-        self._worker = _Worker("daqmx-ai")
+        self._worker = TaskThread("daqmx-ai")
         self._k = 0  # sample time of the next sample, in samples
         self._k_start = 0  # the current acquisition's first sample
         self._origin: float | None = None
@@ -153,7 +108,7 @@ class DaqSource(SampleSource):
     async def _stop(self) -> None:
         task, self._task = self._task, None
         if task is not None:
-            await self._worker.run(_close, task)
+            await self._worker.run(close_task, task)
         self._worker.close()
 
     def _read(self) -> tuple[np.ndarray, float]:
@@ -189,20 +144,13 @@ class DaqSource(SampleSource):
         the host time it starts: the slots in between are reported missed."""
         old, self._task = self._task, None
         if old is not None:
-            await self._worker.run(_close, old)
+            await self._worker.run(close_task, old)
         await self._worker.run(self._start_task)
         self._restart = False
         k = max(self._k, int(np.ceil((time.monotonic() - self._origin) * self.rate_hz)))
         self._missed_pending = k - self._k
         self._k = k
         log.warning("%s: acquisition restarted at sample %d (%d slots missed)", self.name, k, self._missed_pending)
-
-
-def _close(task: Any) -> None:
-    try:
-        task.stop()
-    finally:
-        task.close()
 
 
 class DaqValves(ValveBank):
@@ -213,7 +161,7 @@ class DaqValves(ValveBank):
         self.reports_outputs = cfg.do_read_back
         self._levels = {v: w.level(safe[v]) for v, w in self.wiring.items()}
         self._task: Any = None
-        self._worker = _Worker("daqmx-do")
+        self._worker = TaskThread("daqmx-do")
 
     async def _setup(self) -> None:
         await self._worker.run(self._open)
@@ -266,7 +214,7 @@ class DaqRegulator(Regulator):
         super().__init__(f"nidaqmx {cfg.device} ao{wiring.analog_output}")
         self.cfg, self.wiring, self._factory = cfg, wiring, task_factory
         self._task: Any = None
-        self._worker = _Worker("daqmx-ao")
+        self._worker = TaskThread("daqmx-ao")
 
     async def _setup(self) -> None:
         await self._worker.run(self._open)
@@ -304,16 +252,16 @@ def build(cfg: NiDaqDriverConfig, hw: Hardware, task_factory: TaskFactory | None
     if read_only:  # set-up writes the valves' safe levels to the digital lines
         raise ConfigError("driver: the nidaqmx driver has no read-only mode (set-up writes the safe levels); "
                           "use fluidsense check --actuate")
-    factory = task_factory or _daqmx().Task
+    factory = task_factory or nidaqmx_package().Task
     valves = DaqValves(cfg, hw.circuit.safe_valves, factory)
     regulated = isinstance(hw.circuit, (TankCircuit, RegulatedCircuit)) and cfg.wiring.regulator is not None
     regulator = DaqRegulator(cfg, cfg.wiring.regulator, factory) if regulated else None
     watchdog = None
     if cfg.watchdog.enabled:  # set up after the valves and the regulator: their safe levels are written first
         if watchdog_factory is None:
-            _daqmx()
+            nidaqmx_package()
             from nidaqmx.system import WatchdogTask as watchdog_factory  # noqa: PLC0415, N813
         watchdog = DaqWatchdog(cfg, valves.wiring, hw.circuit.safe_valves, cfg.wiring.regulator if regulated else None,
-                               watchdog_factory, _Worker("daqmx-wdt"))
+                               watchdog_factory, TaskThread("daqmx-wdt"))
     return Backend(name="nidaqmx", source=DaqSource(cfg, hw, factory), valves=valves, regulator=regulator,
                    watchdog=watchdog)

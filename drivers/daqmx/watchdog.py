@@ -19,6 +19,7 @@ from typing import Any
 from fluidsense.common.errors import ConfigError, DriverError
 
 from ..base import BoxWatchdog
+from .calls import close_task, translate
 from .config import DaqRegulatorWiring, DaqValveWiring, NiDaqDriverConfig
 
 log = logging.getLogger(__name__)
@@ -41,7 +42,6 @@ class DaqWatchdog(BoxWatchdog):
         from nidaqmx.error_codes import DAQmxErrors as E  # noqa: PLC0415, N817
         from nidaqmx.types import AOExpirationState, DOExpirationState  # noqa: PLC0415
 
-        from .backend import translate  # noqa: PLC0415 - backend imports this module
 
         try:
             task = self._factory(self.cfg.device, f"fluidsense-wdt-{self.cfg.device}", self.timeout_s)
@@ -95,9 +95,8 @@ class DaqWatchdog(BoxWatchdog):
             log.warning("%s: expiration cleared; the lines hold their safe levels until written", self.name)
 
     async def _stop(self) -> None:
-        from .backend import _close  # noqa: PLC0415 - backend imports this module
 
         task, self._task = self._task, None
         if task is not None:
-            await self._worker.run(_close, task)  # disarmed: the service vented before it stops
+            await self._worker.run(close_task, task)  # disarmed: the service vented before it stops
         self._worker.close()

@@ -1,5 +1,6 @@
-/* The simulated AVR board's state, shared by its two files: board_simavr.c (the process:
- * pacing, the pty, the plant link) and mcu.c (simavr: the MCU, its pins and lines). */
+/* The simulated AVR board's state (plant.c: it, the clock and the plant link), shared by
+ * board_simavr.c (the process: pacing, the pty) and mcu.c (simavr: the MCU, its pins and
+ * lines). */
 #ifndef SIM_H
 #define SIM_H
 
@@ -63,6 +64,7 @@ struct sim {
 
 extern struct sim S;
 
+/* plant.c */
 uint64_t now_ns(void);
 uint64_t cycle_ns(uint64_t cycle);
 void to_plant(uint8_t kind, uint32_t tick, uint32_t extra, uint64_t t_ns, uint64_t next_ns);

@@ -20,7 +20,6 @@ from pathlib import Path
 import pytest
 import yaml
 from fluidsense.client import Gripper
-from support.gripper import drain
 from support.harness import REPO, SIMCELL_PORTS, Daemon, free_loopback, free_simcell, simcell_config
 
 EXAMPLES = REPO / "examples"

@@ -222,21 +222,23 @@ def test_a_grip_waiting_across_a_daemon_restart_ends_and_never_takes_the_new_dae
 
     waiter = threading.Thread(target=grip_a, daemon=True)
     waiter.start()
-    while x.request({"cmd": "status"})["gripper_op"] != "grip":
-        pass  # paced by X's replies: A's grip has been answered once X says it grips
+    while x.request({"cmd": "status"})["gripper_op"] != "grip":  # paced by X's replies
+        assert waiter.is_alive(), outcome  # A's grip ended before X took it
     first = x.instance
     x.proc.kill()  # its helper processes end with it (PR_SET_PDEATHSIG)
     assert x.proc.wait(30) == -9
     y = daemon_factory(config("virtual"))
     y.wait_welcome()
     assert y.instance != first
-    with Gripper(y.cmd, y.pub) as b:
-        theirs = b.grip()
-        assert theirs.cycle_id == 1 and theirs.size.value_mm == pytest.approx(60, abs=3)
-        waiter.join(60)
-        assert not waiter.is_alive()
-        b.release()
-    a.close()
+    try:
+        with Gripper(y.cmd, y.pub) as b:
+            theirs = b.grip()
+            assert theirs.cycle_id == 1 and theirs.size.value_mm == pytest.approx(60, abs=3)
+            b.release()
+    finally:
+        waiter.join(90)  # A's wait ends within its event_timeout_s whatever happens
+        if not waiter.is_alive():
+            a.close()  # an unclosed client's context would block the interpreter's exit
     (got,) = outcome
     assert isinstance(got, DaemonRestarted), got
     assert (got.waited, got.now) == (first, y.instance)

@@ -8,7 +8,7 @@ import sys
 from typing import Any, TextIO
 
 import zmq
-from fluidsense.common.names import WELCOME
+from fluidsense.common.names import WELCOME, welcome_instance
 
 NOT_RUNNING = ("the daemon may not be running (fluidsense run), or it listens elsewhere "
                "(its {what} endpoint: --endpoint, or {option} in --config)")
@@ -41,7 +41,7 @@ def format_message(topic: str, msg: dict[str, Any]) -> str | None:
         return f"[{t:10.3f}] pressure " + ", ".join(f"{c} {v:.2f} kPa" for c, v in zip(ch, last))
     if topic in ("task", "log"):
         return f"[{t:10.3f}] {topic}: " + json.dumps({k: v for k, v in msg.items()
-                                                     if k not in ("schema", "topic", "seq", "t_s")})
+                                                     if k not in ("schema", "instance", "topic", "seq", "t_s")})
     return None
 
 
@@ -68,9 +68,11 @@ def monitor(endpoint: str, topics: list[str], count: int | None, timeout_s: floa
                           f"{NOT_RUNNING.format(what='publisher', option='publisher.pub')}", file=sys.stderr)
                 return 0 if shown else 1
             frames = sock.recv_multipart()
-            if frames == [WELCOME]:
-                if not as_json:
-                    print(f"(connected to {endpoint})", file=sys.stderr, flush=True)
+            welcome = welcome_instance(frames)
+            if welcome is not None:
+                if not as_json:  # a new id here: another daemon on the same endpoint (a restart)
+                    print(f"(connected to {endpoint}" + (f", daemon {welcome})" if welcome else ")"),
+                          file=sys.stderr, flush=True)
                 continue
             if len(frames) != 2:
                 continue

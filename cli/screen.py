@@ -5,6 +5,12 @@ faults, heartbeats) and, once a second, ``status`` on the command socket (the va
 outputs as the device reports them, the fault in full, whether the vent was confirmed).
 ``View`` keeps what was heard and ``render`` turns it into lines; both are plain
 functions of the messages, so that tests read the screen without a terminal.
+
+Nothing stale is shown as current: every message and status reply names the daemon
+instance it comes from, and one from another instance (a daemon restarted on the same
+endpoints) starts the view afresh, so that its sample time, cycle and counts are never
+mixed with the old one's. A daemon that says it stopped (its last message), or stops
+answering ``status``, is shown as such: no state, its last results marked as its last.
 """
 
 from __future__ import annotations
@@ -17,7 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any, TextIO
 
 import zmq
-from fluidsense.common.names import WELCOME
+from fluidsense.common.names import welcome_instance
 
 TRACE_S = 10.0  # seconds of pressure in the trace
 TRACE_COLS = 60
@@ -25,6 +31,7 @@ SPARK = "▁▂▃▄▅▆▇█"
 RESULTS = 5
 REDRAW_S = 0.25
 STATUS_S = 1.0
+STATUS_TIMEOUT_S = 0.5
 
 # what a fault means and what to do next (docs/bringup.md, "What each fault means")
 FAULT_ADVICE = {
@@ -63,14 +70,31 @@ class View:
     missed_messages: int = 0
     last_seq: int | None = None
     heard: bool = False
+    instance: str = ""  # the daemon instance all of this is from ("": one that sends no id)
+    gone: str | None = None  # why the daemon is taken to be gone (stopped, not answering), else None
+
+    def _same_daemon(self, instance: str | None) -> None:
+        """A message or reply from another daemon instance: forget the old one's."""
+        if instance and instance != self.instance:
+            if self.instance:
+                self.__init__()  # a fresh view: nothing of the old daemon is kept or mixed in
+            self.instance = instance
+
+    def take_welcome(self, instance: str) -> None:
+        self._same_daemon(instance)
 
     def take(self, topic: str, msg: dict[str, Any]) -> None:
+        self._same_daemon(msg.get("instance"))
         self.heard = True
         seq = msg.get("seq")
         if self.last_seq is not None and seq is not None and seq > self.last_seq + 1:
             self.missed_messages += seq - self.last_seq - 1
         self.last_seq = seq if seq is not None else self.last_seq
         self.t_s = max(self.t_s, float(msg.get("t_s") or 0.0))
+        if topic == "log" and msg.get("message") == "controller stopped":  # the daemon's last message
+            self.lost("stopped")
+            return
+        self.gone = None
         if topic == "pressure":
             self.channels, self.units = msg["channels"], msg.get("units", ["kPa"] * len(msg["channels"]))
             for i, t in enumerate(msg["times_s"]):
@@ -92,9 +116,19 @@ class View:
 
     def take_status(self, status: dict[str, Any]) -> None:
         """A ``status`` reply: an idle daemon in virtual time publishes nothing, status still says where it is."""
-        self.heard, self.status, self.status_error = True, status, None
+        self._same_daemon(status.get("instance"))
+        self.heard, self.status, self.status_error, self.gone = True, status, None, None
         self.state, self.cycle_id = status.get("state", self.state), status.get("cycle_id", self.cycle_id)
         self.t_s = max(self.t_s, float(status.get("t_s") or 0.0))
+
+    def lost(self, why: str) -> None:
+        """The daemon stopped, or does not answer ``status`` (``why``): what it was doing is
+        no longer known. Its results stay, marked as its last."""
+        self.gone = self.gone or why  # the first word stays: "stopped", then no replies
+        self.state, self.cycle_id, self.status = "?", None, None
+        self.heartbeat, self.trace, self.channels, self.units = {}, deque(), [], []
+        if why != "stopped":
+            self.status_error = why
 
 
 def sparkline(values: list[float], cols: int = TRACE_COLS) -> str:
@@ -137,8 +171,13 @@ def render(view: View, sub_endpoint: str, cmd_endpoint: str | None) -> list[str]
                 "nothing heard yet: is it running (fluidsense run), and is this its publisher endpoint "
                 "(--endpoint, or publisher.pub in --config)?"]
     hb = view.heartbeat
-    lines = [f"fluidsense  t {view.t_s:9.3f} s   state {view.state.upper()}   cycle {view.cycle_id}"
-             + ("   (virtual time)" if hb.get("virtual") else "")]
+    daemon = f"   daemon {view.instance}" if view.instance else ""
+    if view.gone is not None:
+        who = f"the daemon {view.instance}" if view.instance else "the daemon"
+        lines = [f"fluidsense  {who}: {view.gone}; its state is not known (last heard at t {view.t_s:.3f} s)"]
+    else:
+        lines = [f"fluidsense  t {view.t_s:9.3f} s   state {view.state.upper()}   cycle {view.cycle_id}"
+                 + ("   (virtual time)" if hb.get("virtual") else "") + daemon]
     if hb:
         lines.append(f"loop: {hb.get('samples', 0)} samples, {hb.get('missed', 0)} missed, {hb.get('late', 0)} late"
                      f", block p99 {hb.get('block_proc_us', {}).get('p99', 0):.0f} us"
@@ -157,11 +196,11 @@ def render(view: View, sub_endpoint: str, cmd_endpoint: str | None) -> list[str]
         lines.append(_valves(st) + f"   vented: {st.get('vented')}")
     elif cmd_endpoint is not None:
         lines.append(f"valves: no status from {cmd_endpoint}" + (f" ({view.status_error})" if view.status_error else ""))
-    lines += ["", "last results:"]
+    lines += ["", "last results:" if view.gone is None else "last results (of the daemon that is gone):"]
     lines += [f"  {result_line(r)}" for r in reversed(view.results)] or ["  none yet"]
     if view.task is not None:
         lines.append("task: " + json.dumps({k: v for k, v in view.task.items()
-                                            if k not in ("schema", "topic", "seq", "t_s")})[:200])
+                                            if k not in ("schema", "instance", "topic", "seq", "t_s")})[:200])
     fault = (st or {}).get("fault") or (view.faults[-1] if view.faults else None)
     if fault:
         kind = fault.get("kind", "?")
@@ -198,15 +237,18 @@ def run_screen(sub_endpoint: str, cmd_endpoint: str | None, out: TextIO = sys.st
                         frames = sock.recv_multipart(zmq.NOBLOCK)
                     except zmq.Again:
                         break
-                    if frames != [WELCOME] and len(frames) == 2:
+                    welcome = welcome_instance(frames)
+                    if welcome is not None:
+                        view.take_welcome(welcome)
+                    elif len(frames) == 2:
                         view.take(frames[0].decode(), json.loads(frames[1]))
             now = time.monotonic()
             if cmd_endpoint is not None and now >= next_status:
                 next_status = now + STATUS_S
                 try:
-                    view.take_status(send_command(cmd_endpoint, {"cmd": "status"}, 0.5))
-                except TimeoutError as exc:
-                    view.status, view.status_error = None, str(exc).split(":")[0]
+                    view.take_status(send_command(cmd_endpoint, {"cmd": "status"}, STATUS_TIMEOUT_S))
+                except TimeoutError:  # its message names the endpoint, which the screen says already
+                    view.lost(f"not answering status within {STATUS_TIMEOUT_S:g} s")
             if now >= next_draw:
                 next_draw = now + REDRAW_S
                 draw(render(view, sub_endpoint, cmd_endpoint), out)

@@ -11,7 +11,8 @@
 ``AsyncGripper`` is the same for asyncio: both run the calls of one core (core.py).
 Requests go over a REQ socket that is made again after a timeout (a REQ socket that missed
 its reply is stuck); events come over a SUB socket attached before the first request, so
-no event of a request is missed. CURVE keys are optional (``curve=(client secret key
+no event of a request is missed. A wait takes events only from the daemon instance that
+answered its request: a restart on the same endpoints ends it with ``DaemonRestarted``. CURVE keys are optional (``curve=(client secret key
 file, server public key file)``). The messages and their fields: docs/zmq-schema.md.
 """
 
@@ -21,6 +22,7 @@ from .aio import AsyncGripper
 from .sync import Gripper
 from .types import (
            Contact,
+           DaemonRestarted,
            Estimate,
            Event,
            Grasp,
@@ -32,5 +34,5 @@ from .types import (
            typed,
 )
 
-__all__ = ["AsyncGripper", "Contact", "Estimate", "Event", "GRIPPER_TOPICS", "Grasp", "GripEnded", "Gripper",
+__all__ = ["AsyncGripper", "Contact", "DaemonRestarted", "Estimate", "Event", "GRIPPER_TOPICS", "Grasp", "GripEnded", "Gripper",
            "NoReply", "Refused", "Released", "Slip", "typed"]

@@ -6,7 +6,10 @@ the subscription), is sent back what came of it, and returns the call's result. 
 runs the steps its own way, blocking or awaited, and decides nothing else. So what a
 request does after a timeout, how an attached subscription is known (the daemon's
 welcome), and which event a wait is for are decided in one place: ``Session._take`` sees
-every message that arrives, ``matches`` decides every wait.
+every message that arrives, ``matches`` decides every wait. A wait is tied to the daemon
+instance that answered its request (its id is in the reply, the welcome and every event):
+cycle ids start again at 1 after a restart, so an id alone would match another client's
+cycle on the new daemon. A welcome from another instance ends the wait (``DaemonRestarted``).
 """
 
 from __future__ import annotations
@@ -19,9 +22,9 @@ from collections.abc import Generator
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
-from fluidsense.common.names import WELCOME
+from fluidsense.common.names import welcome_instance
 
-from .types import Event, Grasp, GripEnded, NoReply, Refused, Released
+from .types import DaemonRestarted, Event, Grasp, GripEnded, NoReply, Refused, Released
 
 T = TypeVar("T")
 
@@ -61,8 +64,10 @@ def decode(frames: list[bytes]) -> Event | None:
         return None
 
 
-def matches(ev: Event, topic: str, cycle_id: int | None) -> bool:
-    return ev.topic == topic and (cycle_id is None or ev.data.get("cycle_id") == cycle_id)
+def matches(ev: Event, topic: str, cycle_id: int | None, instance: str = "") -> bool:
+    """``instance`` "": any (a daemon that sends no id)."""
+    return (ev.topic == topic and (cycle_id is None or ev.data.get("cycle_id") == cycle_id)
+            and (not instance or not ev.instance or ev.instance == instance))
 
 
 def _left(deadline: float | None) -> float | None:
@@ -78,6 +83,8 @@ class Session:
         self.timeout_s, self.event_timeout_s = timeout_s, event_timeout_s
         self.pending: deque[Event] = deque(maxlen=10_000)
         self.attached = pub is None  # nothing to attach to
+        self.instance = ""  # the daemon instance of the last welcome ("" before one, or none sent)
+        self._restarted: str | None = None  # a welcome from another instance came: its id
 
     # ------------------------------------------------------------------ requests
     def request(self, body: dict[str, Any], timeout_s: float | None = None) -> Call[dict[str, Any]]:
@@ -103,7 +110,8 @@ class Session:
         if not wait:
             return reply["cycle_id"]
         limit = self.event_timeout_s if timeout_s is None else timeout_s + self.timeout_s
-        return Grasp.of((yield from self.wait_for("grasp", reply["cycle_id"], limit, fail_on_end=True)))
+        return Grasp.of((yield from self.wait_for("grasp", reply["cycle_id"], limit, fail_on_end=True,
+                                                  instance=self._of(reply))))
 
     def measure(self, p0_kpa: float | None = None, label: str | None = None, store_reference: bool = False,
                 wait: bool = True) -> Call[Grasp | int]:
@@ -113,8 +121,8 @@ class Session:
         if not wait:
             return reply["cycle_id"]
         grasp = Grasp.of((yield from self.wait_for("grasp", reply["cycle_id"], self.event_timeout_s,
-                                                   fail_on_end=True)))
-        yield from self.wait_for("released", reply["cycle_id"], self.event_timeout_s)
+                                                   fail_on_end=True, instance=self._of(reply))))
+        yield from self.wait_for("released", reply["cycle_id"], self.event_timeout_s, instance=self._of(reply))
         return grasp
 
     def release(self, wait: bool = True) -> Call[Released | int]:
@@ -122,7 +130,8 @@ class Session:
         reply = yield from self.request({"cmd": "release"})
         if not wait:
             return reply["cycle_id"]
-        return Released.of((yield from self.wait_for("released", reply["cycle_id"], self.event_timeout_s)))
+        return Released.of((yield from self.wait_for("released", reply["cycle_id"], self.event_timeout_s,
+                                                     instance=self._of(reply))))
 
     def abort(self, reason: str = "client") -> Call[bool]:
         return (yield from self.request({"cmd": "abort", "reason": reason}))["aborted"]
@@ -147,11 +156,16 @@ class Session:
 
     def next_event(self, timeout_s: float | None = None) -> Call[Event | None]:
         """The next event (None after ``timeout_s``; None: wait for ever)."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        return (yield from self._next(deadline))
+
+    def _next(self, deadline: float | None, until_restart: bool = False) -> Call[Event | None]:
+        """The next event before ``deadline``; with ``until_restart``, None as soon as
+        another daemon instance welcomes the subscription too."""
         if self.pending:
             return self.pending.popleft()
         if self.pub_endpoint is None:
             raise ValueError("this client subscribes to nothing (made with pub=None)")
-        deadline = None if timeout_s is None else time.monotonic() + timeout_s
         while True:
             frames = yield Listen(_left(deadline))
             if frames is None:
@@ -159,31 +173,51 @@ class Session:
             ev = self._take(frames)
             if ev is not None:
                 return ev
+            if until_restart and self._restarted is not None:
+                return None
 
-    def wait_for(self, topic: str, cycle_id: int | None, timeout_s: float, fail_on_end: bool = False) -> Call[Event]:
-        """The next ``topic`` event of the cycle; others are kept for ``events()``."""
+    def wait_for(self, topic: str, cycle_id: int | None, timeout_s: float, fail_on_end: bool = False,
+                 instance: str | None = None) -> Call[Event]:
+        """The next ``topic`` event of the cycle from daemon ``instance`` (None: the one
+        that welcomed this client last; "": any); others are kept for ``events()``.
+        ``DaemonRestarted`` once another instance welcomes the subscription."""
+        instance = self.instance if instance is None else instance
+        what = f"{topic} of cycle {cycle_id}"
         deadline = time.monotonic() + timeout_s
         skipped: list[Event] = []
+        self._restarted = None
         try:
             while True:
-                ev = yield from self.next_event(_left(deadline))
-                if ev is None:
-                    raise NoReply(f"no {topic} of cycle {cycle_id} within {timeout_s:g} s")
-                if matches(ev, topic, cycle_id):
+                ev = yield from self._next(deadline, until_restart=bool(instance))
+                if ev is not None and matches(ev, topic, cycle_id, instance):
                     return ev
+                if self._restarted is not None and instance and self._restarted != instance:
+                    raise DaemonRestarted(what, instance, self._restarted)
+                if ev is None:
+                    raise NoReply(f"no {what} within {timeout_s:g} s")
                 skipped.append(ev)
-                if fail_on_end and matches(ev, "released", cycle_id):
+                if fail_on_end and matches(ev, "released", cycle_id, instance):
                     raise GripEnded(Released.of(ev))
         finally:
             self.pending.extendleft(reversed(skipped))
 
+    def _of(self, reply: dict[str, Any]) -> str:
+        """The instance that answered a request: its reply says (a daemon before schema
+        version 2 does not: then the last welcome's)."""
+        return str(reply.get("instance") or self.instance)
+
     def _take(self, frames: list[bytes]) -> Event | None:
-        """Every message of the subscription comes through here: the welcome attaches it,
-        an event is decoded, anything else is passed over."""
-        if frames == [WELCOME]:
-            self.attached = True
-            return None
-        return decode(frames)
+        """Every message of the subscription comes through here: the welcome attaches it
+        (and says which daemon instance it is), an event is decoded, anything else is
+        passed over."""
+        welcome = welcome_instance(frames)
+        if welcome is None:
+            return decode(frames)
+        self.attached = True
+        if welcome and welcome != self.instance:
+            self._restarted = welcome if self.instance else None
+            self.instance = welcome
+        return None
 
 
 #: the calls a face offers: every public generator method of the session

@@ -29,6 +29,18 @@ class GripEnded(FluidsenseError, RuntimeError):
         self.released = released
 
 
+class DaemonRestarted(FluidsenseError, ConnectionError):
+    """A call waited for events of the daemon instance that answered its request, and
+    another instance (a restart on the same endpoints) welcomed the subscription: those
+    events will never come, and cycle ids start again at 1, so a later event with the same
+    id is another client's. ``waited``: the instance id waited on, ``now``: the new one."""
+
+    def __init__(self, what: str, waited: str, now: str):
+        super().__init__(f"the daemon was restarted while waiting for {what} (instance {waited}, now {now}): "
+                         "its events will not come; request again")
+        self.waited, self.now = waited, now
+
+
 @dataclass(frozen=True)
 class Estimate:
     quantity: str  # "diameter", "height", ...
@@ -46,7 +58,8 @@ class Estimate:
 
 @dataclass(frozen=True)
 class Event:
-    """Any published message: ``topic``, its sequence numbers and times, and ``data``."""
+    """Any published message: ``topic``, its sequence numbers and times, ``instance`` (the
+    daemon's id, "" from a daemon that sends none), and ``data``."""
 
     topic: str
     seq: int
@@ -54,10 +67,12 @@ class Event:
     t_s: float
     utc_s: float
     data: dict[str, Any] = field(repr=False)
+    instance: str = ""
 
     @classmethod
     def of(cls, msg: dict[str, Any]) -> Event:
-        return cls(msg["topic"], msg["seq"], msg.get("topic_seq", msg["seq"]), msg["t_s"], msg.get("utc_s", 0.0), msg)
+        return cls(msg["topic"], msg["seq"], msg.get("topic_seq", msg["seq"]), msg["t_s"], msg.get("utc_s", 0.0), msg,
+                   str(msg.get("instance") or ""))
 
 
 @dataclass(frozen=True)

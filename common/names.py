@@ -32,5 +32,26 @@ COMMANDS = ("status", "cycle", "abort", "reset", "scene", "task", "shutdown", "g
 #: events of a grip, which the client library types
 GRIPPER_TOPICS = ("contact", "grasp", "slip", "released")
 TOPICS = ("pressure", "state", "cycle", "heartbeat", "fault", "task", "log", *GRIPPER_TOPICS)
-#: the one-frame message a subscriber gets when its subscription is attached
+#: the one-frame message a subscriber gets when its subscription is attached: ``hello``, a
+#: space and the id of the daemon instance that sent it (``welcome_frame``). Subscribe to
+#: ``hello`` (a prefix) to get it.
 WELCOME = b"hello"
+#: the id's length (hex digits): random per daemon start, so a restart on the same ports is told
+INSTANCE_HEX = 16
+
+
+def welcome_frame(instance: str) -> bytes:
+    return WELCOME + b" " + instance.encode("ascii")
+
+
+def welcome_instance(frames: list[bytes]) -> str | None:
+    """The instance id of a welcome message, ``""`` for a welcome without one (a daemon
+    before schema version 2), None for anything that is not a welcome."""
+    if len(frames) != 1:
+        return None
+    frame = frames[0]
+    if frame == WELCOME:
+        return ""
+    if frame.startswith(WELCOME + b" "):
+        return frame[len(WELCOME) + 1:].decode("ascii", "replace")
+    return None

@@ -65,10 +65,11 @@ def bind_publisher(cfg: CellConfig, hwm: int | None = None) -> Publisher:
         raise ConfigError(f"publisher.pub: cannot bind {cfg.publisher.pub}: {exc}") from exc
 
 
-def bind_command_server(cfg: CellConfig) -> CommandServer:
-    """The command socket, bound; it serves once the controller runs."""
+def bind_command_server(cfg: CellConfig, instance: str | None = None) -> CommandServer:
+    """The command socket, bound; it serves once the controller runs. ``instance``: the
+    daemon's id (its publisher's), which its replies carry."""
     try:
-        return CommandServer(cfg.publisher.cmd, curve=cfg.publisher.cmd_curve)
+        return CommandServer(cfg.publisher.cmd, curve=cfg.publisher.cmd_curve, instance=instance)
     except (zmq.ZMQError, OSError, ValueError) as exc:
         raise ConfigError(f"publisher.cmd: cannot bind {cfg.publisher.cmd}: {exc}") from exc
 
@@ -203,7 +204,7 @@ async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: N
     stop = asyncio.Event()
     pub = bind_publisher(cfg)
     try:
-        server = bind_command_server(cfg)
+        server = bind_command_server(cfg, pub.instance)
     except BaseException:
         pub.close()
         raise

@@ -3,17 +3,28 @@ gripper by the fluidsense client.
 
     fluidsense simcell --config config/cell-gripper-modbus-sim.yaml &     # or a real UR box
     fluidsense run --config config/cell-gripper-modbus-sim.yaml &
-    python examples/pick_and_place.py --robot 127.0.0.1
+    python examples/pick_and_place.py --config config/cell-gripper-modbus-sim.yaml --emulated-object 60
 
-The arm's program is this script's (ur_rtde's control script): the daemon's cell config
-must leave the arm to it (``arm: null``), as that one does; that is how the test suite runs
-it. Without ``--robot`` the arm moves are only printed. The poses are the sorting task's slots
-(config/tasks/sorting.yaml); change them for your cell.
+``--config`` reads from the daemon's cell config where the daemon listens (``publisher``)
+and where the robot is (``driver.host``); ``--cmd``, ``--pub`` and ``--robot`` say it
+instead. The arm's program is this script's (ur_rtde's control script): the daemon's cell
+config must leave the arm to it (``arm: null``), as that one does. Without a robot the arm
+moves are only printed. The poses are the sorting task's slots (config/tasks/sorting.yaml);
+change them for your cell.
+
+Before it grips, the gripper needs a free-air reference (a measure with nothing in it) to
+tell an object from none: if the daemon has none, this script takes one first, with the
+arm where it starts (keep the fingers clear there). And an object must be at the pick
+slot: on a real cell, put it there; against the emulated box, ``--emulated-object
+DIAMETER_MM`` lays a cylinder there through the box's sim control port
+(``driver.sim_control_port``).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import socket
 import sys
 
 from fluidsense.client import GripEnded, Gripper, Refused
@@ -21,6 +32,7 @@ from fluidsense.client import GripEnded, Gripper, Refused
 PICK = [0.40, -0.20, 0.10, 0.0, 3.14, 0.0]
 PLACE = [0.40, 0.20, 0.10, 0.0, 3.14, 0.0]
 APPROACH_M = 0.05
+READY_WAIT_S = 120.0  # a daemon started a moment ago connects to its box first
 
 
 class Arm:
@@ -47,21 +59,69 @@ class Arm:
             self.rtde.stopScript()
 
 
+def place_emulated_object(host: str, port: int, diameter_mm: float) -> None:
+    """The emulated box's world: a cylinder at the pick slot, the place slot empty."""
+    world = {"slots": [{"name": "pick", "pose": PICK, "object": "cylinder"}, {"name": "place", "pose": PLACE}],
+             "objects": [{"name": "cylinder", "diameter_mm": diameter_mm, "min_grip_kpa": 0.5}]}
+    with socket.create_connection((host, port), timeout=10) as sock:
+        sock.sendall(json.dumps({"cmd": "world", "world": world}).encode() + b"\n")
+        reply = json.loads(sock.makefile().readline() or "{}")
+    if not reply.get("ok"):
+        raise RuntimeError(f"the emulated box at {host}:{port} did not take the world: {reply}")
+
+
+def from_config(path: str) -> dict:
+    """The daemon's endpoints, the robot's address and the emulated box's control port."""
+    import yaml
+
+    with open(path) as f:
+        cfg = yaml.safe_load(f)
+    pub = cfg.get("publisher") or {}
+    driver = cfg.get("driver") or {}
+    return {"cmd": pub.get("cmd"), "pub": pub.get("pub"), "robot": driver.get("host"),
+            "sim_control_port": driver.get("sim_control_port")}
+
+
+def wait_until_ready(g: Gripper) -> dict:
+    """The daemon's status once it has connected to its devices (it refuses grips before)."""
+    import time
+
+    deadline = time.monotonic() + READY_WAIT_S
+    while (status := g.status())["state"] == "connecting" and time.monotonic() < deadline:
+        time.sleep(0.5)  # a person's script polling a daemon that is still connecting
+    return status
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--robot", help="the UR controller's address (ur_rtde); without it, moves are printed")
-    p.add_argument("--cmd", default="tcp://127.0.0.1:5561")
-    p.add_argument("--pub", default="tcp://127.0.0.1:5560")
+    p.add_argument("--config", help="the daemon's cell config: its endpoints and the robot's address")
+    p.add_argument("--cmd", help="the daemon's command endpoint (default tcp://127.0.0.1:5561)")
+    p.add_argument("--pub", help="the daemon's event endpoint (default tcp://127.0.0.1:5560)")
+    p.add_argument("--emulated-object", type=float, metavar="DIAMETER_MM",
+                   help="emulated box only: put a cylinder this wide at the pick slot first")
     p.add_argument("--speed", type=float, default=0.25)
     p.add_argument("--acc", type=float, default=0.5)
     args = p.parse_args(argv)
-    try:
-        arm = Arm(args.robot, args.speed, args.acc)
-    except RuntimeError as exc:  # ur_rtde: no robot there, or not in remote control
-        print(f"pick_and_place: the robot at {args.robot}: {exc}", file=sys.stderr)
-        return 3
-    with Gripper(args.cmd, args.pub) as g:
+    cfg = from_config(args.config) if args.config else {}
+    args.cmd = args.cmd or cfg.get("cmd") or "tcp://127.0.0.1:5561"
+    args.pub = args.pub or cfg.get("pub") or "tcp://127.0.0.1:5560"
+    args.robot = args.robot or cfg.get("robot")
+    if args.emulated_object is not None and (not args.robot or not cfg.get("sim_control_port")):
+        p.error("--emulated-object needs --config naming the emulated box (driver.host, driver.sim_control_port)")
+    with Gripper(args.cmd, args.pub, timeout_s=30.0) as g:
+        status = wait_until_ready(g)  # and so is the box: the daemon has connected to it
+        if args.emulated_object is not None:
+            place_emulated_object(args.robot, cfg["sim_control_port"], args.emulated_object)
         try:
+            arm = Arm(args.robot, args.speed, args.acc)
+        except RuntimeError as exc:  # ur_rtde: no robot there, or not in remote control
+            print(f"pick_and_place: the robot at {args.robot}: {exc}", file=sys.stderr)
+            return 3
+        try:
+            if not status.get("references_kpa"):  # object or not cannot be told without one
+                ref = g.measure(store_reference=True)
+                print(f"free-air reference taken (cycle {ref.cycle_id})")
             arm.move(arm.above(PICK), "approach")
             arm.move(PICK, "pick")
             grasp = g.grip()

@@ -14,9 +14,10 @@ import threading
 import pytest
 import zmq
 import zmq.asyncio
-from fluidsense.client import AsyncGripper, GripEnded, Gripper, NoReply, Refused
+from fluidsense.client import AsyncGripper, DaemonRestarted, GripEnded, Gripper, NoReply, Refused
 from fluidsense.client.core import Exchange, Listen, Session
-from fluidsense.common.names import WELCOME
+from fluidsense.common.errors import FluidsenseError
+from fluidsense.common.names import WELCOME, welcome_frame
 
 
 def event(topic: str, seq: int, **data) -> list[bytes]:
@@ -86,6 +87,32 @@ def test_a_grip_whose_cycle_ends_first_says_how_it_ended():
     assert isinstance(ended, GripEnded) and ended.released.reason == "fault: leak" and not ended.released.ok
     assert steps[1].timeout_s <= 30.0 + 2.0  # the grip's own timeout plus a reply's
     assert drive(session.next_event(0), [])[0].topic == "released"  # kept for whoever reads the events
+
+
+def test_a_wait_ends_when_another_daemon_instance_welcomes_and_never_takes_its_cycle():
+    """A grip on daemon X waits; X stops and Y starts on the same endpoints (its welcome);
+    Y's cycle 1 is another client's. The wait ends at Y's welcome with DaemonRestarted,
+    and Y's grasp of cycle 1 is never taken for X's."""
+    x, y = "a" * 16, "b" * 16
+    session = Session("cmd", "pub", timeout_s=2.0, event_timeout_s=60.0)
+    grasp_y = event("grasp", 2, cycle_id=1, instance=y)
+    ended, steps = drive(session.grip(), [[welcome_frame(x)], ok(cycle_id=1, p0_kpa=63.0, reference=True, instance=x),
+                                          event("contact", 1, cycle_id=1, instance=x), [welcome_frame(y)], grasp_y])
+    assert isinstance(ended, DaemonRestarted) and isinstance(ended, FluidsenseError) and isinstance(ended, ConnectionError)
+    assert (ended.waited, ended.now) == (x, y) and "restarted" in str(ended)
+    assert len(steps) == 4  # welcome, reply, contact, Y's welcome: ended there, Y's grasp not read
+    # an event of another instance with the cycle id waited for is passed over, even without its welcome
+    session = Session("cmd", "pub", timeout_s=2.0, event_timeout_s=60.0)
+    late, _ = drive(session.grip(), [[welcome_frame(x)], ok(cycle_id=1, p0_kpa=63.0, reference=True, instance=x),
+                                     grasp_y, None])
+    assert isinstance(late, NoReply)
+    assert drive(session.next_event(0), [])[0].instance == y  # kept for whoever reads the events
+    # a welcome again from the same instance (a dropped connection) ends nothing
+    session = Session("cmd", "pub", timeout_s=2.0, event_timeout_s=60.0)
+    grasp, _ = drive(session.grip(), [[welcome_frame(x)], ok(cycle_id=1, p0_kpa=63.0, reference=True, instance=x),
+                                      [welcome_frame(x)], event("grasp", 5, cycle_id=1, instance=x, object=True,
+                                      contact=True, t_c_s=0.1, estimates=[], in_range=True, features={}, note=None)])
+    assert grasp.cycle_id == 1 and grasp.event.instance == x
 
 
 # ------------------------------------------------------------------ the faces on a real socket

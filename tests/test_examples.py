@@ -1,73 +1,106 @@
 """The examples under examples/ against ``fluidsense simcell`` (the emulated UR control
-box) and a daemon subprocess on config/cell-gripper-modbus-sim.yaml: they run, exit 0 and
-do what they say. pick_and_place.py is the integrator's motion stack: it moves the box's
-arm with the real ur_rtde while the daemon holds the grip, which makes it the test of
-holding while the arm moves. ros2_gripper_node.py needs ROS 2: not run."""
+box) and a daemon on config/cell-gripper-modbus-sim.yaml: they run, exit 0 and do what
+they say. examples/README.md's shell block is run as written (its fenced ``sh`` lines, in
+order). pick_and_place.py is the integrator's motion stack: it moves the box's arm with the
+real ur_rtde while the daemon holds the grip, which makes it the test of holding while
+the arm moves. ros2_gripper_node.py needs ROS 2: not run."""
 
 from __future__ import annotations
 
 import csv
+import json
+import os
+import re
+import signal
+import socket
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import yaml
 from fluidsense.client import Gripper
-from support.gripper import drain
-from support.harness import REPO, Daemon, free_simcell
+from support.harness import REPO, SIMCELL_PORTS, Daemon, free_loopback, free_simcell, simcell_config
 
 EXAMPLES = REPO / "examples"
-sys.path.insert(0, str(EXAMPLES))
-import pick_and_place  # noqa: E402 - the example's own poses, so that the world matches them
-
-CYLINDER = {"name": "cyl60", "diameter_mm": 60, "min_grip_kpa": 0.5}
-WORLD = {"slots": [{"name": "pick", "pose": pick_and_place.PICK, "object": "cyl60"},
-                   {"name": "place", "pose": pick_and_place.PLACE}],
-         "objects": [CYLINDER]}
 
 
-def test_pick_and_place_holds_the_cylinder_while_ur_rtde_moves_the_arm(tmp_path):
-    with free_simcell(tmp_path, "gripper-modbus") as (box, cell):
-        box.command({"cmd": "world", "world": WORLD})
-        data = yaml.safe_load(cell.read_text())
-        host = data["driver"]["host"]  # the box's address (ur_rtde's too)
-        # The emulated box, a Python process, stops answering for a moment while it loads
-        # ur_rtde's control script (the example's connection): the daemon's samples pause
-        # for longer than the default 0.5 s (a no_data fault, none missed). A real box does
-        # not: here the pause is let pass (a fault afterwards still fails the test).
-        data["supervision"] = {"no_data_s": 5.0}
-        cell.write_text(yaml.safe_dump(data))
-        d = Daemon(cell)
-        try:
-            d.wait_welcome()
-            with Gripper(d.cmd, d.pub, topics=("contact", "grasp", "slip", "released", "fault")) as g:
-                drain(g, "released", g.measure(store_reference=True, wait=False))  # free air, away from the slots
-                out = subprocess.run([sys.executable, str(EXAMPLES / "pick_and_place.py"), "--robot", host,
-                                      "--cmd", d.cmd, "--pub", d.pub, "--speed", "0.5", "--acc", "1.0"],
-                                     capture_output=True, text=True, timeout=300, cwd=REPO)
-                assert out.returncode == 0, out.stdout + out.stderr
-                assert "grasp: object True, diameter" in out.stdout and "arm: retract" in out.stdout
-                first = g.next_event(60)  # the example's grip: its events wait in our subscription
-                assert first is not None
-                events = [first, *drain(g, "released", first.data["cycle_id"])]
-                # held from the grasp to the release, through lift, carry and place: no slip, no fault
-                assert [e.topic for e in events] == ["contact", "grasp", "released"], [e.data for e in events]
-                grasp, released = events[1].data, events[2].data
-                (est,) = grasp["estimates"]
-                assert grasp["object"] is True and est["value_mm"] == pytest.approx(60, abs=2)
-                assert released["reason"] == "release" and released["ok"] and released["held_s"] > 0
-                status = g.status()
-                assert status["holding"] is False and status["fault"] is None
-            world = box.command({"cmd": "truth"})["truth"]["world"]
-        finally:
-            rc = d.close()
-        assert rc == 0, d.stderr_now()
+def shell_blocks(doc: Path) -> list[list[str]]:
+    """The fenced ``sh`` blocks of a document, in order: their command lines."""
+    blocks, current = [], None
+    for line in doc.read_text().splitlines():
+        if current is None and line.strip() == "```sh":
+            current = []
+        elif current is not None and line.strip() == "```":
+            blocks.append(current)
+            current = None
+        elif current is not None and line.strip() and not line.lstrip().startswith("#"):
+            current.append(line.strip())
+    return blocks
+
+
+def run_as_written(lines: list[str], subs: dict[str, str], tmp_path: Path, timeout_s: float = 600):
+    """Each line as a shell runs it from the repository's folder (``&``: in the background),
+    with only ``subs`` replaced; the venv's ``fluidsense`` and ``python`` first on PATH.
+    Returns (the background processes, the foreground results)."""
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}", "PYTHONUNBUFFERED": "1"}
+    background, results = [], []
+    for line in lines:
+        for old, new in subs.items():
+            line = line.replace(old, new)
+        if line.endswith("&"):
+            log = open(tmp_path / f"bg{len(background)}.log", "w")  # noqa: SIM115 - closed with the process
+            # exec: the process is the command itself, which a signal then reaches (not a shell)
+            background.append((subprocess.Popen(["sh", "-c", "exec " + line[:-1]], cwd=REPO, env=env, stdout=log,
+                                                 stderr=subprocess.STDOUT), log))
+        else:
+            results.append(subprocess.run(line, shell=True, cwd=REPO, env=env, capture_output=True, text=True,
+                                          timeout=timeout_s))
+    return background, results
+
+
+def test_examples_readme_pick_and_place_runs_as_written(tmp_path):
+    """examples/README.md's block, as written, from the repository's folder: the emulated
+    box, the daemon, the example (it takes its own free-air reference and lays the object
+    in the emulated world). Only the config's path is replaced, as the README says, by a
+    copy on a free loopback address (RTDE ports are fixed). The example moves the arm with
+    the real ur_rtde while the daemon holds the grip: the test of holding while it moves."""
+    (block,) = shell_blocks(EXAMPLES / "README.md")
+    assert any("pick_and_place.py" in line for line in block), block
+    cell = simcell_config(tmp_path, "gripper-modbus", free_loopback(SIMCELL_PORTS))
+    data = yaml.safe_load(cell.read_text())
+    background, results = run_as_written(block, {"config/cell-gripper-modbus-sim.yaml": str(cell)}, tmp_path)
+    try:
+        (out,) = results
+        assert out.returncode == 0, out.stdout + out.stderr
+        assert "free-air reference taken" in out.stdout and "arm: retract" in out.stdout, out.stdout
+        line = next(x for x in out.stdout.splitlines() if x.startswith("grasp:"))
+        value, lo, hi = (float(v) for v in re.search(r"diameter ([\d.]+) mm \[([\d.]+), ([\d.]+)\]", line).groups())
+        assert "object True" in line and value == pytest.approx(60, abs=2), line
+        print(f"60 mm cylinder read as {value} mm [{lo}, {hi}]")  # the interval's coverage: see the report
+        world = sim_control(data["driver"]["host"], data["driver"]["sim_control_port"], {"cmd": "truth"})
+    finally:
+        codes = []
+        for proc, log in reversed(background):  # the daemon first: it vents, then the box
+            proc.send_signal(signal.SIGTERM)  # as `kill %1 %2` does
+            codes.append(proc.wait(60))
+            log.close()
+    logs = "\n".join((tmp_path / f"bg{i}.log").read_text() for i in range(len(background)))
+    assert codes == [0, 0], logs
+    assert "Traceback" not in logs, logs
+    world = world["truth"]["world"]
     # the box's world: closed at the pick slot, carried (held well enough to lift), opened at the place slot
-    assert world["content"] == {"pick": None, "place": "cyl60"} and world["holding"] is None
+    assert world["content"] == {"pick": None, "place": "cylinder"} and world["holding"] is None
     kinds = [(e["event"], e.get("slot"), e.get("object")) for e in world["events"]]
-    assert ("close", "pick", "cyl60") in kinds and ("open", "place", "cyl60") in kinds
+    assert ("close", "pick", "cylinder") in kinds and ("open", "place", "cylinder") in kinds
     assert [e["event"] for e in world["events"]].count("picked") == 1
     assert not any(e["event"] in ("not_held", "dropped", "slipped") for e in world["events"]), world["events"]
+
+
+def sim_control(host: str, port: int, request: dict) -> dict:
+    with socket.create_connection((host, port), timeout=30) as sock:
+        sock.sendall(json.dumps(request).encode() + b"\n")
+        return json.loads(sock.makefile().readline())
 
 
 def test_log_grasps_csv_writes_a_row_per_grasp(tmp_path):

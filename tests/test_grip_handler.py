@@ -39,7 +39,7 @@ def run(body):
 
 def topics(cell):
     for topic, payload in cell.events:
-        check(topic, {"schema": 1, "topic": topic, "seq": 1, "topic_seq": 1, "t_s": 0.0, "utc_s": 0.0, **payload})
+        check(topic, {"schema": 2, "instance": "0123456789abcdef", "topic": topic, "seq": 1, "topic_seq": 1, "t_s": 0.0, "utc_s": 0.0, **payload})
     return [topic for topic, _ in cell.events]
 
 

@@ -14,7 +14,7 @@ import yaml
 from fluidsense.client import AsyncGripper, GripEnded, Gripper, Refused
 from fluidsense.controller.requests.grip_watch import SlipWatch
 from support.gripper import grip_a_60_mm_cylinder, slip_to_40_mm
-from support.harness import REPO, sim_config
+from support.harness import REPO, ipc_endpoints, sim_config
 
 CALIBRATION = REPO / "config" / "calibrations" / "pneunet-gripper-p_eq.json"
 
@@ -186,3 +186,59 @@ def test_a_calibration_of_another_profile_stops_the_daemon_before_it_starts(tmp_
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "Traceback" not in out.stderr
     assert f"{path}: gripper.calibrations.0: " in out.stderr and "calibrates profile 'sorting-gripper'" in out.stderr
+
+
+def test_a_grip_waiting_across_a_daemon_restart_ends_and_never_takes_the_new_daemons_cycle(tmp_path, daemon_factory):
+    """Client A waits in grip() on daemon X (real time: it is charging); X dies without a
+    word (killed: no ``released`` for A's cycle, as after a crash or when that message is
+    lost) and Y starts on the same endpoints, as systemd restarts it; client B grips on Y,
+    whose cycle ids start at 1 again. A's grip ends with DaemonRestarted at Y's welcome;
+    it used to return B's grasp (cycle 1). (A stopped X says ``released``: GripEnded.)"""
+    import threading
+
+    from fluidsense.client import DaemonRestarted
+
+    endpoints = ipc_endpoints(tmp_path)
+
+    def config(clock):
+        path = sim_config(tmp_path, clock=clock, endpoints=endpoints,
+                          scene={"kind": "cylinder", "diameter_mm": 60})
+        data = yaml.safe_load(path.read_text())
+        data["gripper"] = {"calibrations": [str(CALIBRATION)]}
+        path.write_text(yaml.safe_dump(data))
+        return path
+
+    x = daemon_factory(config("realtime"))  # a grip charges for seconds: A is waiting when X stops
+    x.wait_welcome()
+    outcome: list = []
+    # event_timeout_s: a wait that is never ended (the old client) gives up within the test
+    a = Gripper(x.cmd, x.pub, topics=("contact", "grasp", "slip", "released", "fault"), event_timeout_s=60.0)
+
+    def grip_a():
+        try:
+            outcome.append(a.grip())
+        except Exception as exc:  # noqa: BLE001 - what it raised is the result here
+            outcome.append(exc)
+
+    waiter = threading.Thread(target=grip_a, daemon=True)
+    waiter.start()
+    while x.request({"cmd": "status"})["gripper_op"] != "grip":  # paced by X's replies
+        assert waiter.is_alive(), outcome  # A's grip ended before X took it
+    first = x.instance
+    x.proc.kill()  # its helper processes end with it (PR_SET_PDEATHSIG)
+    assert x.proc.wait(30) == -9
+    y = daemon_factory(config("virtual"))
+    y.wait_welcome()
+    assert y.instance != first
+    try:
+        with Gripper(y.cmd, y.pub) as b:
+            theirs = b.grip()
+            assert theirs.cycle_id == 1 and theirs.size.value_mm == pytest.approx(60, abs=3)
+            b.release()
+    finally:
+        waiter.join(90)  # A's wait ends within its event_timeout_s whatever happens
+        if not waiter.is_alive():
+            a.close()  # an unclosed client's context would block the interpreter's exit
+    (got,) = outcome
+    assert isinstance(got, DaemonRestarted), got
+    assert (got.waited, got.now) == (first, y.instance)

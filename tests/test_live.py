@@ -18,6 +18,7 @@ from support.harness import Daemon, sim_config
 from websockets.sync.client import connect
 
 SUBPROTOCOL = "foxglove.sdk.v1"
+LEGACY = "foxglove.websocket.v1"  # the same protocol's name before the SDK: Lichtblick, older Foxglove
 MESSAGE_DATA = 0x01
 
 
@@ -32,10 +33,10 @@ def free_port() -> int:
 class Viewer:
     """A Foxglove WebSocket client: reads the advertisement, subscribes by topic."""
 
-    def __init__(self, port: int, stack: contextlib.ExitStack):
-        self.ws = stack.enter_context(connect(f"ws://127.0.0.1:{port}", subprotocols=[SUBPROTOCOL], open_timeout=30,
+    def __init__(self, port: int, stack: contextlib.ExitStack, subprotocol: str = SUBPROTOCOL):
+        self.ws = stack.enter_context(connect(f"ws://127.0.0.1:{port}", subprotocols=[subprotocol], open_timeout=30,
                                                  close_timeout=1))  # unread data waits before its close
-        assert self.ws.subprotocol == SUBPROTOCOL
+        assert self.ws.subprotocol == subprotocol
         self.channels: dict[str, dict] = {}
         self.subs: dict[int, str] = {}
         while len(self.channels) < len(LIVE_TOPICS):
@@ -81,7 +82,8 @@ def test_viewers_see_the_recordings_channels_and_the_published_samples(tmp_path)
     stack = contextlib.ExitStack()
     try:
         daemon.wait_welcome()
-        viewers = [Viewer(port, stack) for _ in range(4)]
+        # two speak the protocol's SDK name, two its old one (Lichtblick's): all are served alike
+        viewers = [Viewer(port, stack, name) for name in (SUBPROTOCOL, LEGACY, SUBPROTOCOL, LEGACY)]
         for v in viewers:  # the recording's channels, with its JSON schemas
             assert set(v.channels) == {"/" + t for t in LIVE_TOPICS}
             for topic in LIVE_TOPICS:
@@ -146,3 +148,41 @@ def test_a_taken_port_is_refused_before_anything_starts(tmp_path):
     assert rc == 2, err
     assert "live: cannot serve on 127.0.0.1:" in err and "Traceback" not in err, err
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())  # nothing started
+
+
+def test_a_viewer_of_another_protocol_is_refused_and_both_names_are_read_from_the_handshake():
+    from fluidsense.controller.telemetry.live_front import offered, rename_request, rename_response
+
+    head = (b"GET / HTTP/1.1\r\nHost: x\r\nSec-WebSocket-Protocol: foxglove.websocket.v1\r\n"
+            b"sec-websocket-protocol: other.v2\r\n\r\n")
+    assert offered(head) == [b"foxglove.websocket.v1", b"other.v2"]
+    renamed, legacy = rename_request(head)
+    assert legacy and offered(renamed) == [b"foxglove.sdk.v1", b"other.v2"] and renamed.endswith(b"\r\n\r\n")
+    both = b"GET / HTTP/1.1\r\nSec-WebSocket-Protocol: foxglove.websocket.v1, foxglove.sdk.v1\r\n\r\n"
+    assert rename_request(both) == (both, False)  # the SDK's own name offered: left to the SDK
+    assert rename_response(b"HTTP/1.1 101 x\r\nSec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n") == \
+        b"HTTP/1.1 101 x\r\nSec-WebSocket-Protocol: foxglove.websocket.v1\r\n\r\n"
+
+
+def test_lichtblicks_protocol_name_is_served_and_an_unknown_one_refused(tmp_path):
+    """A real websocket client speaking ``foxglove.websocket.v1`` gets the advertisement and
+    data (it used to get HTTP 400); one speaking neither name still gets 400."""
+    from websockets.exceptions import InvalidStatus
+
+    daemon, port = live_daemon(tmp_path)
+    stack = contextlib.ExitStack()
+    try:
+        daemon.wait_welcome()
+        old = Viewer(port, stack, LEGACY)
+        assert set(old.channels) == {"/" + t for t in LIVE_TOPICS}
+        old.subscribe("heartbeat")
+        topic, log_time, data = old.next_data()
+        assert topic == "heartbeat" and log_time > 0 and data["samples"] > 0
+        with pytest.raises(InvalidStatus) as refused:
+            connect(f"ws://127.0.0.1:{port}", subprotocols=["other.v1"], open_timeout=30)
+        assert refused.value.response.status_code == 400
+    finally:
+        stack.close()
+        rc = daemon.close()
+    err = daemon.proc.stderr.read().decode()
+    assert rc == 0 and "Traceback" not in err, err

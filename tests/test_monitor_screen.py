@@ -12,6 +12,7 @@ import subprocess
 import sys
 import time
 
+import yaml
 from fluidsense.cli.screen import View, render, sparkline
 from support.harness import REPO, sim_config
 
@@ -65,6 +66,21 @@ def test_monitor_in_a_terminal_shows_state_pressure_and_the_last_result(tmp_path
         read_until(lambda s: "state IDLE" in s and "valves (device):" in s and "none yet" in s)
         assert d.request({"cmd": "cycle"})["ok"]
         screen = read_until(lambda s: "cycle 1:" in s and "P_eq" in s)
+        first = d.instance
+        assert f"daemon {first}" in screen, screen
+        # the daemon stops: the screen says so, shows no state, names the whole endpoint
+        assert d.request({"cmd": "shutdown"})["ok"] and d.proc.wait(30) == 0
+        _, cmd = ipc_endpoints_of(cfg)
+        gone = read_until(lambda s: f"valves: no status from {cmd} (" in s)
+        assert f"the daemon {first}: stopped; its state is not known" in gone, gone
+        assert "state IDLE" not in gone and "last results (of the daemon that is gone):" in gone, gone
+        assert "(not answering status within 0.5 s)" in gone, gone
+        # another daemon on the same endpoints: its own state only, nothing of the old one's
+        again = daemon_factory(cfg)
+        again.wait_welcome()
+        fresh = read_until(lambda s: f"daemon {again.instance}" in s and "state IDLE" in s)
+        assert again.instance != first and first not in fresh, fresh
+        assert "cycle 1:" not in fresh and "none yet" in fresh and "cycle 0" in fresh, fresh
     finally:
         mon.terminate()
         mon.wait(30)
@@ -73,6 +89,32 @@ def test_monitor_in_a_terminal_shows_state_pressure_and_the_last_result(tmp_path
     assert re.search(r"p_act\s+-?\d+\.\d\d kPa", screen), screen  # the trace of the cycle
     assert "state IDLE" in screen and "valves (device):" in screen and "closed" in screen, screen
     assert "Traceback" not in mon.stderr.read().decode()
+
+
+def ipc_endpoints_of(cfg) -> tuple[str, str]:
+    data = yaml.safe_load(cfg.read_text())
+    return data["publisher"]["pub"], data["publisher"]["cmd"]
+
+
+def test_the_view_starts_afresh_for_another_daemon_and_shows_a_stopped_one_as_gone():
+    v = View()
+    v.take_welcome("a" * 16)
+    v.take("heartbeat", {"instance": "a" * 16, "seq": 9, "t_s": 122.529, "state": "idle", "cycle_id": 7,
+                         "samples": 122529, "missed": 0, "late": 0, "block_proc_us": {"p99": 20.0}})
+    v.take("cycle", {"instance": "a" * 16, "seq": 10, "t_s": 122.5, "cycle_id": 7, "ok": True, "p_eq_kpa": 34.25,
+                     "p_sd_kpa": 0.01, "label": None})
+    v.take("log", {"instance": "a" * 16, "seq": 11, "t_s": 122.6, "level": "INFO", "message": "controller stopped"})
+    text = "\n".join(render(v, "ipc://x", "ipc://y"))
+    assert f"the daemon {'a' * 16}: stopped; its state is not known (last heard at t 122.600 s)" in text, text
+    assert "state IDLE" not in text and "122529 samples" not in text and "cycle 7: P_eq" in text, text
+    # a new daemon on the same endpoints: its status reply, then its heartbeat; nothing old is mixed in
+    v.take_status({"instance": "b" * 16, "state": "idle", "cycle_id": 0, "t_s": 0.2})
+    v.take("heartbeat", {"instance": "b" * 16, "seq": 1, "t_s": 1.0, "state": "idle", "cycle_id": 0,
+                         "samples": 1000, "missed": 0, "late": 0, "block_proc_us": {"p99": 20.0}})
+    text = "\n".join(render(v, "ipc://x", "ipc://y"))
+    assert "t     1.000 s   state IDLE   cycle 0" in text and f"daemon {'b' * 16}" in text, text
+    assert "loop: 1000 samples" in text and "cycle 7" not in text and "none yet" in text, text
+    assert v.missed_messages == 0  # seq starting again at 1 is no loss
 
 
 def test_cmd_and_monitor_name_the_endpoint_when_nothing_answers(tmp_path):

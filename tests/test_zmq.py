@@ -14,6 +14,7 @@ import zmq
 from support.events import SCHEMAS, check, fast_profile
 from support.harness import REPO, sim_config
 from support.requests import BAD_REQUESTS
+from fluidsense.common.names import welcome_instance
 
 DOC = (REPO / "docs" / "zmq-schema.md").read_text()
 
@@ -65,7 +66,8 @@ def test_subscriber_receives_heartbeats_states_pressure_and_cycle_results(tmp_pa
     d.wait_welcome()
     seen: dict[str, list] = {}
     reply = d.request({"cmd": "cycle", "store_reference": True})
-    assert reply == {"ok": True, "cycle_id": 1}
+    # the daemon's instance id: in its welcome, in the reply that starts a cycle, in every message
+    assert reply == {"ok": True, "cycle_id": 1, "instance": d.instance} and len(d.instance) == 16
     ref = collect_until_cycle(d, seen)
     assert ref["ok"] and ref["is_reference"] and ref["p_eq_kpa"] == pytest.approx(34.6, abs=0.2)
     assert d.request({"cmd": "scene", "scene": {"kind": "cylinder", "diameter_mm": 80}})["ok"]
@@ -77,6 +79,7 @@ def test_subscriber_receives_heartbeats_states_pressure_and_cycle_results(tmp_pa
     beats = seen["heartbeat"]
     assert len(beats) >= 90
     assert beats[-1]["samples"] > beats[0]["samples"] and beats[-1]["missed"] == 0
+    assert {m["instance"] for msgs in seen.values() for m in msgs} == {d.instance}
     # the transitions, in order, for each cycle
     states = [(m["cycle_id"], m["to"]) for m in seen["state"]]
     order = ["charge", "isolate", "actuate", "hold", "vent", "idle"]
@@ -196,7 +199,7 @@ def _subscriber(d, *prefixes: bytes):
     for prefix in (*prefixes, b"hello"):
         sock.setsockopt(zmq.SUBSCRIBE, prefix)
     sock.connect(d.pub)
-    assert sock.poll(30_000) and sock.recv_multipart() == [b"hello"]
+    assert sock.poll(30_000) and welcome_instance(sock.recv_multipart())
     return sock
 
 
@@ -263,7 +266,7 @@ def test_a_flood_of_subscriptions_costs_the_daemon_nothing_and_subscribers_come_
     # the watcher was dropped with everyone and came back by itself, welcome included
     while True:
         assert watcher.poll(30_000), "the watcher was never welcomed again"
-        if watcher.recv_multipart() == [b"hello"]:
+        if welcome_instance(watcher.recv_multipart()) is not None:
             break
     assert _topics_until_heartbeats(watcher) == {"heartbeat"}
     watcher.close()

@@ -127,11 +127,14 @@ def _encode(reply: dict[str, Any]) -> bytes:
 
 
 class CommandServer:
-    def __init__(self, endpoint: str, context: zmq.asyncio.Context | None = None, curve: CurveKeys | None = None):
+    def __init__(self, endpoint: str, context: zmq.asyncio.Context | None = None, curve: CurveKeys | None = None,
+                 instance: str | None = None):
         """Bound here; ``curve``: the server's secret key and the clients let in
         (CurveKeys). The daemon binds its sockets before it touches a device; what answers
-        comes with ``serve``, once the controller runs."""
+        comes with ``serve``, once the controller runs. ``instance``: the daemon's id (its
+        publisher's), put in every reply that names a cycle and in ``status``."""
         self.endpoint = endpoint
+        self.instance = instance
         self._ctx = context or zmq.asyncio.Context.instance()
         self._auth = None
         self._sock = self._ctx.socket(zmq.ROUTER)
@@ -193,7 +196,12 @@ class CommandServer:
             self.rejected += 1
             return {"ok": False, "error": str(exc)}
         try:
-            return {"ok": True, **(await answer(request))}
+            reply = {"ok": True, **(await answer(request))}
+            # a client waiting for this cycle's events takes them only from the instance
+            # that started it: cycle ids start again at 1 after a restart
+            if self.instance is not None and ("cycle_id" in reply or request.get("cmd") == "status"):
+                reply["instance"] = self.instance
+            return reply
         except FluidsenseError as exc:
             self.rejected += 1
             return {"ok": False, "error": str(exc)}

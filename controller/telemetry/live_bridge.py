@@ -1,6 +1,7 @@
 """The live view's process: ``python -m fluidsense.controller.telemetry.live_bridge ARGS_JSON``.
 
-It serves the Foxglove WebSocket protocol (foxglove-sdk) with the channels, JSON schemas
+It serves the Foxglove WebSocket protocol (foxglove-sdk, behind live_front.py, which lets
+in both its names: ``foxglove.sdk.v1`` and ``foxglove.websocket.v1``) with the channels, JSON schemas
 and log times of the MCAP recordings (drivers/recording/), so that a recorded file and
 the live daemon look the same in Foxglove. It runs apart from the daemon for the same
 reason as the publisher's outlet: viewers are untrusted peers, and however many or slow
@@ -46,10 +47,19 @@ class Bridge:
     def __init__(self, args: dict[str, Any]):
         import foxglove  # the process's one reason to exist: imported only here
 
+        from .live_front import Front
+
         self.t0_ns = int(args["t0_unix_ns"])
         self.fx = foxglove.Context()
-        self.server = foxglove.start_server(name="fluidsense", host=args["host"], port=args["port"],
+        # the SDK on a loopback port of its own; the front on the configured address lets in
+        # the protocol's old name too (Lichtblick, older Foxglove: live_front.py)
+        self.server = foxglove.start_server(name="fluidsense", host="127.0.0.1", port=0,
                                             context=self.fx, message_backlog_size=args["backlog"])
+        try:
+            self.front = Front(args["host"], args["port"], self.server.port)
+        except BaseException:
+            self.server.stop()
+            raise
         self.channels = {}
         for topic in LIVE_TOPICS:
             schema = event_schema(topic)
@@ -94,6 +104,7 @@ class Bridge:
                 return 0
 
     def close(self) -> None:
+        self.front.close()
         self.server.stop()
         self.inlet.close()
         self.zctx.term()
@@ -111,7 +122,7 @@ def main(args: dict[str, Any]) -> int:
     except Exception as exc:  # noqa: BLE001 - the SDK raises its own types for a busy port
         print("error " + " ".join(f"{type(exc).__name__}: {exc}".split()), flush=True)
         return 2
-    print(f"ok {bridge.server.port}", flush=True)
+    print(f"ok {bridge.front.port}", flush=True)
     try:
         return bridge.run(args["parent_pid"])
     finally:

@@ -23,7 +23,8 @@ prefix gets every topic that starts with it.
 
 ARGS_JSON: ``endpoint`` (public, bound here), ``inlet`` (ipc endpoint bound here, in a
 directory only the daemon's user can enter; the daemon PUSHes encoded messages to it),
-``hwm`` (the XPUB's per-subscriber high-water mark), ``parent_pid``, ``memory_cap_mb``.
+``hwm`` (the XPUB's per-subscriber high-water mark), ``parent_pid``, ``memory_cap_mb``,
+``instance`` (the daemon's id, sent in the welcome).
 Prints ``ok`` once both are bound, or ``error ERRNO MESSAGE``. A single-frame ``stop``
 message on the inlet ends it after the messages before it were sent (LINGER).
 """
@@ -41,7 +42,7 @@ import time
 from typing import Any
 
 import zmq
-from fluidsense.common.names import TOPICS, WELCOME
+from fluidsense.common.names import TOPICS, WELCOME, welcome_frame
 
 log = logging.getLogger("fluidsense.controller.telemetry.outlet")
 
@@ -68,13 +69,14 @@ def is_known_prefix(prefix: bytes) -> bool:
 
 
 class Outlet:
-    def __init__(self, ctx: zmq.Context, endpoint: str, inlet: str, hwm: int):
+    def __init__(self, ctx: zmq.Context, endpoint: str, inlet: str, hwm: int, instance: str = ""):
         self.xpub = ctx.socket(zmq.XPUB)
         self.xpub.setsockopt(zmq.SNDHWM, hwm)
         self.xpub.setsockopt(zmq.RCVHWM, RCVHWM)
         self.xpub.setsockopt(zmq.MAXMSGSIZE, MAX_FRAME_BYTES)
         self.xpub.setsockopt(zmq.LINGER, LINGER_MS)
-        self.xpub.setsockopt(zmq.XPUB_WELCOME_MSG, WELCOME)
+        # the daemon's instance id in it: a subscriber tells a restarted daemon on the same port
+        self.xpub.setsockopt(zmq.XPUB_WELCOME_MSG, welcome_frame(instance) if instance else WELCOME)
         self.inlet = ctx.socket(zmq.PULL)
         self.inlet.setsockopt(zmq.RCVHWM, max(hwm, 10_000))
         self.inlet.setsockopt(zmq.MAXMSGSIZE, MAX_MESSAGE_BYTES)
@@ -180,7 +182,7 @@ def main(args: dict[str, Any]) -> int:
                         stream=sys.stderr)
     ctx = zmq.Context()
     try:
-        outlet = Outlet(ctx, args["endpoint"], args["inlet"], args["hwm"])
+        outlet = Outlet(ctx, args["endpoint"], args["inlet"], args["hwm"], args.get("instance", ""))
     except zmq.ZMQError as exc:
         print(f"error {exc.errno} {exc}", flush=True)
         return 2

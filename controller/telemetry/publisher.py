@@ -1,7 +1,8 @@
 """ZeroMQ PUB side of the published interface (schema in docs/zmq-schema.md).
 
 Every message is two frames: the topic (ASCII) and a JSON object that always carries
-``schema`` (the schema version), ``topic``, ``seq`` (one counter over all topics, so a
+``schema`` (the schema version), ``instance`` (this daemon's id, random per start: a
+subscriber tells a restarted daemon on the same ports by it), ``topic``, ``seq`` (one counter over all topics, so a
 subscriber to everything sees gaps), ``topic_seq`` (one counter per topic, so a subscriber
 to some topics sees its gaps), ``t_s`` (sample time of the newest sample when it was
 sent) and ``utc_s`` (wall-clock UTC when it was sent, to line messages up with other logs).
@@ -14,7 +15,7 @@ in a directory only its user can enter, never blocking: when the outlet falls be
 ``hwm`` messages, messages are dropped and counted. An outlet that dies is started again.
 
 The socket has a welcome message: a subscriber that subscribes to ``hello`` receives the
-single frame ``hello`` as soon as it is connected, so it knows that nothing published
+single frame ``hello INSTANCE`` as soon as it is connected, so it knows that nothing published
 after that is lost to the usual ZeroMQ slow-joiner gap.
 """
 
@@ -25,6 +26,7 @@ import json
 import logging
 import math
 import os
+import secrets
 import select
 import shutil
 import stat
@@ -37,12 +39,12 @@ from typing import Any
 
 import numpy as np
 import zmq
-from fluidsense.common.names import TOPICS, WELCOME
+from fluidsense.common.names import INSTANCE_HEX, TOPICS, WELCOME
 from fluidsense.controller.telemetry.outlet import STOP
 
 log = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: ``instance`` in every message and in the welcome
 START_TIMEOUT_S = 30.0
 STOP_TIMEOUT_S = 3.0  # the outlet lingers up to a second for the last messages
 CHECK_PERIOD_S = 0.2  # how often send() looks whether the outlet is still there
@@ -53,7 +55,13 @@ STABLE_S = 10.0  # an outlet up this long has its restart back-off forgotten
 OUTLET_MEMORY_CAP_MB = 256.0
 DIR_PREFIX = "fluidsense-pub-"
 
-__all__ = ["SCHEMA_VERSION", "TOPICS", "WELCOME", "Publisher", "NullPublisher", "encode"]
+__all__ = ["SCHEMA_VERSION", "TOPICS", "WELCOME", "Publisher", "NullPublisher", "encode", "new_instance"]
+
+
+def new_instance() -> str:
+    """A daemon instance's id: random, so that two starts on the same ports never share one
+    (cycle ids and sequence numbers start again at 1 after a restart)."""
+    return secrets.token_hex(INSTANCE_HEX // 2)
 
 
 def _default(obj: Any) -> Any:
@@ -76,8 +84,8 @@ def _clean(obj: Any) -> Any:
 
 
 def encode(topic: str, seq: int, t_s: float, payload: dict[str, Any], topic_seq: int = 0,
-           utc_s: float | None = None) -> list[bytes]:
-    msg = {"schema": SCHEMA_VERSION, "topic": topic, "seq": seq, "topic_seq": topic_seq or seq, "t_s": t_s,
+           utc_s: float | None = None, instance: str = "") -> list[bytes]:
+    msg = {"schema": SCHEMA_VERSION, "instance": instance, "topic": topic, "seq": seq, "topic_seq": topic_seq or seq, "t_s": t_s,
            "utc_s": time.time() if utc_s is None else utc_s, **payload}
     return [topic.encode("ascii"), json.dumps(_clean(msg), default=_default, allow_nan=False).encode()]
 
@@ -96,10 +104,12 @@ def _sweep_stale_dirs() -> None:
 
 
 class Publisher:
-    def __init__(self, endpoint: str, context: zmq.Context | None = None, hwm: int = 10_000):
+    def __init__(self, endpoint: str, context: zmq.Context | None = None, hwm: int = 10_000,
+                 instance: str | None = None):
         """Starts the outlet and returns once ``endpoint`` is bound; raises zmq.ZMQError
-        when it cannot be."""
+        when it cannot be. ``instance``: the daemon's id (a new one if None)."""
         self.endpoint = endpoint
+        self.instance = instance or new_instance()
         self.seq = 0
         self.topic_seq: dict[str, int] = {}
         self.dropped = 0  # messages that never reached the outlet
@@ -143,7 +153,7 @@ class Publisher:
         return {"dropped": self.dropped, "outlet_restarts": self.restarts}
 
     def _start(self, wait: bool) -> None:
-        args = {"endpoint": self.endpoint, "inlet": self._inlet, "hwm": self._hwm, "parent_pid": os.getpid(),
+        args = {"endpoint": self.endpoint, "inlet": self._inlet, "instance": self.instance, "hwm": self._hwm, "parent_pid": os.getpid(),
                 "memory_cap_mb": OUTLET_MEMORY_CAP_MB, "log_level": logging.getLevelName(log.getEffectiveLevel())}
         self._proc = subprocess.Popen([sys.executable, "-m", "fluidsense.controller.telemetry.outlet", json.dumps(args)],
                                       stdin=subprocess.DEVNULL, stdout=subprocess.PIPE if wait else subprocess.DEVNULL)
@@ -193,7 +203,8 @@ class Publisher:
         self.seq += 1
         self.topic_seq[topic] = self.topic_seq.get(topic, 0) + 1
         try:
-            self._push.send_multipart(encode(topic, self.seq, t_s, payload, self.topic_seq[topic]), flags=zmq.NOBLOCK)
+            self._push.send_multipart(encode(topic, self.seq, t_s, payload, self.topic_seq[topic],
+                                             instance=self.instance), flags=zmq.NOBLOCK)
         except zmq.Again:
             self.dropped += 1
         self._check_outlet()
@@ -222,6 +233,7 @@ class NullPublisher:
     def __init__(self) -> None:
         self.seq = 0
         self.dropped = 0
+        self.instance = new_instance()
 
     @property
     def stats(self) -> dict[str, int]:

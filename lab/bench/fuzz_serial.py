@@ -26,6 +26,8 @@ tests/test_serial_protocol.py runs at a small budget in the suite.
 
 from __future__ import annotations
 
+import argparse
+import json
 import os
 import struct
 import time
@@ -41,6 +43,10 @@ from fluidsense.drivers.serial.clock import Timeline
 from fluidsense.drivers.serial.config import SerialDriverConfig
 from fluidsense.drivers.serial.link import SerialLink
 from fluidsense.drivers.serial.stream import LEAD_MARGIN_S, MAX_CLOCK_ERROR, DeviceResetError
+
+NAME = "fuzz-serial"
+HELP = "a serial device's frames with a valid CRC and hostile contents against the driver's link"
+DESCRIPTION = __doc__
 
 SESSION = 7
 SANE = 25  # good sample frames before each case (ticks 0-24, seq 1-25)
@@ -218,3 +224,23 @@ def fuzz_serial(examples: int, seed: int) -> dict[str, Any]:
 
     one()
     return {**dict(counts), "failure_cases": failures, "seconds": time.perf_counter() - t0}
+
+
+def register(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--cases", type=int, default=300, help="device sessions (default 300)")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--json", action="store_true")
+
+
+def run(args: argparse.Namespace) -> int:
+    out = fuzz_serial(args.cases, args.seed)
+    if args.json:
+        print(json.dumps(out, indent=2))
+    else:
+        ended = {k[6:]: v for k, v in out.items() if k.startswith("ended_")}
+        print(f"serial device sessions: {out['cases']} ({out['frames']} hostile frames) in {out['seconds']:.0f} s: "
+              f"{out.get('failures', 0)} failures; ended by {ended}, not ended {out.get('not_ended', 0)}; "
+              f"{out.get('blocks', 0)} blocks delivered, {out.get('other_driver_errors', 0)} other driver errors")
+        for case in out["failure_cases"]:
+            print(f"  failure: {case}")
+    return 1 if out.get("failures") else 0

@@ -19,8 +19,10 @@ from support.serial import SimSerialProcess, serial_config
 
 pytestmark = pytest.mark.timeout(600)
 
-#: what each lie's fault must name
-FIELDS = {"counts": "counts:", "tick": "tick:", "rate": "rate:"}
+#: what each lie's fault may name: a ten-times-fast timer is "rate", or "tick" when the proxy, starved on
+#: a loaded machine, lost the frames between two it sent (ticks then jump further than the time allows;
+#: tests/test_serial_protocol.py checks "rate" alone, without a proxy)
+FIELDS = {"counts": ("counts:",), "tick": ("tick:",), "rate": ("rate:", "tick:")}
 
 
 @pytest.fixture
@@ -74,11 +76,12 @@ def _config(tmp_path):
     proxy is a Python thread at normal priority, and on a loaded machine it holds frames back
     for a second or more and loses bytes when the daemon reads late (as a full USB buffer
     would). What is tested is the lie's fault, not the timing supervisors, so: acknowledgements
-    get 0.2 s (not 0.05), silence 2 s (not 0.2), damaged frames 200 a second (not 20), the
+    get 0.2 s (not 0.05), silence 2 s (not 0.2), damaged frames 20,000 a second (not 20: the
+    proxy writing ten frames per tick loses thousands when it is starved), the
     device's heartbeat watchdog 2 s (not 0.5: the proxy carries the heartbeats too), an
     overrun is 5 s behind and no data 5 s (not 0.25 and 0.5; the finding's overruns after a
     reset were 1000 s behind)."""
-    driver = {"ack_timeout_s": 0.2, "silence_s": 2.0, "damaged_limit": 200, "watchdog": {"timeout_s": 2.0}}
+    driver = {"ack_timeout_s": 0.2, "silence_s": 2.0, "damaged_limit": 20_000, "watchdog": {"timeout_s": 2.0}}
     config = serial_config(tmp_path, port=tmp_path / "link.tty", driver=driver)
     supervision = {"overrun_s": 5.0, "no_data_s": 5.0}
     config.write_text(yaml.safe_dump({**yaml.safe_load(config.read_text()), "supervision": supervision}))
@@ -103,7 +106,7 @@ def test_a_lying_device_is_one_driver_fault_then_reconnected_and_reset_works(tmp
         # included; tick and rate: the session streaming now
         liar.lie(lie, frames=3000)
         fault = watch.until(lambda topic, _: topic == "fault")
-        assert fault["kind"] == "driver" and FIELDS[lie] in fault["detail"], fault
+        assert fault["kind"] == "driver" and any(field in fault["detail"] for field in FIELDS[lie]), fault
         # a reconnection confirmed the safe positions (the lie over: a sane session)
         watch.until(lambda topic, msg: topic == "log" and msg.get("vented") is True)
         assert liar.mode is None and liar.lied > 0
@@ -112,7 +115,7 @@ def test_a_lying_device_is_one_driver_fault_then_reconnected_and_reset_works(tmp
         # ... none that the lie left behind: not the lie again, no overrun (the finding: 1000 s behind after a
         # 10**6 tick jump). On a loaded machine the Python proxy itself may stall or lose bytes: such a link
         # fault is the proxy's, said as such, and is not what is tested
-        later = [f for f in watch.faults[1:] if not _proxy_trouble(f)]
+        later = [f for f in watch.faults[1:] if not _proxy_trouble(f)]  # after the first one
         assert later == [], later
         assert status["fault"] is None or _proxy_trouble(status["fault"]), status["fault"]
         link = status["source_link"]

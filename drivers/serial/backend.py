@@ -31,7 +31,7 @@ from . import protocol as p
 from .clock import Timeline
 from .config import SerialDriverConfig, SerialValveWiring
 from .link import SerialLink
-from .session import handshake
+from .handshake import handshake
 from .stream import DeviceResetError
 
 log = logging.getLogger(__name__)

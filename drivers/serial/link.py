@@ -309,10 +309,8 @@ class SerialLink:
         """The session is over (the device reset, or said what cannot be true): ``exc`` is
         the one fault it makes; every later frame is ignored, every read and command after
         it says the link is lost, and the source reconnects."""
-        self._dead = True
-        self._lost = LinkLostError(f"{self.name}: {why}; reconnecting")
-        self._post(self._fail, exc)
-        self._post(self._fail_waiters)
+        self._dead = True  # at once, in the reader: no later frame of the session is looked at
+        self._post(self._end_session, exc, LinkLostError(f"{self.name}: {why}; reconnecting"))
 
     def _sample(self, f: p.Sample, arrival: float, gap: int) -> None:
         if self._raw_tick is None:
@@ -358,8 +356,12 @@ class SerialLink:
                 "check the cable, its shield and ground, and the baud rate"))
 
     # ------------------------------------------------------------ in the loop
-    def _fail_waiters(self) -> None:
-        """A command or read-back waiting on a dropped session fails now, not at its timeout."""
+    def _end_session(self, exc: DriverError, lost: LinkLostError) -> None:
+        """In the loop, in this order: the fault queued before the link says it is lost (a read
+        that saw the loss first would reconnect and the fault would never be told), then a
+        command or read-back waiting on the session fails now, not at its timeout."""
+        self.queue.put_nowait(exc)
+        self._lost = self._lost or lost
         for fut in [*self._acks.values(), *(f for _, f in self._tick_waiters)]:
             if not fut.done():
                 fut.set_exception(self._lost)

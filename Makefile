@@ -96,10 +96,11 @@ faults: $(STAMP)
 	mkdir -p docs/safety
 	$(LAB) bench faults --box-runs 5 --json > docs/safety/faults.json
 
-# Hostile input figures of docs/safety.md: command messages and config files (~5 minutes).
+# Hostile input figures of docs/safety.md: command messages, config files and a serial device's
+# frames (~8 minutes).
 fuzz: $(STAMP)
 	mkdir -p docs/safety
-	$(LAB) bench fuzz --messages 10000 --files 20000 --json > docs/safety/fuzz.json
+	$(LAB) bench fuzz --messages 10000 --files 20000 --serial 1000 --json > docs/safety/fuzz.json
 
 # The busy robot PC of docs/performance.md: the README's sorting task through ur and modbus
 # beside two busy processes, 10 runs each, then an idle daemon for 10 minutes (~1 hour).

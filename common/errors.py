@@ -36,6 +36,17 @@ class DeviceTimeoutError(DriverError, TimeoutError):
     """A device did not answer in time."""
 
 
+class DeviceProtocolError(DriverError, ValueError):
+    """A device sent a well-formed frame (its checksum good) whose contents cannot be true:
+    a channel count, tick, rate, sequence or value it could not have. ``field`` names the
+    field. Nothing it says on that link can be trusted: the driver drops the link and
+    connects again."""
+
+    def __init__(self, message: str, field: str = ""):
+        super().__init__(message)
+        self.field = field
+
+
 class NotSupportedError(FluidsenseError, NotImplementedError):
     """The selected backend cannot do this (e.g. placing objects on a real cell)."""
 

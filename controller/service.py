@@ -225,7 +225,8 @@ class Controller:
             "samples": self.loop.samples, "missed": self.loop.missed,
             "last_cycle": self.cycles.results[-1].to_dict() if self.cycles.results else None,
             "publisher": self.telemetry.pub.stats,
-            "sinks": [sink.stats for sink in self.telemetry.sinks if hasattr(sink, "stats")],
+            "sinks": [{**sink.stats, "state": "running"} for sink in self.telemetry.sinks if hasattr(sink, "stats")]
+            + self.telemetry.failed_sinks,
             # a source that keeps link counts (the serial driver: frames lost and corrupt, resets, clock drift)
             "source_link": getattr(self.backend.source, "link_stats", lambda: None)(),
         }

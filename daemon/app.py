@@ -60,7 +60,7 @@ def _loop_priority(cfg: CellConfig) -> None:
 
 def bind_publisher(cfg: CellConfig, hwm: int | None = None) -> Publisher:
     try:
-        return Publisher(cfg.publisher.pub, **({} if hwm is None else {"hwm": hwm}))
+        return Publisher(cfg.publisher.pub, hwm=cfg.publisher.hwm_messages if hwm is None else hwm)
     except zmq.ZMQError as exc:
         raise ConfigError(f"publisher.pub: cannot bind {cfg.publisher.pub}: {exc}") from exc
 

@@ -5,8 +5,6 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
-from fluidsense.common.errors import DriverError
-
 from .base import (
     Arm,
     BoxWatchdog,
@@ -16,6 +14,7 @@ from .base import (
     SampleSource,
     SceneControl,
     ValveBank,
+    same_family,
 )
 
 log = logging.getLogger(__name__)
@@ -50,7 +49,9 @@ class Backend:
             except Exception as exc:  # noqa: BLE001 - keep going, report after
                 first = first or exc
         if first is not None:
-            raise DriverError(f"safe state incomplete: {first}") from first
+            said = str(first)  # the valve bank's own failure says "safe state incomplete" already
+            raise same_family(first, said if said.startswith("safe state") else f"safe state incomplete: {said}") \
+                from first
         # the read-back comes last: it waits for the device, and stopping the arm must not
         return self.valves.reports_safe(await self.valves.read_back())
 

@@ -20,7 +20,9 @@ from typing import Any
 import numpy as np
 from fluidsense.common.errors import (
     CommandError,
+    DeviceTimeoutError,
     DriverError,
+    LinkLostError,
     NotSupportedError,
     SafetyError,
 )
@@ -150,16 +152,17 @@ class ValveBank(Device):
     async def safe(self, t: float) -> None:
         """Every valve to its safe position: actuator vented, tank isolated. Tries every
         valve even if one fails, then raises the first failure."""
-        first: Exception | None = None
+        first: tuple[str, Exception] | None = None
         for valve, position in self.safe_positions.items():
             try:
                 await self._write(valve, position, t)
                 self._state[valve] = position
             except Exception as exc:  # noqa: BLE001 - keep venting the others
                 log.error("could not put valve %s in its safe position: %s", valve, exc)
-                first = first or exc
+                first = first or (valve, exc)
         if first is not None:
-            raise DriverError("safe state incomplete: a valve did not move") from first
+            valve, exc = first
+            raise same_family(exc, f"safe state incomplete: valve {valve} did not move: {exc}") from exc
 
     async def read_back(self) -> dict[str, bool] | None:
         """The valve positions the device reports now (its output register, not what was
@@ -219,6 +222,16 @@ class ValveBank(Device):
 
     @abc.abstractmethod
     async def _set(self, valve: str, open: bool, t: float) -> None: ...
+
+
+def same_family(cause: Exception, message: str) -> DriverError:
+    """A DriverError saying ``message`` of ``cause``'s family: a lost link or a device that
+    did not answer stays one (a connection retries those; a hiccup at start-up is not a bad
+    device), anything else (a device that refused) is a plain DriverError."""
+    for family in (LinkLostError, DeviceTimeoutError):
+        if isinstance(cause, family):
+            return family(message)
+    return DriverError(message)
 
 
 class Regulator(Device):

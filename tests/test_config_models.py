@@ -183,3 +183,22 @@ def test_out_of_range(case):
     bad = edge - 10**6 if side == "low" else edge + 10**6  # an int for an int field (strict)
     with pytest.raises(ConfigError, match=rf"{PATH}: {name}: .*(greater|less) than"):
         validate(model, {**example(model), name: bad}, PATH)
+
+
+def test_the_publisher_keeps_queue_s_of_its_message_rate_for_a_slow_subscriber(tmp_path):
+    """Not 10,000 messages (15 minutes of the stream, +12.6 MB over an 8-hour soak): queue_s
+    of what it sends, a batch per pressure_batch_s, a heartbeat per heartbeat_s, 2 events a
+    second (docs/soak.md); the daemon's publisher is bound with it."""
+    from fluidsense.controller.config import load_cell_config
+    from fluidsense.controller.config.cell import PublisherConfig
+    from fluidsense.daemon.app import bind_publisher
+    from support.harness import sim_config
+
+    assert PublisherConfig().hwm_messages == 390  # 30 s x (10 + 1 + 2) a second
+    assert PublisherConfig(pressure_batch_s=0.5, heartbeat_s=2.0, queue_s=10).hwm_messages == 45
+    cfg = load_cell_config(sim_config(tmp_path))
+    pub = bind_publisher(cfg)
+    try:
+        assert pub._hwm == 390  # noqa: SLF001 - what the outlet's XPUB is given
+    finally:
+        pub.close()

@@ -447,17 +447,31 @@ def test_a_nearly_full_disk_stops_the_recording_and_says_so(tmp_path, monkeypatc
 
     real = shutil.disk_usage
 
+    logs: list[dict] = []
+
+    class Logs(Sink):
+        def on_event(self, topic, t_s, payload):
+            if topic == "log":
+                logs.append(payload)
+
     async def body(ctrl):
+        ctrl.add_sink(Logs())
         await ctrl.wait(5.0)
         monkeypatch.setattr("fluidsense.drivers.recording.sink.shutil.disk_usage",
                             lambda p: real(p)._replace(free=10 * 2**20))
         await ctrl.run_cycle()
-        return ctrl.telemetry.sinks
+        return ctrl.telemetry.sinks, ctrl.status()
 
     with caplog.at_level(logging.ERROR):
-        sinks = record(tmp_path / "second", body)
+        sinks, status = record(tmp_path / "second", body)
     assert not any(isinstance(s, QueuedSink) for s in sinks)  # the recording was dropped
     assert any("MB free" in r.message and "recording stopped" in r.message for r in caplog.records)
+    # ... and the operator sees it: status keeps it as failed, with the reason; a log event (ERROR) says so
+    (failed,) = status["sinks"]
+    assert failed["sink"] == "RecordingSink" and failed["state"] == "failed", failed
+    assert "MB free" in failed["reason"] and failed["t_s"] > 5.0, failed
+    (said,) = [e for e in logs if e.get("sink") == "RecordingSink"]
+    assert said["level"] == "ERROR" and "MB free" in said["message"], said
     with RecordingReader(the_file(tmp_path / "second")) as reader:
         list(reader.records())
         assert reader.complete  # closed properly before stopping

@@ -12,7 +12,7 @@ import pytest
 from fluidsense.common.errors import ConfigError
 from fluidsense.drivers.serial import protocol as p
 from fluidsense.drivers.serial.clock import Timeline
-from hypothesis import given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from support.harness import CONFIG, REPO
 from support.serial import serial_config
@@ -104,3 +104,47 @@ def test_config_refusals(tmp_path):
     assert "not wired" in refused({"wiring": missing})
     assert "driver.rate_hz" in refused({"rate_hz": 1000.0})  # strict integer
     assert "driver.bogus" in refused({"bogus": 1})
+
+
+# ---------------------------------------------------------------- a device that lies (valid CRC)
+# lab/bench/fuzz_serial.py: each case a session started as a device would, then its frames
+# through the link's own read path (a pipe for the port); `make fuzz` runs it at 1,000 cases
+
+from lab.bench.fuzz_serial import SANE, SESSION, Run, case_strategy, driver_config, sample  # noqa: E402
+
+DRIVER = driver_config()
+
+
+def _lie(payloads: list[bytes]) -> dict:
+    run = Run(DRIVER)
+    run.feed(payloads)
+    return run.check()
+
+
+def _good(n: int, first: int = 0) -> list[bytes]:
+    return [sample(SESSION, SANE + 1 + i, SANE + i, (512, 512)) for i in range(first, first + n)]
+
+
+@pytest.mark.parametrize(("field", "lie"), [
+    ("counts", sample(SESSION, SANE + 1, SANE, (512, 512, 512))),  # three counts, two inputs wired
+    ("counts", sample(SESSION, SANE + 1, SANE, (512, 4000))),  # 4000 from a 10-bit ADC
+    ("tick", sample(SESSION, SANE + 1, SANE + 10**6, (512, 512))),  # 1000 s of samples at once
+    ("seq", sample(SESSION, SANE + 30_000, SANE, (512, 512))),  # 30,000 frames lost between two ticks
+])
+def test_one_frame_that_cannot_be_true_ends_the_session_once_naming_its_field(field, lie):
+    """The frame and everything after it: one DeviceProtocolError naming the field, nothing more
+    queued (the driver once queued a DriverError per frame, and the sample loop froze on them)."""
+    assert _lie([lie] * 50 + _good(20, 1)) == {"blocks": 2, "ended": field, "errors": 0}
+
+
+def test_a_timer_ten_times_its_rate_ends_the_session_as_rate():
+    """1,000 good frames arriving at once: a timer far faster than rate_hz. Ended before a
+    second of sample time passed (the slack is 0.25 s beyond the host clock)."""
+    out = _lie(_good(1000))
+    assert out["ended"] == "rate" and out["blocks"] <= 2 + 30, out
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=list(HealthCheck))
+@given(payloads=case_strategy())
+def test_hostile_frames_end_a_session_at_most_once_and_never_move_sample_time_ahead(payloads):
+    _lie(payloads)  # Run.check asserts the properties (lab/bench/fuzz_serial.py)

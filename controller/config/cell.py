@@ -25,6 +25,10 @@ from .loading import load_model, read_yaml, referenced_file, validate
 from .profile import Profile
 
 
+#: cycle events and logs per second the publisher's queue is sized for (PublisherConfig.hwm_messages)
+EVENT_RATE_HZ = 2.0
+
+
 class Supervision(StrictModel):
     """Thresholds of the safety supervisor (controller/safety/supervisor.py)."""
 
@@ -92,6 +96,20 @@ class PublisherConfig(StrictModel):
     cmd_curve: CurveKeys | None = None
     pressure_batch_s: Real = Field(0.1, gt=0, le=10, description="pressure samples are sent in batches this long")
     heartbeat_s: Real = Field(1.0, gt=0, le=60)
+    queue_s: Real = Field(30.0, gt=0, le=600, description=(
+        "seconds of messages the publisher keeps for a subscriber that falls behind; beyond that it drops "
+        "(the high-water mark, in messages: queue_s x the message rate, see hwm_messages)"))
+
+    @property
+    def hwm_messages(self) -> int:
+        """The publisher's per-subscriber high-water mark: ``queue_s`` of the message rate,
+        which is one pressure batch per ``pressure_batch_s``, one status heartbeat per
+        ``heartbeat_s`` and at most EVENT_RATE_HZ of cycle events and logs (a grip cycle
+        sends about ten events in a second or more). At the defaults: 30 s x 13/s = 390
+        messages, about 1 MB per slow subscriber at 2.5 kB a message; the 10,000 it was
+        grew the daemon by 12.6 MB over 8 hours with one such subscriber (docs/soak.md)."""
+        rate = 1.0 / self.pressure_batch_s + 1.0 / self.heartbeat_s + EVENT_RATE_HZ
+        return max(10, math.ceil(self.queue_s * rate))
 
     @field_validator("pub", "cmd")
     @classmethod

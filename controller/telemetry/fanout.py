@@ -56,6 +56,8 @@ class Telemetry:
         self.pub, self.cfg = publisher, cfg
         self._now, self._rate_hz, self._origin, self._on_failure = now, rate_hz, clock_origin, on_failure
         self.sinks: list[Sink] = []
+        #: sinks dropped after a failure, for status: sink, state ("failed"), reason, t_s
+        self.failed_sinks: list[dict[str, Any]] = []
         self._batch: list[SampleBlock] = []
         self._batch_start: float | None = None
         self._next_heartbeat = 0.0
@@ -88,14 +90,22 @@ class Telemetry:
                 self._drop(sink, exc)
 
     def _drop(self, sink: Sink, exc: Exception) -> None:
-        """A sink that reports a failure it knows is dropped and control goes on; anything
-        else it raises is a bug: dropped, and a fault."""
+        """A sink that reports a failure it knows (a full disk) is dropped and control goes
+        on; it stays in status as failed, with the reason, and a ``log`` event (ERROR) tells
+        the operator. Anything else it raises is a bug: the same, and a fault."""
         self.sinks.remove(sink)
-        if isinstance(exc, FluidsenseError):
-            log.error("sink %s dropped: %s", type(sink).__name__, exc)
-            return
-        log.error("sink %s failed and was dropped: %s", type(sink).__name__, exc, exc_info=exc)
-        self._on_failure(f"sink {type(sink).__name__} failed: {type(exc).__name__}: {exc}")
+        name = getattr(sink, "name", type(sink).__name__)
+        known = isinstance(exc, FluidsenseError)
+        reason = str(exc) if known else f"{type(exc).__name__}: {exc}"
+        self.failed_sinks.append({"sink": name, "state": "failed", "reason": reason, "t_s": self._now()})
+        if known:
+            log.error("sink %s dropped: %s", name, exc)
+        else:
+            log.error("sink %s failed and was dropped: %s", name, exc, exc_info=exc)
+        self.emit("log", {"level": "ERROR", "message": f"sink {name} failed and was dropped: {reason}",
+                          "sink": name})
+        if not known:
+            self._on_failure(f"sink {name} failed: {reason}")
 
     # ------------------------------------------------------------------ heartbeat
     def heartbeat_due(self) -> bool:

@@ -30,7 +30,9 @@ from ..reconnect import Reconnector
 from . import protocol as p
 from .clock import Timeline
 from .config import SerialDriverConfig, SerialValveWiring
-from .link import DeviceResetError, SerialLink
+from .link import SerialLink
+from .handshake import handshake
+from .stream import DeviceResetError
 
 log = logging.getLogger(__name__)
 
@@ -107,7 +109,7 @@ class SerialSource(SampleSource):
         try:
             async with asyncio.timeout(timeout):
                 await link.open()
-                self.info = await link.handshake(self._start, self._session)
+                self.info = await handshake(link, self._start, self._session)
                 self.link = link
                 for step in self.on_connect:
                     await step()
@@ -146,7 +148,10 @@ class SerialSource(SampleSource):
             return
         for key, value in link.stats.items():
             self._totals[key] = self._totals.get(key, 0) + value
-        await link.close()
+        # shielded: the read that found the loss runs under the sample loop's no_data_s timeout, and
+        # a close cancelled while it joins the reader thread left the port open and locked, so every
+        # reconnection failed ("Could not exclusively lock port")
+        await asyncio.shield(link.close())
 
     async def _stop(self) -> None:
         await self._reconnector.cancel()

@@ -11,6 +11,9 @@ What can go wrong on the wire, and what it becomes (docs/drivers.md):
 - the device reset (a frame without our session: its power-on state, outputs low, ticks
   from 0): DeviceResetError (a ``driver`` fault), and the source reconnects;
 - the device vented by its heartbeat watchdog: DriverError (a ``driver`` fault);
+- a frame whose contents cannot be true (a channel count, tick, rate or sequence the
+  device could not have: stream.py): DeviceProtocolError (a ``driver`` fault), once, and
+  the source reconnects;
 - the port failed or closed (unplugged): LinkLostError (``link_lost``), reconnection;
 - no valid frame for ``silence_s``: LinkLostError (``link_lost``), reconnection.
 """
@@ -30,7 +33,7 @@ from typing import Any
 import numpy as np
 import serial
 from fluidsense.common.errors import (
-    ConfigError,
+    DeviceProtocolError,
     DeviceTimeoutError,
     DriverError,
     LinkLostError,
@@ -40,15 +43,12 @@ from fluidsense.common.samples import SampleBlock
 from . import protocol as p
 from .clock import Timeline
 from .config import SerialDriverConfig
-from .session import DamageWindow, check_fit
+from .session import DamageWindow
+from .stream import Blocks, DeviceResetError, SessionGuard
+
+__all__ = ["DeviceResetError", "SerialLink"]
 
 log = logging.getLogger(__name__)
-
-LATE_S = 50e-6  # a sample converted this long after its tick is late (as the sampler process counts it)
-
-
-class DeviceResetError(DriverError):
-    """The device restarted: its session, outputs and ticks are gone."""
 
 
 class SerialLink:
@@ -58,8 +58,7 @@ class SerialLink:
         self.name = f"serial {cfg.port}"
         self.timeline = timeline
         self.channels, self.adc_mask = channels, adc_mask
-        # the device's columns (lowest input first) in channel order, then Pa = gain * count + offset
-        self._order, self._gain, self._offset = order, gain, offset
+        self._blocks = Blocks(timeline, channels, order, gain, offset, cfg.block_size)
         self.queue: asyncio.Queue[SampleBlock | BaseException] = asyncio.Queue()
         self.info: p.Info | None = None
         self.session: int | None = None
@@ -69,7 +68,8 @@ class SerialLink:
         self.vented = False
         self.last_frame = time.monotonic()
         self.stats = dict.fromkeys(("bytes", "frames", "samples", "corrupt_frames", "lost_frames", "stale_frames",
-                                    "device_tx_dropped", "adc_overruns", "commands", "retries"), 0)
+                                    "device_tx_dropped", "adc_overruns", "commands", "retries",
+                                    "implausible_frames"), 0)
         self._ser: serial.Serial | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._lost: LinkLostError | None = None
@@ -83,9 +83,8 @@ class SerialLink:
         self._dev_seq: int | None = None
         self._raw_tick: int | None = None
         self._tick = -1  # unwrapped tick of the session
-        self._ks: list[int] = []
-        self._rows: list[tuple[int, ...]] = []
-        self._late: list[int] = []
+        self._guard: SessionGuard | None = None  # from START's acknowledgement
+        self._lost_since_sample = 0  # frames missing (seq) since the last sample frame
         self._damage = DamageWindow(cfg.damaged_limit)
         self._thread: threading.Thread | None = None
         self._wake: tuple[int, int] | None = None
@@ -136,33 +135,6 @@ class SerialLink:
             raise self._lost
 
     # ------------------------------------------------------------ the session
-    async def handshake(self, start: Callable[[int], bytes], previous_session: int | None) -> p.Info:
-        """HELLO until the device answers (an Arduino restarts when its port opens; its
-        bootloader takes 1-2 s), check what it is, START a new session."""
-        while True:
-            try:
-                await self.command(p.HELLO, tries=1, timeout_s=max(0.25, self.cfg.ack_timeout_s))
-                break
-            except DeviceTimeoutError:
-                continue  # bounded by the source's connect timeout
-        info = self.info
-        if info is None:
-            raise DriverError(f"{self.name}: HELLO acknowledged without INFO")
-        check_fit(self.cfg, info)
-        session = random.choice([s for s in range(1, 256) if s != previous_session])
-        self.session = session
-        self.timeline.new_session()
-        try:
-            await self.command(p.START, start(session))
-        except DriverError as exc:
-            if "argument refused" in str(exc):
-                raise ConfigError(f"driver: the device refused the configuration (rate {self.cfg.rate_hz} Hz, "
-                                  f"channels, heartbeat): {exc}") from exc
-            raise
-        log.info("%s: session %d started on %s (%s reset, %d-bit ADC)", self.name, session, info.board,
-                 info.reset_cause, info.adc_bits)
-        return info
-
     async def command(self, kind: int, args: bytes = b"", tries: int | None = None,
                       timeout_s: float | None = None) -> p.Ack:
         """Send a command and wait for its acknowledgement, sending it again after each
@@ -314,26 +286,33 @@ class SerialLink:
             self._dev_seq = f.seq
             if gap:
                 self.stats["lost_frames"] += gap
-                self._damaged(gap, arrival)
+                self._lost_since_sample += gap
+                if not isinstance(f, p.Sample):  # a sample frame's gap is damage once the guard believes it
+                    self._damaged(gap, arrival)
         if isinstance(f, p.Ack):
-            if f.command == p.START and f.status == p.OK and f.session == self.session:
+            if f.command == p.START and f.status == p.OK and f.session == self.session and not self._started:
                 self._started, self._dev_seq = True, f.seq
+                self._guard = SessionGuard(self.cfg, len(self.channels), arrival)
             self._post(self._resolve, f)
         elif isinstance(f, p.Sample):
             if self._started:
-                self._sample(f, arrival)
+                self._sample(f, arrival, gap)
             else:
                 self.stats["stale_frames"] += 1  # still streaming for an earlier session
 
     def _reset(self, f: p.Sample | p.Ack | p.Info) -> None:
         cause = f"{f.reset_cause}" if isinstance(f, p.Info) else "a frame without the session"
-        self._dead = True
-        exc = DeviceResetError(f"{self.name}: the device reset ({cause}): it restarted with its outputs at their "
-                               "power-on levels and its ticks from 0")
-        self._lost = LinkLostError(f"{self.name}: the device reset; reconnecting")
-        self._post(self._fail, exc)
+        self._drop(DeviceResetError(f"{self.name}: the device reset ({cause}): it restarted with its outputs at "
+                                    "their power-on levels and its ticks from 0"), "the device reset")
 
-    def _sample(self, f: p.Sample, arrival: float) -> None:
+    def _drop(self, exc: DriverError, why: str) -> None:
+        """The session is over (the device reset, or said what cannot be true): ``exc`` is
+        the one fault it makes; every later frame is ignored, every read and command after
+        it says the link is lost, and the source reconnects."""
+        self._dead = True  # at once, in the reader: no later frame of the session is looked at
+        self._post(self._end_session, exc, LinkLostError(f"{self.name}: {why}; reconnecting"))
+
+    def _sample(self, f: p.Sample, arrival: float, gap: int) -> None:
         if self._raw_tick is None:
             tick = f.tick
         else:
@@ -341,7 +320,16 @@ class SerialLink:
             if tick <= self._tick:
                 self._reset(f)
                 return
+        lost, self._lost_since_sample = self._lost_since_sample, 0
+        lie = self._guard.check(f, tick, arrival, lost, self.stats["commands"] + self.stats["retries"])
+        if lie is not None:
+            self.stats["implausible_frames"] += 1
+            self._drop(DeviceProtocolError(f"{self.name}: {lie}", lie.field), f"the device said what cannot be "
+                       f"true ({lie.field})")
+            return
         self._raw_tick, self._tick = f.tick, tick
+        if gap:
+            self._damaged(gap, arrival)
         k = self.timeline.slot(tick, arrival)
         self.outputs, self.outputs_tick = f.outputs, tick
         vented = bool(f.flags & p.F_VENTED)
@@ -354,28 +342,11 @@ class SerialLink:
         self.stats["samples"] += 1
         if self._tick_waiters:
             self._post(self._wake_waiters, tick, f.outputs)
-        if len(f.counts) != len(self.channels):
-            self._post(self._fail, DriverError(f"{self.name}: {len(f.counts)} channels in a sample frame, "
-                                               f"{len(self.channels)} configured"))
-            return
         if not self.delivering:
             return
-        self._ks.append(k)
-        self._rows.append(f.counts)
-        self._late.append(f.late_us)
-        if len(self._ks) >= self.cfg.block_size:
-            self._emit()
-
-    def _emit(self) -> None:
-        ks = np.array(self._ks)
-        late = np.array(self._late, dtype=float) * 1e-6
-        values = np.array(self._rows, dtype=float)[:, self._order] * self._gain + self._offset
-        missed = int(ks[-1] - self.timeline.k_delivered) - len(ks)
-        self.timeline.k_delivered = int(ks[-1])
-        block = SampleBlock(0, ks / self.timeline.rate_hz + late, values, self.channels, missed=missed,
-                            late=int(np.count_nonzero(late > LATE_S)), lateness_s=late)
-        self._ks, self._rows, self._late = [], [], []
-        self._post(self.queue.put_nowait, block)
+        block = self._blocks.add(k, f)
+        if block is not None:
+            self._post(self.queue.put_nowait, block)
 
     def _damaged(self, n: int, arrival: float) -> None:
         total = self._damage.add(n, arrival)
@@ -385,6 +356,17 @@ class SerialLink:
                 "check the cable, its shield and ground, and the baud rate"))
 
     # ------------------------------------------------------------ in the loop
+    def _end_session(self, exc: DriverError, lost: LinkLostError) -> None:
+        """In the loop, in this order: the fault queued before the link says it is lost (a read
+        that saw the loss first would reconnect and the fault would never be told), then a
+        command or read-back waiting on the session fails now, not at its timeout."""
+        self.queue.put_nowait(exc)
+        self._lost = self._lost or lost
+        for fut in [*self._acks.values(), *(f for _, f in self._tick_waiters)]:
+            if not fut.done():
+                fut.set_exception(self._lost)
+        self._tick_waiters.clear()
+
     def _resolve(self, ack: p.Ack) -> None:
         fut = self._acks.get(ack.command_seq)
         if fut is not None and not fut.done():

@@ -10,7 +10,8 @@ hypothesis (the test extras).
 
 Figures: messages sent, replies (of which error replies), malformed messages dropped,
 protocol problems, daemon crashes (0 expected), the daemon's RSS before and after.
-Then the config-file fuzz, where that module is installed.
+Then the config-file fuzz, where that module is installed, and the serial device-side
+fuzz (lab/bench/fuzz_serial.py: frames with a valid CRC and hostile contents).
 """
 
 from __future__ import annotations
@@ -321,6 +322,8 @@ def fuzz_files(examples: int, seed: int) -> dict[str, Any] | str:
 def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("--messages", type=int, default=10_000, help="command messages (default 10000)")
     p.add_argument("--files", type=int, default=1000, help="config files, for the file fuzz (default 1000)")
+    p.add_argument("--serial", type=int, default=300,
+                   help="serial device sessions with hostile frames, for the serial fuzz (default 300)")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--json", action="store_true")
 
@@ -333,7 +336,10 @@ def run(args: argparse.Namespace) -> int:
         return 2
     tmp = Path(tempfile.mkdtemp(prefix="fluidsense-fuzz-"))
     try:
-        out = {"commands": fuzz_commands(args.messages, args.seed, tmp), "files": fuzz_files(args.files, args.seed)}
+        from .fuzz_serial import fuzz_serial  # noqa: PLC0415 - imports hypothesis
+
+        out = {"commands": fuzz_commands(args.messages, args.seed, tmp), "files": fuzz_files(args.files, args.seed),
+               "serial": fuzz_serial(args.serial, args.seed)}
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     if args.json:
@@ -350,4 +356,5 @@ def run(args: argparse.Namespace) -> int:
     for log in c["crash_logs"]:
         print(f"  crash: {log}")
     print(f"config files: {out['files']}")
+    print(f"serial device sessions: {out['serial']}")
     return 0

@@ -269,7 +269,7 @@ async def _soak(cfg, hours: float, delay_s: float, record: bool, pub_hwm: int | 
         "warmup_h": window_h, "warmup_cycles": warm["cycles"] if warm else None, "rss_by_hour": _by_hour(rss),
         "py_objects": {"start": warm["objects"] if warm else None, "end": end["objects"]},
         "subscriber": None if seen is None else {
-            "delay_ms": delay_s * 1e3, "pub_hwm": pub_hwm, "received": seen["received"], "dropped": seen["dropped"],
+            "delay_ms": delay_s * 1e3, "pub_hwm": pub_hwm or cfg.publisher.hwm_messages, "received": seen["received"], "dropped": seen["dropped"],
             "published_since_attach": None if seen["first_seq"] is None else seen["last_seq"] - seen["first_seq"] + 1,
             "pressure_samples": seen["pressure_samples"], "pressure_duplicated": seen["pressure_duplicated"],
             "got_end_mark": seen["ended"]},

@@ -153,6 +153,10 @@ class Proxy:
                 out.append(b)
         return bytes(out)
 
+    def _filter_out(self, data: bytes) -> bytes:
+        """Host -> device bytes, as they go on (a subclass may change them)."""
+        return data
+
     def _run(self) -> None:
         while True:
             ready = select.select([self.dev, self.master, self._stop_r], [], [])[0]
@@ -176,7 +180,7 @@ class Proxy:
                 except (BlockingIOError, OSError):
                     data = b""
                 if data and not self.holding:
-                    os.write(self.dev, data)
+                    os.write(self.dev, self._filter_out(data))
 
     def close(self) -> None:
         os.write(self._stop_w, b"x")

@@ -89,13 +89,6 @@ class _CircuitBase(StrictModel):
     def p_atm(self) -> float:
         return self.p_atm_kpa * KPA
 
-    @model_validator(mode="after")
-    def _valve_alone(self):
-        if self.valve is not None and self.resistor_pa_s_per_m3 > 0:
-            raise ValueError("valve: an ISO 6358 valve in series with a laminar resistor needs a volume between "
-                             "them, which is not modelled; set resistor_pa_s_per_m3 to 0 or leave valve out")
-        return self
-
     @property
     def safe_valves(self) -> dict[str, bool]:
         """valve name -> open in the safe state"""

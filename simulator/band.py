@@ -67,8 +67,9 @@ def _readings(hw: Hardware, diameters: Sequence[int], p0_kpa: float, window: tup
     return [window_mean(step_response(hw, CylinderScene(diameter_mm=d), p0_kpa, t_end), *window) for d in diameters]
 
 
-def refit(hw: Hardware) -> Hardware:
-    """Compliance and wrap ratio set again so that D = 40 and 100 mm read the paper's 5 s values."""
+def refit(hw: Hardware, start: tuple[float, float] | None = None) -> Hardware:
+    """Compliance and wrap ratio set again so that D = 40 and 100 mm read the paper's 5 s
+    values (``start``: where the search begins, the profile's own values by default)."""
     ds = tuple(FIT_READINGS)
 
     def with_params(x) -> Hardware:
@@ -78,15 +79,15 @@ def refit(hw: Hardware) -> Hardware:
     def residual(x):
         return np.array(_readings(with_params(x), ds, P0_SLOW_KPA, SLOW_WINDOW)) - np.array(list(FIT_READINGS.values()))
 
-    x0 = [hw.actuator.compliance_ml_per_kpa, hw.actuator.wrap_ratio]
+    x0 = list(start) if start is not None else [hw.actuator.compliance_ml_per_kpa, hw.actuator.wrap_ratio]
     sol = least_squares(residual, x0, bounds=([0.2, 0.05], [10.0, 1.0]), diff_step=1e-4, xtol=1e-10, ftol=1e-10)
     if np.max(np.abs(sol.fun)) > 1e-3:
         raise RuntimeError(f"the sorting gripper cannot be fitted to the 5 s readings: residual {sol.fun} kPa")
     return with_params(sol.x)
 
 
-def member(hw: Hardware, label: str) -> Member:
-    fitted = refit(hw)
+def member(hw: Hardware, label: str, start: tuple[float, float] | None = None) -> Member:
+    fitted = refit(hw, start)
     slow = dict(zip(DIAMETERS, _readings(fitted, DIAMETERS, P0_SLOW_KPA, SLOW_WINDOW)))
     fast = dict(zip(DIAMETERS, _readings(fitted, DIAMETERS, P0_FAST_KPA, FAST_WINDOW)))
     return Member(label, fitted.actuator.compliance_ml_per_kpa, fitted.actuator.wrap_ratio, slow, fast)
@@ -95,7 +96,8 @@ def member(hw: Hardware, label: str) -> Member:
 def band(hw: Hardware, ranges=RANGES) -> list[Member]:
     """The nominal member and one member per part at each end of its range."""
     out = [member(hw, "nominal")]
+    start = (out[0].compliance_ml_per_kpa, out[0].wrap_ratio)  # the others are near it
     for name, path, lo, hi, _ in ranges:
         for v in (lo, hi):
-            out.append(member(with_value(hw, path, v), f"{name} = {v:g}"))
+            out.append(member(with_value(hw, path, v), f"{name} = {v:g}", start))
     return out

@@ -26,8 +26,8 @@ _AIR_RESISTANCE = 1e7
 
 
 def _valve_path(c, a: int, b: int, valve: str, when_open: bool, name: str, downstream_resistor: bool) -> Pipe:
-    """The actuation valve's path a -> b: ISO 6358 when the circuit names one (it then has
-    no resistor), else laminar valve (+ resistor)."""
+    """The actuation valve's path a -> b: ISO 6358 when the circuit names one (a resistor
+    then has a link of its own), else laminar valve (+ resistor)."""
     if c.valve is not None:
         el = ("iso6358", c.valve.sonic_conductance_dm3_per_s_bar * DM3_PER_S_BAR, c.valve.critical_ratio)
         return Pipe(a, b, 0.0, valve, when_open, name, element=el)
@@ -39,6 +39,7 @@ def _valve_path(c, a: int, b: int, valve: str, when_open: bool, name: str, downs
 # tank charges (50-74 kPa gauge) and of its grippers' readings (20-40 kPa gauge).
 _P_TANK_CORRELATION = P_ATM + 60 * KPA
 _P_ACT_CORRELATION = P_ATM + 35 * KPA
+PORT_VOLUME_M3 = 0.2e-6  # an ISO valve's outlet port before a resistor (assumed; 0.1 % of the smallest actuator here)
 
 
 def wall_times(c) -> dict[str, float]:
@@ -77,6 +78,15 @@ def network(hw: Hardware, law: VolumeLaw) -> tuple[Network, dict[str, bool]]:
         laws.append(VolumeLaw.constant(c.hose.volume_m3, p_atm))
         port = names.index("line")
         links.append(Pipe(port, act, 0.0, None, True, "hose", element=("hose", c.hose.bore_mm * MM, c.hose.length_m)))
+    vent_from = port
+    if c.valve is not None and c.resistor_pa_s_per_m3 > 0:
+        # an ISO valve and a laminar resistor in series need the volume between them: the
+        # valve's outlet and fittings (PORT_VOLUME_M3, assumed)
+        names.append("valve_out")
+        laws.append(VolumeLaw.constant(PORT_VOLUME_M3, p_atm))
+        out = names.index("valve_out")
+        links.append(Pipe(out, port, c.resistor_pa_s_per_m3, None, True, "resistor"))
+        port, vent_from = out, (out if downstream else port)
     if isinstance(c, FlowControlledCircuit):
         sources.append(FlowSource(port, ACTUATE, True))
     else:
@@ -85,9 +95,9 @@ def network(hw: Hardware, law: VolumeLaw) -> tuple[Network, dict[str, bool]]:
         links.append(Pipe(REGULATOR, tank, c.supply_resistance_pa_s_per_m3, supply_valve, True, "supply"))
         links.append(_valve_path(c, tank, port, ACTUATE, True, "actuate", True))
     if isinstance(c, TankCircuit) and c.vent_valve:
-        links.append(_valve_path(c, port, ATMOSPHERE, VENT, True, "vent", downstream))
+        links.append(_valve_path(c, vent_from, ATMOSPHERE, VENT, True, "vent", downstream))
     else:
-        links.append(_valve_path(c, port, ATMOSPHERE, ACTUATE, False, "vent", downstream))
+        links.append(_valve_path(c, vent_from, ATMOSPHERE, ACTUATE, False, "vent", downstream))
     if c.leak_resistance_pa_s_per_m3 is not None:
         links.append(Pipe(act, ATMOSPHERE, c.leak_resistance_pa_s_per_m3, None, True, "leak"))
     links.append(Pipe(act, ATMOSPHERE, _AIR_RESISTANCE, AIR, True, AIR))

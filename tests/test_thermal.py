@@ -152,3 +152,61 @@ def test_wall_time_constants_scale_as_their_correlations_say():
     assert tank_wall_time_s(0.4 * LITRE, 165e3, delta_t_k=30) < tank_wall_time_s(0.4 * LITRE, 165e3, delta_t_k=3)
     # conduction in a bore goes as its radius squared
     assert bore_wall_time_s(8e-3, 140e3) == pytest.approx(4 * bore_wall_time_s(4e-3, 140e3), rel=1e-12)
+
+
+# ------------------------------------------------------------ the configured circuit
+def _sorting_hw(**circuit):
+    from fluidsense.common.hardware import GripperActuator, Hardware, TankCircuit
+
+    circuit = {"resistor_pa_s_per_m3": 0.0, **circuit}
+    c = TankCircuit(tank_l=0.4, valve={"sonic_conductance_dm3_per_s_bar": 0.3, "critical_ratio": 0.3},
+                    hose={"bore_mm": 4.3, "length_m": 3.3}, **circuit)
+    return Hardware(circuit=c, actuator=GripperActuator(v0_ml=100.08, compliance_ml_per_kpa=1.56, wrap_ratio=0.78,
+                                                        closing_mm_per_ml=1.885))
+
+
+def test_a_bad_thermal_model_is_refused_with_the_field_named():
+    from fluidsense.common.hardware import TankCircuit
+    from pydantic import ValidationError
+
+    with pytest.raises(ValidationError, match="thermal.model"):
+        TankCircuit(thermal={"model": "adiabatic"})
+    with pytest.raises(ValidationError, match="bore_mm"):
+        TankCircuit(hose={"bore_mm": -4.3, "length_m": 3.3})
+
+
+def test_a_resistor_behind_an_iso_valve_slows_the_fill_and_keeps_the_equilibrium():
+    from fluidsense.simulator.timing import step_response
+
+    scene = CylinderScene(diameter_mm=60)
+    fast = step_response(_sorting_hw(), scene, 64.0, 12.0, dt_s=5e-3)
+    slow = step_response(_sorting_hw(resistor_pa_s_per_m3=5.7e8), scene, 64.0, 12.0, dt_s=5e-3)
+    assert slow.t_contact_s > 2 * fast.t_contact_s
+    # the 0.2 ml between valve and resistor holds gas too: 0.1 % of the volume, ~0.01 kPa
+    assert slow.p_act_kpa[-1] == pytest.approx(fast.p_act_kpa[-1], abs=0.02)
+
+
+def test_the_sensor_at_the_valve_end_leads_the_fingers_and_agrees_at_rest():
+    from fluidsense.simulator.timing import step_response
+
+    scene = CylinderScene(diameter_mm=60)
+    at_valve = step_response(_sorting_hw(), scene, 64.0, 1.5, dt_s=2e-3)
+    at_fingers = step_response(_sorting_hw().model_copy(update={"circuit": _sorting_hw().circuit.model_copy(
+        update={"hose": _sorting_hw().circuit.hose.model_copy(update={"sensor_at": "actuator"})})}),
+        scene, 64.0, 1.5, dt_s=2e-3)
+    early = (at_valve.t_s > 0.015) & (at_valve.t_s < 0.05)
+    assert np.all(at_valve.p_act_kpa[early] > at_fingers.p_act_kpa[early])  # the hose delays the fingers
+    assert at_valve.p_act_kpa[-1] == pytest.approx(at_fingers.p_act_kpa[-1], abs=1e-3)
+
+
+def test_the_sorting_gripper_refits_to_its_two_readings_through_whichever_model_it_uses():
+    from fluidsense.simulator.band import FIT_READINGS, P0_SLOW_KPA, SLOW_WINDOW, refit
+    from fluidsense.simulator.timing import step_response, window_mean
+
+    fitted = refit(_sorting_hw())
+    for d, reading in FIT_READINGS.items():
+        resp = step_response(fitted, CylinderScene(diameter_mm=d), P0_SLOW_KPA, sum(SLOW_WINDOW) + 0.01)
+        assert window_mean(resp, *SLOW_WINDOW) == pytest.approx(reading, abs=2e-3)
+    # isothermal, the hose and the ISO valve change the 5 s readings little: near the profile's own fit
+    assert fitted.actuator.compliance_ml_per_kpa == pytest.approx(1.56, rel=0.03)
+    assert fitted.actuator.wrap_ratio == pytest.approx(0.78, rel=0.03)

@@ -27,10 +27,56 @@ Ratio = Annotated[Real, Field(ge=0, le=1)]
 SUPPLY, ACTUATE, VENT = "supply", "actuate", "vent"
 
 
+class Iso6358Valve(StrictModel):
+    """The actuation valve as ISO 6358 describes it (sonic conductance, critical pressure
+    ratio). No catalogue figure for the paper's SMC VDW250 or VX243 was found; the
+    defaults are assumptions for a direct-operated valve of about 1.5 mm^2 effective
+    area (C ~ 0.2 S/mm^2), varied over 0.2-0.6 and 0.15-0.5 in the fast-sorting band."""
+
+    sonic_conductance_dm3_per_s_bar: Real = Field(0.3, gt=0, le=100)
+    critical_ratio: Real = Field(0.3, ge=0, lt=1)
+
+
+class Hose(StrictModel):
+    """The line from the actuation valve to the actuator: its bore and length make a
+    volume and a Darcy-Weisbach flow path; the pressure sensor sits at the valve end or at
+    the actuator."""
+
+    bore_mm: Real = Field(gt=0, le=50)
+    length_m: Real = Field(gt=0, le=100)
+    sensor_at: Literal["valve", "actuator"] = "valve"
+
+    @property
+    def volume_m3(self) -> float:
+        return 3.141592653589793 * (self.bore_mm * MM) ** 2 / 4 * self.length_m
+
+
+class Thermal(StrictModel):
+    """Gas thermodynamics of the circuit's volumes: ``isothermal`` (the paper's eq. 1-9)
+    or ``wall``: an energy balance per volume with Newton heat exchange to its wall. A
+    wall time constant left empty comes from its correlation (simulator/elements.py):
+    natural convection in the tank (Churchill-Chu) at ``wall_delta_t_k``, conduction
+    across the actuator's chamber gap and the hose's bore."""
+
+    model: Literal["isothermal", "wall"] = "isothermal"
+    tank_wall_s: Real | None = Field(None, gt=0, le=1e6)
+    actuator_wall_s: Real | None = Field(None, gt=0, le=1e6)
+    line_wall_s: Real | None = Field(None, gt=0, le=1e6)
+    wall_delta_t_k: Real = Field(10.0, gt=0, le=200, description="gas-wall difference of the tank correlation "
+                                 "(assumed: a tank discharging into a gripper cools 10-15 K adiabatically)")
+    tank_aspect: Real = Field(2.0, gt=0.2, le=20, description="tank length over diameter (assumed)")
+    actuator_gap_mm: Real = Field(
+        3.0, gt=0, le=100, description="chamber width of the actuator (assumed; PneuNet chambers are a few mm)")
+
+
 class _CircuitBase(StrictModel):
     valve_resistance_pa_s_per_m3: Resistance = Field(
-        3.0e7, description="open solenoid valve and fittings (datasheet-typical, assumed)")
-    valve_delay_s: Real = Field(0.012, ge=0, le=1, description="solenoid switching delay (datasheet-typical)")
+        3.0e7, description="open solenoid valve and fittings, laminar (assumed: valve catalogues give ISO 6358 "
+        "figures, not a laminar resistance; ``valve`` replaces it)")
+    valve: Iso6358Valve | None = Field(None, description="ISO 6358 valve in place of the laminar one")
+    hose: Hose | None = None
+    thermal: Thermal = Thermal()
+    valve_delay_s: Real = Field(0.012, ge=0, le=1, description="solenoid switching delay (assumed)")
     resistor_pa_s_per_m3: Real = Field(1.0e8, ge=0, le=1e12, description="flow resistor before the actuator")
     resistor_position: Literal["downstream", "upstream"] = Field(
         "downstream", description="downstream of the actuation valve the vent also passes the resistor")

@@ -29,7 +29,7 @@ from .actuators import (
     volume_law,
 )
 from .arm import ArmModel
-from .gas import ATMOSPHERE, REGULATOR, FlowSource, Network, Pipe, VolumeLaw
+from .circuit import AIR, FAULT_LEAK, FAULT_SUPPLY, FAULTS, network, sensed_node
 from .plant import Plant
 from .sensor import SensorModel
 from .world import World
@@ -58,47 +58,6 @@ class CellSettings:
     perturb: Perturbation = Perturbation()
 
 
-AIR = "_air"  # internal valve: the actuator open to the air (a suction cup that let go)
-FAULT_LEAK = "_fault_leak"  # internal valves for fault injection: a leak, a supply stuck open
-FAULT_SUPPLY = "_fault_supply"
-FAULTS = ("over_pressure", "leak", "sensor_nan", "sensor_stuck", "sensor_range", "no_data", "link_lost",
-          "protective_stop")
-_AIR_RESISTANCE = 1e7
-
-
-def _network(hw: Hardware, law: VolumeLaw) -> tuple[Network, dict[str, bool]]:
-    """Nodes, links and valves of the configured circuit (see drivers.hardware)."""
-    c = hw.circuit
-    p_atm = c.p_atm
-    r_valve, r_res = c.valve_resistance_pa_s_per_m3, c.resistor_pa_s_per_m3
-    r_vent = r_valve + (r_res if c.resistor_position == "downstream" else 0.0)
-    links: list[Pipe] = []
-    sources: list[FlowSource] = []
-    if isinstance(c, FlowControlledCircuit):
-        names, laws = ["actuator"], [law]
-        act = 0
-        sources.append(FlowSource(act, ACTUATE, True))
-    else:
-        names, laws = ["tank", "actuator"], [VolumeLaw.constant(c.tank_m3, p_atm), law]
-        tank, act = 0, 1
-        supply_valve = SUPPLY if isinstance(c, TankCircuit) else None
-        links.append(Pipe(REGULATOR, tank, c.supply_resistance_pa_s_per_m3, supply_valve, True, "supply"))
-        links.append(Pipe(tank, act, r_valve + r_res, ACTUATE, True, "actuate"))
-    if isinstance(c, TankCircuit) and c.vent_valve:
-        links.append(Pipe(act, ATMOSPHERE, r_vent, VENT, True, "vent"))
-    else:
-        links.append(Pipe(act, ATMOSPHERE, r_vent, ACTUATE, False, "vent"))
-    if c.leak_resistance_pa_s_per_m3 is not None:
-        links.append(Pipe(act, ATMOSPHERE, c.leak_resistance_pa_s_per_m3, None, True, "leak"))
-    links.append(Pipe(act, ATMOSPHERE, _AIR_RESISTANCE, AIR, True, AIR))
-    links.append(Pipe(act, ATMOSPHERE, 2e10, FAULT_LEAK, True, FAULT_LEAK))
-    links.append(Pipe(REGULATOR, act, c.valve_resistance_pa_s_per_m3, FAULT_SUPPLY, True, FAULT_SUPPLY))
-    valves = {**dict.fromkeys(c.safe_valves, False), AIR: False, FAULT_LEAK: False, FAULT_SUPPLY: False}
-    response = getattr(hw.actuator, "response_s", 0.0)
-    dampers = {act: hw.actuator.damping} if response > 0 else None
-    return Network(names, laws, links, p_atm=p_atm, p_std=p_atm, flow_sources=sources, dampers=dampers), valves
-
-
 class SimulatedCell:
     """Plant, sensors and random streams of one simulated cell."""
 
@@ -116,8 +75,9 @@ class SimulatedCell:
         self.channels = hw.channels
         self.scene = cfg.scene
         self.scene_set_t = 0.0
-        net, valves = _network(hw, volume_law(hw.actuator, cfg.scene, self.p_atm))
+        net, valves = network(hw, volume_law(hw.actuator, cfg.scene, self.p_atm))
         self.act_node = net.index["actuator"]
+        self.sense_node = sensed_node(hw, net)
         self.tank_node = net.index.get("tank")
         # the flow sensor sits between the actuation valve and the actuator: it sees the
         # inflow through the valve (or from the flow controller) and the vent outflow
@@ -233,7 +193,7 @@ class SimulatedCell:
         t = np.arange(self.k_next, self.k_next + n) * self.dt
         state, flow = self.plant.sample(t, self.flow_links, flow_sources=True)
         p_abs = self.plant.pressures_abs(state)
-        true = {"p_act": p_abs[self.act_node] - self.p_atm}
+        true = {"p_act": p_abs[self.sense_node] - self.p_atm}
         if self.tank_node is not None:
             true["p_tank"] = p_abs[self.tank_node] - self.p_atm
         if flow is not None:

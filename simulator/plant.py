@@ -68,6 +68,9 @@ class Plant:
             slot = network.volume_slot(i)
             if slot is not None:  # a damped actuator starts at rest: on its law
                 y0[slot] = float(self.laws[i].volume_at(p_abs - network.p_atm))
+            ms = network.amount_slot(i)
+            if ms is not None:  # every volume starts at the wall's temperature
+                y0[ms] = y0[i]
         y0[network.n_nodes] = p_reg_abs
         self._seg = self._new_segment(t0, y0)
         self.n_solves = 0
@@ -104,9 +107,12 @@ class Plant:
         """Multiply the gas in a node at time t: what warming a closed volume does to its
         pressure (p*v = m*T/T0 with m fixed: scaling m is scaling T)."""
         i = self.net.index[node]
+        ms = self.net.amount_slot(i)
 
         def apply() -> None:
             self._seg.y0[i] *= factor
+            if ms is not None:  # the same warming, as more gas at the temperature it had
+                self._seg.y0[ms] *= factor
 
         self.schedule(t, apply, f"scale {node} x{factor:.4f}")
 
@@ -115,12 +121,17 @@ class Plant:
         i = self.net.index[node]
 
         slot = self.net.volume_slot(i)
+        ms = self.net.amount_slot(i)
 
         def apply() -> None:
+            y = self._seg.y0
+            theta = y[i] / y[ms] if ms is not None else 1.0
             if slot is None:
-                self._seg.y0[i] = self.laws[i].amount_at(p_abs - self.net.p_atm)
+                y[i] = self.laws[i].amount_at(p_abs - self.net.p_atm)
             else:  # the structure does not move in the instant: the gas amount does
-                self._seg.y0[i] = p_abs * self._seg.y0[slot]
+                y[i] = p_abs * y[slot]
+            if ms is not None:  # gas added or bled at the temperature the volume has
+                y[ms] = y[i] / theta
 
         self.schedule(t, apply, f"set {node} to {p_abs:.0f} Pa")
 
@@ -197,8 +208,9 @@ class Plant:
                flow_sources: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
         """State at the sample instants (sorted, not before the segment start).
 
-        Returns (state, flow): state has shape (n_state, len(times)), the gas amounts,
-        the regulator output, then the volumes of damped nodes; flow (standard m^3/s, or None when not asked for) is
+        Returns (state, flow): state has shape (n_state, len(times)), p*v per node (the
+        gas amounts of isothermal nodes), the regulator output, the volumes of damped
+        nodes, then the amounts of heat-exchanging nodes; flow (standard m^3/s, or None when not asked for) is
         the signed sum over ``flow_links`` (link name -> sign) of the flow through each,
         plus the flow sources when ``flow_sources``. Events due at or before a sample
         instant are applied before it.
@@ -227,7 +239,8 @@ class Plant:
 
     def _flow(self, t: np.ndarray, state: np.ndarray, links: dict[str, float], sources: bool) -> np.ndarray:
         p_abs = self.pressures_abs(state)
-        flows = self.net.link_flows(self.valves, p_abs, state[self.net.n_nodes], list(links))
+        theta = self.net.theta(state) if self.net.heated else None
+        flows = self.net.link_flows(self.valves, p_abs, state[self.net.n_nodes], list(links), theta)
         total = sum(sign * flows[name] for name, sign in links.items())
         total = np.zeros(len(t)) + total
         if sources and self.flow_of_t is not None and any(

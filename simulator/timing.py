@@ -1,6 +1,6 @@
 """Noise-free step responses of a tank circuit: the timing studies' plant.
 
-The same network as the simulated cell (``cell._network``: valves, resistances, the
+The same network as the simulated cell (``circuit.network``: valves, resistances, the
 actuator's volume law and its dashpot), started with the tank charged and the actuator
 at rest, the actuation valve commanded open at t = 0 (it acts after its switching
 delay). Used to predict what a reading window sees at a given time after opening and
@@ -17,14 +17,14 @@ from fluidsense.common.scenes import EmptyScene
 from fluidsense.common.units import KPA
 
 from .actuators import volume_law
-from .cell import _network
+from .circuit import network, sensed_node
 from .plant import Plant
 
 
 @dataclass(frozen=True)
 class StepResponse:
     t_s: np.ndarray  # time after the valve command
-    p_act_kpa: np.ndarray  # actuator, gauge
+    p_act_kpa: np.ndarray  # where the actuator's sensor is (the hose's valve end, or the actuator), gauge
     p_tank_kpa: np.ndarray
     v_act_ml: np.ndarray
     t_contact_s: float | None  # when the actuator first reaches the object (None: never)
@@ -36,7 +36,7 @@ def step_response(hw: Hardware, scene, p0_kpa: float, t_end_s: float, dt_s: floa
     if not isinstance(c, TankCircuit):
         raise ValueError("step responses need a tank circuit")
     law = volume_law(hw.actuator, scene, c.p_atm)
-    net, valves = _network(hw, law)
+    net, valves = network(hw, law)
     p_tank_abs = c.p_atm + p0_kpa * KPA
     plant = Plant(net, valves, p_reg_abs=p_tank_abs, regulator_tau_s=c.regulator_tau_s,
                   p_initial_abs={"tank": p_tank_abs})
@@ -46,7 +46,7 @@ def step_response(hw: Hardware, scene, p0_kpa: float, t_end_s: float, dt_s: floa
     state, _ = plant.sample(t)
     p = plant.pressures_abs(state) - c.p_atm
     v = plant.volumes(state, "actuator")
-    return StepResponse(t, p[net.index["actuator"]] / KPA, p[net.index["tank"]] / KPA, v * 1e6,
+    return StepResponse(t, p[sensed_node(hw, net)] / KPA, p[net.index["tank"]] / KPA, v * 1e6,
                         _first_contact(hw, scene, t, v))
 
 

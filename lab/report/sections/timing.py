@@ -10,6 +10,7 @@ step responses of the simulated plant (simulator/timing.py).
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +29,7 @@ SLOW_SORTED = ((40, 34.13, 0.07), (60, 34.80, 0.07), (80, 35.05, 0.08), (100, 35
 FITTED_5S = (40, 100)  # the sorting gripper's compliance and wrap ratio were set from these two readings
 RESISTORS = (0.0, 5.7e8, 1.8e9, 7.3e9)  # Fig. S responsetime / actuationspeed; Methods
 BENDING_RESPONSE_S = PNEUNET_RESPONSE_S
+BAND_JSON = Path(__file__).resolve().parents[3] / "docs" / "performance" / "thermal.json"
 
 
 def _with(hw, resistor=None, response_s=None):
@@ -97,21 +99,37 @@ def timing(out: Path, seed: int) -> Section:
                 "Fig. 4b", kind="fitted: compliance, wrap_ratio" if fitted else "predicted",
                 tolerance="2 sd of the paper's readings")
     fast05 = {d: window_mean(fast74[d], 0.5, 0.05) for d in DIAMETERS}
+    # the band: wall heat exchange, each member over one part's stated range, refitted to the
+    # two 5 s readings (simulator/band.py). Minutes of refits: made by `python -m lab bench
+    # thermal --band --out docs/performance/thermal.json` and read here.
+    members = json.loads(BAND_JSON.read_text())["band"]["members"]
+    lo = {d: min(m["fast_kpa"][str(d)] for m in members) for d in DIAMETERS}
+    hi = {d: max(m["fast_kpa"][str(d)] for m in members) for d in DIAMETERS}
     for order, readings in FAST_ORDERS.items():
         for d, mean, sd in readings:
-            ok = abs(fast05[d] - mean) <= 1.0
+            ok = lo[d] <= mean <= hi[d]
             sec.row(f"fast sorting ({order}) at 74 kPa, 0.5 s, D = {d} mm", f"{mean:.2f} +- {sd:.2f} kPa (sd)",
-                    f"{fast05[d]:.2f} kPa", ok,
-                    "" if ok else "ours is at equilibrium by 0.5 s; the paper's circuit (valve, 3.3 m hose: assumed "
-                    "laminar 3.7e7 Pa*s/m^3 here) still fills, or its P-V curve bends above 64 kPa",
-                    "Fig. S sortingfaster", kind="predicted", tolerance="+-1 kPa (issue 17)")
+                    f"{lo[d]:.2f} to {hi[d]:.2f} kPa (isothermal {fast05[d]:.2f})", ok,
+                    "" if ok else ("the band lies below the paper's reading: the tank's natural-convection wall "
+                                   "time constant leaves it colder at 0.5 s than the paper's rig" if mean > hi[d] else
+                                   "the band lies above the paper's reading"),
+                    "Fig. S sortingfaster", kind="predicted",
+                    tolerance="inside the band over the parts' stated ranges (docs/physics.md)")
         ours_sorted = sorted((fast05[d], d) for d, _, _ in readings)
         ok = [d for _, d in ours_sorted] == sorted(DIAMETERS)
         sec.row(f"fast sorting ({order}): objects sorted by the reading", "sorted correctly",
                 "sorted correctly" if ok else "wrong order", ok, "" if ok else "readings not monotone in D",
                 "Fig. S sortingfaster", kind="predicted")
+    slow_band = max(abs(m["slow_kpa"][str(d)] - mean) / sd for m in members for d, mean, sd in SLOW_SORTED
+                    if d not in FITTED_5S)
+    sec.row("sorting at 5 s, 64 kPa, D = 60 and 80 mm, every member of the fast-sorting band",
+            "34.80 +- 0.07 and 35.05 +- 0.08 kPa (sd)",
+            f"largest deviation {slow_band:.2f} sd", slow_band <= 2.0, "" if slow_band <= 2.0 else
+            "the 60 mm reading leaves it in every member, as in the isothermal "
+            "model: our P_eq is linear in D, the paper's is not", "Fig. 4b", kind="predicted",
+            tolerance="2 sd of the paper's readings")
 
-    _plot(out, resp_r, fast05, slow5)
+    _plot(out, resp_r, fast05, slow5, lo, hi)
     sec.numbers.update({
         "settling_s": {f"{r:.2g}": r4(t) for r, t in t98.items()},
         "contact_s": {f"{r:.2g}": r4(t) for r, t in tc.items()},
@@ -119,17 +137,21 @@ def timing(out: Path, seed: int) -> Section:
         "slow_eq_kpa": [r4(x) for x in slow_eq], "last_contact_s": r4(t_last_contact),
         "sorting_5s_kpa": {str(d): r4(v) for d, v in slow5.items()},
         "fast_sorting_74_kpa": {str(d): r4(v) for d, v in fast05.items()},
+        "fast_sorting_band_kpa": {str(d): [r4(lo[d]), r4(hi[d])] for d in DIAMETERS},
         "before_contact_gap_kpa": r4(before), "after_contact_gap_kpa": r4(after)})
     sec.markdown = "\n".join([
         "Noise-free step responses of the simulated plant; the PneuNet's mechanical lag "
-        f"({BENDING_RESPONSE_S} s) and the sorting circuit's hose and valve resistances are assumed, "
-        "nothing is fitted to a timing number.",
+        f"({BENDING_RESPONSE_S} s), the sorting valve's C and b and the hose's bore are assumed, "
+        "nothing is fitted to a timing number. The fast-sorting band: wall heat exchange, each part over its "
+        "stated range, refitted to the two 5 s readings (`python -m lab bench thermal --band --out "
+        "docs/performance/thermal.json`).",
         "",
         md_table(["resistor (Pa*s/m^3)", "first contact (s)", "2 % settling (s)"],
                  [[f"{r:.2g}", tc[r], t98[r]] for r in RESISTORS]),
         "",
-        md_table(["D (mm)", "ours 0.5 s, 74 kPa", "paper (a)", "paper (b)", "ours 5 s, 64 kPa", "paper 5 s"],
-                 [[d, fast05[d], dict((x, m) for x, m, _ in FAST_ORDERS["a"])[d],
+        md_table(["D (mm)", "ours 0.5 s, 74 kPa, isothermal", "band, wall heat exchange", "paper (a)", "paper (b)",
+                  "ours 5 s, 64 kPa", "paper 5 s"],
+                 [[d, fast05[d], f"{lo[d]:.2f}-{hi[d]:.2f}", dict((x, m) for x, m, _ in FAST_ORDERS["a"])[d],
                    dict((x, m) for x, m, _ in FAST_ORDERS["b"])[d], slow5[d],
                    dict((x, m) for x, m, _ in SLOW_SORTED)[d]] for d in DIAMETERS]),
         "",
@@ -138,7 +160,7 @@ def timing(out: Path, seed: int) -> Section:
     return sec
 
 
-def _plot(out: Path, resp_r, fast05, slow5) -> None:
+def _plot(out: Path, resp_r, fast05, slow5, lo, hi) -> None:
     fig, axes = figure(2)
     ax1, ax2 = axes[0]
     for r, x in resp_r.items():
@@ -149,7 +171,9 @@ def _plot(out: Path, resp_r, fast05, slow5) -> None:
             title="predicted: h = 20 mm, 0.1 L at 49.9 kPa (paper: figure only)")
     ax1.legend(fontsize=7)
     ds = list(DIAMETERS)
-    ax2.plot(ds, [fast05[d] for d in ds], "o-", color="C0", label="ours, 74 kPa, 0.5 s (predicted)")
+    ax2.plot(ds, [fast05[d] for d in ds], "o-", color="C0", label="ours, 74 kPa, 0.5 s, isothermal")
+    ax2.fill_between(ds, [lo[d] for d in ds], [hi[d] for d in ds], color="C0", alpha=0.25,
+                     label="ours, 74 kPa, 0.5 s, wall heat exchange: band (predicted)")
     fitted = [d for d, _, _ in SLOW_SORTED if d in FITTED_5S]
     ax2.plot(ds, [slow5[d] for d in ds], "-", color="C1")
     ax2.plot([d for d in ds if d not in fitted], [slow5[d] for d in ds if d not in fitted], "s", color="C1",
@@ -162,9 +186,9 @@ def _plot(out: Path, resp_r, fast05, slow5) -> None:
                      label=f"paper fast ({order}), 0.5 s")
     ax2.errorbar([p[0] for p in SLOW_SORTED], [p[1] for p in SLOW_SORTED], [p[2] for p in SLOW_SORTED], fmt="x",
                  color="grey", label="paper, 5 s")
-    gaps = [fast05[d] - m for r in FAST_ORDERS.values() for d, m, _ in r]
-    ax2.annotate(f"fast sorting: ours {min(gaps):.2f} to {max(gaps):.2f} kPa above the paper\n"
-                 "(a disagreement, not fitted away)", (0.02, 0.97), xycoords="axes fraction", va="top", fontsize=7)
+    inside = sum(lo[d] <= m <= hi[d] for r in FAST_ORDERS.values() for d, m, _ in r)
+    ax2.annotate(f"fast sorting: {inside} of 8 paper readings inside the band\n"
+                 "(nothing fitted to them)", (0.02, 0.97), xycoords="axes fraction", va="top", fontsize=7)
     ax2.set(xlabel="D (mm)", ylabel="reading (kPa)", title="sorting readings", ylim=(29.5, 41.5))
     ax2.legend(fontsize=6, loc="lower right")
     save(fig, out, "timing.png")

@@ -265,3 +265,28 @@ def test_a_busy_pc_is_not_a_broken_link():
     # a CB3 (125 Hz) configured as e-Series: a quarter of the rate, whatever the load
     assert _judged(375, 1125, load=2.6) == ["sampling"]
     assert _judged(1500, 0, load=0.3) == []
+
+
+@pytest.mark.parametrize("kind", ["ur", "modbus"])
+def test_init_config_passes_check_against_the_box(kind, tmp_path):
+    """`fluidsense init --driver KIND --out cell.yaml` in a folder of the user's; the box
+    started from that file; `check --config cell.yaml` from there accepts it."""
+    from fluidsense.simulator.controlbox.process import EmulatorProcess
+    from support.harness import SIMCELL_PORTS
+
+    host = free_loopback(SIMCELL_PORTS)
+    r = subprocess.run([sys.executable, "-m", "fluidsense", "init", "--driver", kind, "--out", "cell.yaml", "--host",
+                        host], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert r.returncode == 0, r.stderr
+    box = EmulatorProcess(command=[sys.executable, "-m", "fluidsense", "simcell", "--config", "cell.yaml"],
+                          cwd=tmp_path)
+    box.start(timeout_s=30)
+    try:
+        r = subprocess.run([sys.executable, "-m", "fluidsense", "check", "--config", "cell.yaml", "--seconds", "1"],
+                           capture_output=True, text=True, cwd=tmp_path, timeout=120, stdin=subprocess.DEVNULL)
+        assert r.returncode in (0, 4), r.stdout + r.stderr
+        assert not_about_rate(problems(r.stdout)) == [], r.stdout
+        assert "connecting to " in r.stdout and host in r.stdout
+    finally:
+        assert box.stop() == 0, box.log()
+        box.__exit__(None, None, None)

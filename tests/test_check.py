@@ -167,8 +167,34 @@ def test_no_box_is_a_timeout_naming_the_address(kind, tmp_path):
     host = free_loopback()
     r = check(simcell_config(tmp_path, kind, host), "--timeout", "5")
     assert r.returncode == 3, r.stdout + r.stderr
-    assert host in r.stderr and "check that the" in r.stderr
+    assert host in r.stderr and "start it first, `fluidsense simcell --config` with this same file" in r.stderr
     assert "Traceback" not in r.stderr
+    real = yaml.safe_load(simcell_config(tmp_path, kind, host).read_text())
+    del real["driver"]["sim_control_port"]  # a real box's config: what to check on the box
+    r = check(write_cell(tmp_path, real), "--timeout", "5")
+    assert r.returncode == 3, r.stdout + r.stderr
+    assert host in r.stderr and "check that the" in r.stderr and "simcell" not in r.stderr
+
+
+@pytest.mark.parametrize("kind", ["ur", "modbus"])
+def test_a_job_on_a_box_that_is_not_running_says_what_check_says(kind, tmp_path):
+    """`task run` on a sim config whose box is not started: a timeout (exit 3) with the
+    advice check gives, not bad input (exit 2)."""
+    from support.harness import simcell_config
+
+    cell = simcell_config(tmp_path, kind, free_loopback())
+    job = subprocess.run([sys.executable, "-m", "fluidsense", "task", "run", "config/tasks/sorting.yaml", "--config",
+                          str(cell)], capture_output=True, text=True, timeout=120, cwd=REPO, stdin=subprocess.DEVNULL)
+    looked = check(cell, "--timeout", "5")
+    assert (job.returncode, looked.returncode) == (3, 3), job.stderr + looked.stderr
+
+    from fluidsense.controller.config import load_cell_config
+
+    hint = load_cell_config(cell).driver.emulator_hint()
+    assert hint is not None and "`fluidsense simcell --config` with this same file" in hint
+    for r in (job, looked):
+        (line,) = [x for x in r.stderr.splitlines() if x.startswith("fluidsense: error: ")]
+        assert line.startswith("fluidsense: error: cannot reach ") and line.endswith(f"): {hint}"), line
 
 
 def test_silent_modbus_server_is_a_timeout(tmp_path):
@@ -178,6 +204,7 @@ def test_silent_modbus_server_is_a_timeout(tmp_path):
     host = free_loopback([MODBUS_PORT])
     data = yaml.safe_load(simcell_config(tmp_path, "modbus", host).read_text())
     data["driver"]["arm"] = None  # no robot: only the Modbus server is asked
+    del data["driver"]["sim_control_port"]  # a real box's config: the advice is about the box
     cell = write_cell(tmp_path, data)
     with socket.create_server((host, MODBUS_PORT)) as server:
         accepted: list[socket.socket] = []

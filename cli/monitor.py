@@ -8,6 +8,7 @@ import sys
 from typing import Any, TextIO
 
 import zmq
+from fluidsense.common.exitcodes import EXIT_OK, EXIT_TIMEOUT
 from fluidsense.common.names import WELCOME
 
 NOT_RUNNING = ("the daemon may not be running (fluidsense run), or it listens elsewhere "
@@ -49,7 +50,8 @@ def monitor(endpoint: str, topics: list[str], count: int | None, timeout_s: floa
             as_json: bool, out: TextIO = sys.stdout) -> int:
     """Print messages until ``count`` were shown or nothing arrived for ``timeout_s``.
 
-    Returns 0, or 1 when the timeout passed without any message.
+    Returns 0, or EXIT_TIMEOUT (3) when the timeout passed without any message: no reply
+    from the daemon, as for every command (docs/cli.md).
     """
     ctx = zmq.Context.instance()
     sock = ctx.socket(zmq.SUB)
@@ -66,7 +68,7 @@ def monitor(endpoint: str, topics: list[str], count: int | None, timeout_s: floa
                 if not shown:
                     print(f"fluidsense monitor: nothing heard from {endpoint} within {timeout_s:g} s: "
                           f"{NOT_RUNNING.format(what='publisher', option='publisher.pub')}", file=sys.stderr)
-                return 0 if shown else 1
+                return EXIT_OK if shown else EXIT_TIMEOUT
             frames = sock.recv_multipart()
             if frames == [WELCOME]:
                 if not as_json:

@@ -144,6 +144,41 @@ def test_a_measure_uncalibrated_without_reference_says_what_it_cannot_tell():
     assert end["reason"] == "done" and end["command"] == "measure" and end["held_s"] is None
 
 
+def test_release_is_refused_as_documented_and_a_grip_on_nothing_is_released():
+    """docs/zmq-schema.md: release is refused with no grip running (open gripper), for a
+    plain cycle and for a measure; a grip that closed on nothing still holds the actuator
+    inflated: it is released like any other."""
+    cell = with_reference()
+
+    async def body():
+        requests = cell.requests(CALIBRATED)
+        refused = []
+        with pytest.raises(SequenceError) as exc:
+            await requests.answer({"cmd": "release"})
+        refused.append(str(exc.value))
+        await requests.answer({"cmd": "grip"})
+        cell.feed(requests.grip, 1.5, 0.0)
+        cell.open()
+        cell.feed(requests.grip, 5.0, free_air)  # nothing touched
+        cell.measured(cell.result(FREE_KPA, has_reference=True, t_c_s=None))
+        cell.hold()
+        await settle()
+        released = await requests.answer({"cmd": "release"})
+        again = await requests.answer({"cmd": "release"})  # while it vents
+        cell.end()
+        await settle()
+        with pytest.raises(SequenceError) as exc:
+            await requests.answer({"cmd": "release"})
+        refused.append(str(exc.value))
+        return refused, released, again
+
+    refused, released, again = run(body)
+    assert refused == ["nothing to release: the gripper is open"] * 2
+    assert cell.events[0][1]["object"] is False
+    assert released["releasing"] is True and again == {"cycle_id": 1, "releasing": True, "state": "vent"}
+    assert ("let_go",) in cell.asked and cell.events[-1][0] == "released"
+
+
 def test_the_reference_measure_says_no_object_not_a_size():
     """`measure` with store_reference, nothing in the gripper, on the shipped calibration
     (20-100 mm): the empty gripper's P_eq reads 34.63 kPa, about a 19.9 mm object. It is

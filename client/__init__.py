@@ -26,6 +26,7 @@ from .types import (
            Grasp,
            GripEnded,
            NoReply,
+           NoWelcome,
            Refused,
            Released,
            Slip,
@@ -33,4 +34,4 @@ from .types import (
 )
 
 __all__ = ["AsyncGripper", "Contact", "Estimate", "Event", "GRIPPER_TOPICS", "Grasp", "GripEnded", "Gripper",
-           "NoReply", "Refused", "Released", "Slip", "typed"]
+           "NoReply", "NoWelcome", "Refused", "Released", "Slip", "typed"]

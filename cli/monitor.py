@@ -8,6 +8,7 @@ import sys
 from typing import Any, TextIO
 
 import zmq
+from fluidsense.cli.contact import t_c_text
 from fluidsense.common.exitcodes import EXIT_OK, EXIT_TIMEOUT
 from fluidsense.common.names import WELCOME
 
@@ -25,8 +26,8 @@ def format_message(topic: str, msg: dict[str, Any]) -> str | None:
         parts = [f"P_eq {msg['p_eq_kpa']:.3f} +- {msg['p_sd_kpa']:.3f} kPa"]
         if msg.get("dp_eq_kpa") is not None:
             parts.append(f"dP {msg['dp_eq_kpa']:.3f} kPa")
-        if msg.get("t_c_threshold_s") is not None:
-            parts.append(f"t_c {msg['t_c_threshold_s']:.3f} s")
+        if (t_c := t_c_text(msg)) is not None:
+            parts.append(t_c)
         ref = " (reference)" if msg.get("is_reference") else ""
         return f"[{t:10.3f}] cycle {msg['cycle_id']}{ref}: " + ", ".join(parts)
     if topic == "heartbeat":

@@ -8,6 +8,8 @@ import sys
 from typing import Any, TextIO
 
 import zmq
+from fluidsense.cli.contact import t_c_text
+from fluidsense.common.exitcodes import EXIT_OK, EXIT_TIMEOUT
 from fluidsense.common.names import WELCOME, welcome_instance
 
 NOT_RUNNING = ("the daemon may not be running (fluidsense run), or it listens elsewhere "
@@ -24,8 +26,8 @@ def format_message(topic: str, msg: dict[str, Any]) -> str | None:
         parts = [f"P_eq {msg['p_eq_kpa']:.3f} +- {msg['p_sd_kpa']:.3f} kPa"]
         if msg.get("dp_eq_kpa") is not None:
             parts.append(f"dP {msg['dp_eq_kpa']:.3f} kPa")
-        if msg.get("t_c_threshold_s") is not None:
-            parts.append(f"t_c {msg['t_c_threshold_s']:.3f} s")
+        if (t_c := t_c_text(msg)) is not None:
+            parts.append(t_c)
         ref = " (reference)" if msg.get("is_reference") else ""
         return f"[{t:10.3f}] cycle {msg['cycle_id']}{ref}: " + ", ".join(parts)
     if topic == "heartbeat":
@@ -49,7 +51,8 @@ def monitor(endpoint: str, topics: list[str], count: int | None, timeout_s: floa
             as_json: bool, out: TextIO = sys.stdout) -> int:
     """Print messages until ``count`` were shown or nothing arrived for ``timeout_s``.
 
-    Returns 0, or 1 when the timeout passed without any message.
+    Returns 0, or EXIT_TIMEOUT (3) when the timeout passed without any message: no reply
+    from the daemon, as for every command (docs/cli.md).
     """
     ctx = zmq.Context.instance()
     sock = ctx.socket(zmq.SUB)
@@ -66,7 +69,7 @@ def monitor(endpoint: str, topics: list[str], count: int | None, timeout_s: floa
                 if not shown:
                     print(f"fluidsense monitor: nothing heard from {endpoint} within {timeout_s:g} s: "
                           f"{NOT_RUNNING.format(what='publisher', option='publisher.pub')}", file=sys.stderr)
-                return 0 if shown else 1
+                return EXIT_OK if shown else EXIT_TIMEOUT
             frames = sock.recv_multipart()
             welcome = welcome_instance(frames)
             if welcome is not None:

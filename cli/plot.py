@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from fluidsense.cli.contact import t_c_text
 from fluidsense.common.errors import RecordingError
 from fluidsense.common.units import KPA
 from fluidsense.drivers.recording.reader import RecordingReader
@@ -43,8 +44,8 @@ class CyclePlot:
         parts = [f"P_eq {r['p_eq_kpa']:.3f} ± {1.96 * (r.get('p_sd_kpa') or 0):.3f} kPa"]
         if r.get("dp_eq_kpa") is not None:
             parts.append(f"dP {r['dp_eq_kpa']:.3f} kPa")
-        if r.get("t_c_threshold_s") is not None:
-            parts.append(f"t_c {r['t_c_threshold_s']:.3f} s")
+        if (t_c := t_c_text(r)) is not None:
+            parts.append(t_c)
         return f"{head}: " + ", ".join(parts)
 
 
@@ -102,7 +103,7 @@ def draw(ax, cp: CyclePlot) -> None:
     r = cp.result
     ax.axvline(0.0, color="k", lw=0.6, ls=":", label="valve opens")
     if r.get("t_c_threshold_s") is not None:
-        ax.axvline(r["t_c_threshold_s"], color="tab:red", lw=1.0, label="contact t_c")
+        ax.axvline(r["t_c_threshold_s"], color="tab:red", lw=1.0, label="contact t_c (threshold)")
     if r.get("p_eq_kpa") is not None and math.isfinite(r["p_eq_kpa"]):
         ax.axhline(r["p_eq_kpa"], color="tab:green", lw=0.8, ls="-.", label="P_eq")
     ax.set_title(cp.title(), fontsize=8)

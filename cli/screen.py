@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any, TextIO
 
 import zmq
+from fluidsense.cli.contact import t_c_text
 from fluidsense.common.names import welcome_instance
 
 TRACE_S = 10.0  # seconds of pressure in the trace
@@ -148,8 +149,8 @@ def result_line(msg: dict[str, Any]) -> str:
     parts = [f"P_eq {msg['p_eq_kpa']:.3f} ± {1.96 * (msg.get('p_sd_kpa') or 0.0):.3f} kPa (95 %)"]
     if msg.get("dp_eq_kpa") is not None:
         parts.append(f"dP {msg['dp_eq_kpa']:.3f} kPa")
-    if msg.get("t_c_threshold_s") is not None:
-        parts.append(f"t_c {msg['t_c_threshold_s']:.3f} s")
+    if (t_c := t_c_text(msg)) is not None:
+        parts.append(t_c)
     tag = " reference" if msg.get("is_reference") else (f" {msg['label']}" if msg.get("label") else "")
     return f"cycle {msg['cycle_id']}{tag}: " + ", ".join(parts)
 

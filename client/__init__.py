@@ -28,11 +28,12 @@ from .types import (
            Grasp,
            GripEnded,
            NoReply,
+           NoWelcome,
            Refused,
            Released,
            Slip,
            typed,
 )
 
-__all__ = ["AsyncGripper", "Contact", "DaemonRestarted", "Estimate", "Event", "GRIPPER_TOPICS", "Grasp", "GripEnded", "Gripper",
-           "NoReply", "Refused", "Released", "Slip", "typed"]
+__all__ = ["AsyncGripper", "Contact", "DaemonRestarted", "Estimate", "Event", "GRIPPER_TOPICS", "Grasp", "GripEnded",
+           "Gripper", "NoReply", "NoWelcome", "Refused", "Released", "Slip", "typed"]

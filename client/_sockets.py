@@ -1,10 +1,20 @@
 """The sockets both faces open: a REQ socket for requests (CURVE keys optional) and a SUB
-socket for events, subscribed to the welcome as well."""
+socket for events, subscribed to the welcome as well, with a monitor that tells "nobody
+there" from "something there that is not a publisher" when no welcome comes."""
 
 from __future__ import annotations
 
+import itertools
+
 import zmq
 from fluidsense.common.names import WELCOME
+
+from .types import NoWelcome
+
+#: what the SUB socket's monitor listens for: a TCP or IPC connection made, dropped, and a
+#: ZMTP handshake completed (a peer of a kind a SUB may talk to)
+_WATCHED = zmq.EVENT_CONNECTED | zmq.EVENT_DISCONNECTED | zmq.EVENT_HANDSHAKE_SUCCEEDED
+_monitors = itertools.count()
 
 
 def curve_keys(curve: tuple[str, str] | None) -> tuple[bytes, bytes, bytes] | None:
@@ -46,8 +56,18 @@ class Sockets:
         self._session, self._ctx, self._own_ctx = session, ctx, own_ctx
         self._keys = curve_keys(curve)
         self._req: zmq.Socket | None = None
-        self._sub = None if session.pub_endpoint is None else setup_sub(ctx.socket(zmq.SUB), session.pub_endpoint,
-                                                                        topics)
+        self._sub = self._monitor = None
+        self._seen: set[int] = set()
+        if session.pub_endpoint is not None:
+            self._sub = ctx.socket(zmq.SUB)
+            # the monitor is read without blocking from a plain socket on the same
+            # underlying context, whichever face (blocking or asyncio) this is
+            address = f"inproc://fluidsense-client-monitor-{next(_monitors)}-{id(self)}"
+            self._sub.monitor(address, _WATCHED)
+            self._monitor = zmq.Context.shadow(ctx.underlying).socket(zmq.PAIR)
+            self._monitor.setsockopt(zmq.LINGER, 0)
+            self._monitor.connect(address)
+            setup_sub(self._sub, session.pub_endpoint, topics)
 
     cmd_endpoint = property(lambda self: self._session.cmd_endpoint)
     pub_endpoint = property(lambda self: self._session.pub_endpoint)
@@ -64,7 +84,25 @@ class Sockets:
         self._req.close()
         self._req = None
 
+    def _explained(self, exc: NoWelcome) -> NoWelcome:
+        """Why no welcome came, from what the monitor saw: connections made and dropped
+        without a completed handshake are a peer of the wrong kind (the command socket,
+        as when cmd and pub are swapped in Gripper(cmd, pub)), not a daemon that is not
+        running."""
+        from zmq.utils.monitor import parse_monitor_message
+
+        while self._monitor is not None and self._monitor.poll(0):
+            self._seen.add(int(parse_monitor_message(self._monitor.recv_multipart())["event"]))
+        if zmq.EVENT_CONNECTED in self._seen and zmq.EVENT_HANDSHAKE_SUCCEEDED not in self._seen:
+            return NoWelcome(f"no welcome from {self.pub_endpoint}: a socket listens there but drops a subscriber "
+                             "at the handshake: it is not the daemon's publisher (is it its command endpoint? "
+                             "Gripper(cmd, pub) takes the command endpoint first), or its CURVE keys differ")
+        return exc
+
     def close(self) -> None:
+        if self._monitor is not None:
+            self._sub.disable_monitor()
+            self._monitor.close()
         for sock in (self._req, self._sub):
             if sock is not None:
                 sock.close()

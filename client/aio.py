@@ -13,7 +13,7 @@ from fluidsense.common.names import GRIPPER_TOPICS
 
 from ._sockets import Sockets
 from .core import CALLS, Call, Exchange, Listen, Session, face_signature
-from .types import typed
+from .types import NoWelcome, typed
 
 
 class AsyncGripper(Sockets):
@@ -31,6 +31,11 @@ class AsyncGripper(Sockets):
                 step = call.send(await self._do(step))
         except StopIteration as end:
             return end.value
+        except NoWelcome as exc:
+            better = self._explained(exc)
+            if better is exc:
+                raise
+            raise better from exc
 
     async def _do(self, step: Exchange | Listen) -> Any:
         if isinstance(step, Listen):

@@ -24,7 +24,7 @@ from typing import Any, TypeVar
 
 from fluidsense.common.names import welcome_instance
 
-from .types import DaemonRestarted, Event, Grasp, GripEnded, NoReply, Refused, Released
+from .types import DaemonRestarted, Event, Grasp, GripEnded, NoReply, NoWelcome, Refused, Released
 
 T = TypeVar("T")
 
@@ -151,7 +151,7 @@ class Session:
         while not self.attached:
             frames = yield Listen(_left(deadline))
             if frames is None:
-                raise NoReply(f"no welcome from {self.pub_endpoint}: is the daemon running?")
+                raise NoWelcome(f"no welcome from {self.pub_endpoint}: is the daemon running?")
             self._take(frames)
 
     def next_event(self, timeout_s: float | None = None) -> Call[Event | None]:

@@ -21,6 +21,11 @@ class NoReply(DeviceTimeoutError):
     """No reply or no event in time. The request socket is made again after one."""
 
 
+class NoWelcome(NoReply):
+    """The subscription was not attached in time: no daemon, or no publisher at the
+    endpoint (the sockets say which: client/_sockets.py)."""
+
+
 class GripEnded(FluidsenseError, RuntimeError):
     """The cycle ended (aborted, faulted, timed out) before the event waited for."""
 

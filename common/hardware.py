@@ -95,6 +95,12 @@ class _CircuitBase(StrictModel):
         raise NotImplementedError
 
     @property
+    def venting_valves(self) -> tuple[str, ...]:
+        """The valves whose safe positions vent the actuator; the supply valve's only
+        isolates the tank, whose regulator is at 0 when nothing drives it."""
+        return tuple(v for v in self.safe_valves if v != SUPPLY)
+
+    @property
     def has_tank_sensor(self) -> bool:
         return True
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import asyncio
 from typing import Any
 
-from fluidsense.common.errors import CommandError, FaultError, SequenceError
+from fluidsense.common.errors import CommandError, FaultError, LinkLostError, SequenceError
 from fluidsense.common.faults import Fault, FaultKind
 from fluidsense.common.samples import SampleBlock
 from fluidsense.drivers.backend import Backend
@@ -66,7 +66,10 @@ class Controller:
         retries, ``status`` says ``connecting`` meanwhile and commands that need the cell
         are refused. Without it (jobs such as a task run) that fails here."""
         if not connect_in_background:
-            await self.loop.connect_now()
+            try:
+                await self.loop.connect_now()
+            except (LinkLostError, OSError) as exc:  # DeviceTimeoutError included: not there, not bad input
+                raise self.cfg.driver.unreachable(exc) from exc
         self._task = asyncio.create_task(self.loop.run(), name="fluidsense-sample-loop")
 
     async def _connect(self) -> None:

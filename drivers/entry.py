@@ -19,6 +19,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, ClassVar
 
+from fluidsense.common.errors import DeviceTimeoutError
 from fluidsense.common.hardware import Hardware
 from fluidsense.common.models import StrictModel
 
@@ -56,6 +57,19 @@ class DriverEntry(StrictModel):
     def what_to_check(self) -> str:
         """What an operator checks when the device does not answer."""
         return "check the config"
+
+    def emulator_hint(self) -> str | None:
+        """For a config of an emulated device (it names the emulator's control port): how
+        to start the emulator, which is what is missing when nothing answers. None for a
+        real device."""
+        return None
+
+    def unreachable(self, exc: BaseException, timeout_s: float | None = None) -> DeviceTimeoutError:
+        """The device did not answer a first connection: what did not answer and what to
+        do, the same words for ``fluidsense check`` and every job (exit 3, a timeout)."""
+        why = f"no answer within {timeout_s:g} s" if timeout_s is not None else str(exc) or type(exc).__name__
+        return DeviceTimeoutError(f"cannot reach {self.where()} ({why}): "
+                                  f"{self.emulator_hint() or self.what_to_check()}")
 
     def robot(self) -> Robot | None:
         """The UR robot behind the driver, whose dashboard tells its version and modes;

@@ -161,6 +161,13 @@ def test_the_free_reading_is_no_object_and_beyond_the_range_is_out_of_range():
     assert far.value is None and far.hi is None
     # just inside the range stays a value, even when the free level is known
     assert cal.estimate((22.6 - 0.04 * 39) * 1e3).status == "ok"
+    # just outside it, with an interval that still reaches into it, is not a size: the
+    # calibration says nothing beyond its targets
+    for h, bound in ((40.5, 40e-3), (-0.5, 0.0)):
+        edge = cal.estimate((22.6 - 0.04 * h) * 1e3)
+        a, b = cal.invert(22.6 - 0.04 * h).interval95
+        assert (a < max(cal.x)) if h > 20 else (b > min(cal.x))  # the interval reaches into the range
+        assert edge.status == "out_of_range" and edge.value is None and edge.bound == pytest.approx(bound), h
 
 
 def test_lack_of_fit_does_not_average_away():

@@ -53,3 +53,41 @@ def test_output_to_a_closed_pipe_ends_quietly():
     err = demo.stderr.read().decode()
     assert demo.wait(120) == 0
     assert "Traceback" not in err and "BrokenPipe" not in err, err
+
+
+def _documented_exits() -> dict[tuple[str, str], int]:
+    """docs/cli.md's per-command exit table: (command, case) -> code."""
+    import re
+
+    text = (REPO / "docs" / "cli.md").read_text()
+    rows = re.findall(r"^\| `fluidsense (\w+)[^`]*` \| ([^|]+?) \| (\d+) \|$", text, flags=re.M)
+    return {(cmd, case): int(code) for cmd, case, code in rows}
+
+
+def test_cmd_and_monitor_exit_as_documented(tmp_path):
+    """The codes docs/cli.md gives, read from it, against a running daemon (an error reply)
+    and against nobody (nothing heard, no reply)."""
+    from support.harness import Daemon, sim_config
+
+    doc = _documented_exits()
+    error_reply = doc[("cmd", "the daemon answers the request with an error (a refused command)")]
+    no_reply = doc[("cmd", "no reply within `--timeout`")]
+    unheard = doc[("monitor", "nothing heard within S")]
+    cell = sim_config(tmp_path, clock="realtime")
+    daemon = Daemon(cell)
+    try:
+        daemon.wait_welcome()
+        refused = subprocess.run([sys.executable, "-m", "fluidsense", "cmd", '{"cmd": "explode"}', "--config",
+                                  str(cell)], cwd=REPO, capture_output=True, text=True, timeout=60)
+    finally:
+        assert daemon.close() == 0
+    assert refused.returncode == error_reply, refused.stdout + refused.stderr
+    assert "unknown command" in refused.stdout + refused.stderr
+    nobody = f"ipc://{tmp_path}/nobody"
+    silent = subprocess.run([sys.executable, "-m", "fluidsense", "cmd", "status", "--endpoint", nobody, "--timeout",
+                             "0.2"], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert silent.returncode == no_reply, silent.stderr
+    unheard_run = subprocess.run([sys.executable, "-m", "fluidsense", "monitor", "--endpoint", nobody, "--timeout",
+                                  "0.3"], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert unheard_run.returncode == unheard, unheard_run.stderr
+    assert "nothing heard" in unheard_run.stderr

@@ -174,3 +174,41 @@ def test_send_command_gives_an_error_reply_as_it_came_and_a_silence_as_a_timeout
     assert send_command(f"ipc://{tmp_path}/cmd", {"cmd": "cycle"}, 30.0) == {"ok": False,
                                                                              "error": "busy: cycle 2 is in hold"}
     ctx.term()
+
+
+@pytest.mark.parametrize("face", ["sync", "asyncio"])
+def test_swapped_endpoints_are_named_not_taken_for_a_daemon_that_is_down(face, tmp_path):
+    """Gripper(pub, cmd) by mistake: the daemon's command socket (a ROUTER) and its
+    publisher (an XPUB), bound here as the daemon binds them. The client connects its SUB
+    to the ROUTER: the handshake fails, and the error says so instead of asking whether
+    the daemon runs; with nothing bound at all it still asks that."""
+    cmd, pub, nobody = (f"ipc://{tmp_path}/{name}" for name in ("cmd", "pub", "nobody"))
+    ctx = zmq.Context()
+    router, xpub = ctx.socket(zmq.ROUTER), ctx.socket(zmq.XPUB)
+    router.bind(cmd)
+    xpub.bind(pub)
+
+    def status(cmd_endpoint: str, pub_endpoint: str) -> str:
+        if face == "sync":
+            with Gripper(cmd_endpoint, pub_endpoint, timeout_s=1.0) as g, pytest.raises(NoReply) as err:
+                g.status()
+            return str(err.value)
+
+        async def body():
+            async with AsyncGripper(cmd_endpoint, pub_endpoint, timeout_s=1.0) as g:
+                with pytest.raises(NoReply) as err:
+                    await g.status()
+                return str(err.value)
+
+        return asyncio.run(body())
+
+    try:
+        swapped = status(pub, cmd)
+        down = status(nobody + "-cmd", nobody)
+    finally:
+        router.close(0)
+        xpub.close(0)
+        ctx.term()
+    assert swapped.startswith(f"no welcome from {cmd}: a socket listens there but drops a subscriber"), swapped
+    assert "is it its command endpoint?" in swapped and "daemon running" not in swapped
+    assert down == f"no welcome from {nobody}: is the daemon running?"

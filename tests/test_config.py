@@ -30,6 +30,73 @@ def cell(tmp_path: Path, **changes) -> dict:
     return data
 
 
+@pytest.mark.parametrize("name", sorted(p.name for p in CONFIG.glob("cell-*.yaml")))
+def test_a_shipped_config_copied_elsewhere_loads(tmp_path, name):
+    """docs/bringup.md asks for a copy of a shipped config: the copy names its profile
+    (and calibrations) as the shipped file does, relative to a folder it is not in."""
+    copy = tmp_path / "my-cell.yaml"
+    copy.write_text((CONFIG / name).read_text())
+    cfg = load_cell_config(copy)
+    assert cfg.profile.name == load_cell_config(CONFIG / name).profile.name
+    for c in cfg.gripper.calibrations:
+        assert Path(c).resolve().parent == (CONFIG / "calibrations").resolve()
+
+
+def test_profiles_and_calibrations_by_name_and_a_local_file_first(tmp_path):
+    data = yaml.safe_load((CONFIG / "cell-gripper-modbus-sim.yaml").read_text())
+    data["profile"] = "pneunet-gripper-quick"
+    data["gripper"]["calibrations"] = ["pneunet-gripper-quick-p_eq"]
+    cfg = load_cell_config(write(tmp_path, "cell.yaml", data))
+    assert cfg.profile.name == "pneunet-gripper-quick"
+    assert Path(cfg.gripper.calibrations[0]).resolve() == (CONFIG / "calibrations" / "pneunet-gripper-quick-p_eq.json").resolve()
+    # a file of that name next to the config comes first: it is the user's own
+    (tmp_path / "profiles").mkdir()
+    mine = yaml.safe_load((CONFIG / "profiles" / "pneunet-gripper-quick.yaml").read_text())
+    mine["sequence"]["p0_kpa"] = mine["sequence"]["p0_kpa"] - 1.0
+    write(tmp_path / "profiles", "pneunet-gripper-quick.yaml", mine)
+    data["profile"] = "profiles/pneunet-gripper-quick.yaml"
+    ours = load_cell_config(write(tmp_path, "cell.yaml", data))
+    assert ours.profile.sequence.p0_kpa == cfg.profile.sequence.p0_kpa - 1.0
+    # a name that is neither says where it looked
+    data["profile"] = "no-such-gripper"
+    with pytest.raises(ConfigError) as err:
+        load_cell_config(write(tmp_path, "cell.yaml", data))
+    assert str(err.value).startswith(f"{tmp_path}/cell.yaml: profile: {tmp_path}/no-such-gripper: No such file or "
+                                     "directory, and no shipped file of that name in profiles/ (shipped: ")
+    assert "pneunet-gripper-quick" in str(err.value)
+    # nothing climbs out of the shipped folder by name
+    data["profile"] = "../cell-sim.yaml"
+    with pytest.raises(ConfigError, match="No such file or directory$"):
+        load_cell_config(write(tmp_path, "cell.yaml", data))
+
+
+def _init(cwd: Path, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "fluidsense", "init", *args], capture_output=True, text=True,
+                          cwd=cwd, timeout=120)
+
+
+@pytest.mark.parametrize("driver", ["sim", "ur", "modbus", "serial", "nidaqmx"])
+def test_init_writes_a_config_that_loads_from_anywhere(tmp_path, driver):
+    r = _init(tmp_path, "--driver", driver, "--out", "cell.yaml")
+    assert r.returncode == 0, r.stderr
+    cfg = load_cell_config(tmp_path / "cell.yaml")
+    assert cfg.driver.kind == driver
+    assert f"config/cell-" not in (tmp_path / "cell.yaml").read_text()  # its comments name the new file
+
+
+def test_init_never_overwrites_without_force(tmp_path):
+    mine = write(tmp_path, "cell.yaml", "# my cell, hours of wiring\n")
+    r = _init(tmp_path, "--driver", "ur", "--out", "cell.yaml")
+    assert r.returncode == 2 and r.stderr.strip() == "fluidsense: error: --out: cell.yaml exists: pass --force to replace it"
+    assert mine.read_text() == "# my cell, hours of wiring\n"
+    r = _init(tmp_path, "--driver", "ur", "--out", "cell.yaml", "--host", "10.0.0.7", "--force")
+    assert r.returncode == 0, r.stderr
+    assert load_cell_config(mine).driver.host == "10.0.0.7"
+    r = _init(tmp_path, "--driver", "modbus", "--out", "other.yaml", "--profile", "no-such-gripper")
+    assert r.returncode == 2 and "other.yaml: profile: " in r.stderr and not (tmp_path / "other.yaml").exists()
+    assert not list(tmp_path.glob(".*"))  # no trial file left behind
+
+
 def test_shipped_configs_load():
     cfg = load_cell_config(CONFIG / "cell-sim.yaml")
     assert cfg.driver.kind == "sim" and cfg.profile.name == "pneunet-gripper"

@@ -144,6 +144,87 @@ def test_a_measure_uncalibrated_without_reference_says_what_it_cannot_tell():
     assert end["reason"] == "done" and end["command"] == "measure" and end["held_s"] is None
 
 
+def test_release_is_refused_as_documented_and_a_grip_on_nothing_is_released():
+    """docs/zmq-schema.md: release is refused with no grip running (open gripper), for a
+    plain cycle and for a measure; a grip that closed on nothing still holds the actuator
+    inflated: it is released like any other."""
+    cell = with_reference()
+
+    async def body():
+        requests = cell.requests(CALIBRATED)
+        refused = []
+        with pytest.raises(SequenceError) as exc:
+            await requests.answer({"cmd": "release"})
+        refused.append(str(exc.value))
+        await requests.answer({"cmd": "grip"})
+        cell.feed(requests.grip, 1.5, 0.0)
+        cell.open()
+        cell.feed(requests.grip, 5.0, free_air)  # nothing touched
+        cell.measured(cell.result(FREE_KPA, has_reference=True, t_c_s=None))
+        cell.hold()
+        await settle()
+        released = await requests.answer({"cmd": "release"})
+        again = await requests.answer({"cmd": "release"})  # while it vents
+        cell.end()
+        await settle()
+        with pytest.raises(SequenceError) as exc:
+            await requests.answer({"cmd": "release"})
+        refused.append(str(exc.value))
+        return refused, released, again
+
+    refused, released, again = run(body)
+    assert refused == ["nothing to release: the gripper is open"] * 2
+    assert cell.events[0][1]["object"] is False
+    assert released["releasing"] is True and again == {"cycle_id": 1, "releasing": True, "state": "vent"}
+    assert ("let_go",) in cell.asked and cell.events[-1][0] == "released"
+
+
+def test_the_reference_measure_says_no_object_not_a_size():
+    """`measure` with store_reference, nothing in the gripper, on the shipped calibration
+    (20-100 mm): the empty gripper's P_eq reads 34.63 kPa, about a 19.9 mm object. It is
+    the free-air reference the operator asked for: no object, no size."""
+    cell = FakeCell()
+
+    async def body():
+        requests = cell.requests(CALIBRATED)
+        reply = await requests.answer({"cmd": "measure", "store_reference": True})
+        cell.feed(requests.grip, 1.5, 0.0)
+        cell.open()
+        cell.feed(requests.grip, 5.0, free_air)
+        cell.measured(cell.result(34.63))
+        await settle()
+        return reply
+
+    assert run(body)["reference"] is False  # nothing to compare with: it is the reference
+    assert ("start_cycle", None, True, False) in cell.asked
+    grasp = cell.events[0][1]
+    assert topics(cell)[0] == "grasp"
+    assert grasp["object"] is False and grasp["contact"] is False and grasp["in_range"] is None
+    (size,) = grasp["estimates"]
+    assert size["status"] == "no_object" and size["value_mm"] is None and size["lo_mm"] is None
+    assert "free-air reference stored" in grasp["note"]
+
+
+def test_a_reading_at_the_range_s_edge_without_reference_is_out_of_range():
+    """The same reading without any reference: the point estimate (19.9 mm) lies below the
+    calibrated 20 mm, where an empty gripper reads too: the bound, not a size."""
+    cell = FakeCell()
+
+    async def body():
+        requests = cell.requests(CALIBRATED)
+        await requests.answer({"cmd": "measure"})
+        cell.open()
+        cell.measured(cell.result(34.63))
+        await settle()
+
+    run(body)
+    grasp = cell.events[0][1]
+    (size,) = grasp["estimates"]
+    assert size["status"] == "out_of_range" and size["value_mm"] is None
+    assert size["hi_mm"] == pytest.approx(20.0) and size["lo_mm"] is None  # "at most 20 mm"
+    assert grasp["in_range"] is False
+
+
 def test_wrong_requests_are_refused_and_nothing_starts():
     cell = FakeCell(refuse=SafetyError("p0 95 kPa outside the profile's limits [-5.0, 90.0] kPa"))
 

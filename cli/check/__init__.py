@@ -98,10 +98,10 @@ async def _look_at_robot(driver, opts: CheckOptions, out: Findings) -> None:
 
 async def _look(cfg, backend, rig, opts: CheckOptions, out: Findings) -> None:
     out.section("valve outputs as the device reports them")
-    vented = await readings.judge_valves(backend, out)
+    vented = await readings.judge_valves(backend, cfg.profile.hardware.circuit.venting_valves, out)
     out.section(f"sampling for {opts.seconds:g} s")
     sampling = await readings.sample(rig, opts.seconds)
-    readings.judge_rate(sampling, backend.source.rate_hz, backend.source.virtual, out)
+    readings.judge_rate(sampling, backend.source.rate_hz, backend.source.virtual, out, readings.load_per_cpu())
     readings.judge_channels(sampling, cfg, vented is not False, opts.zero_kpa, out)
 
 

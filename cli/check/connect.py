@@ -20,10 +20,9 @@ async def connect(backend: Backend, driver, timeout_s: float) -> None:
         async with asyncio.timeout(timeout_s):
             await backend.setup()
     except TimeoutError as exc:
-        raise DeviceTimeoutError(f"no answer from {driver.where()} within {timeout_s:g} s: "
-                                 f"{driver.what_to_check()}") from exc
+        raise driver.unreachable(exc, timeout_s) from exc
     except LinkLostError as exc:
-        raise DeviceTimeoutError(f"cannot reach {driver.where()} ({exc}): {driver.what_to_check()}") from exc
+        raise driver.unreachable(exc) from exc
 
 
 def lost(driver, exc: Exception) -> DeviceTimeoutError:

@@ -8,6 +8,7 @@ from . import (
     clients,
     demo,
     design,
+    init,
     keys,
     plot,
     replay,
@@ -17,4 +18,4 @@ from . import (
     watchdog,
 )
 
-MODULES = [run, demo, clients, check, calibrate, design, task, simcell, watchdog, keys, replay, plot]
+MODULES = [run, demo, clients, init, check, calibrate, design, task, simcell, watchdog, keys, replay, plot]

@@ -8,7 +8,7 @@ import json
 
 from ._common import setup_logging
 
-COLUMNS = (("p_eq_kpa", "P_eq kPa", ".3f"), ("dp_eq_kpa", "dP kPa", ".3f"), ("t_c_slope_s", "t_c s", ".3f"))
+COLUMNS = (("p_eq_kpa", "P_eq kPa", ".3f"), ("dp_eq_kpa", "dP kPa", ".3f"), ("t_c_slope_s", "t_c slope s", ".3f"))
 
 
 def register(sub) -> None:

@@ -21,7 +21,7 @@ from pydantic import BaseModel, Field, ValidationInfo, field_validator, model_va
 
 from .curve import ALLOW_ANY, count_public_keys, read_secret_key
 from .gripper import GripperConfig, check_calibrations, resolve_calibrations
-from .loading import load_model, read_yaml, referenced_file, validate
+from .loading import load_model, named_file, read_yaml, referenced_file, validate
 from .profile import Profile
 
 
@@ -257,7 +257,7 @@ def load_cell_config(path: str | Path, overrides: dict[str, Any] | None = None) 
         validate(CellConfig, data, path)  # says what the file holds instead of a mapping
     profile = data.get("profile")
     if isinstance(profile, str):
-        data = {**data, "profile": load_profile(referenced_file(path.parent / profile, path, "profile").resolve())}
+        data = {**data, "profile": load_profile(named_file(profile, path, "profile", "profiles", ".yaml").resolve())}
     elif isinstance(profile, dict):
         data = {**data, "profile": validate(Profile, profile, path, prefix="profile.")}
     for section, values in (overrides or {}).items():

@@ -1,8 +1,9 @@
 """The ``gripper:`` section of a cell config: what the gripper commands (``grip``,
 ``release``, ``measure``) load and how they supervise a held object.
 
-Calibration files are named relative to the cell config (like ``profile``) and are read
-and checked when the config is loaded, so that a missing or foreign calibration stops the
+Calibration files are named relative to the cell config (like ``profile``), or by the
+name of a shipped one (``pneunet-gripper-p_eq``: loading.named_file says the order), and
+are read and checked when the config is loaded, so that a missing or foreign calibration stops the
 daemon before anything starts (``FILE: gripper.calibrations.N: reason``).
 """
 
@@ -15,7 +16,7 @@ from fluidsense.common.errors import ConfigError
 from fluidsense.common.models import Real, StrictModel
 from pydantic import Field
 
-from .loading import referenced_file
+from .loading import named_file, referenced_file
 
 MAX_CALIBRATIONS = 8
 
@@ -23,7 +24,8 @@ MAX_CALIBRATIONS = 8
 class GripperConfig(StrictModel):
     calibrations: list[str] = Field(default_factory=list, max_length=MAX_CALIBRATIONS,
                                     description="calibration files (fluidsense calibrate) for this cell's profile, "
-                                                "one per feature; relative to the cell config")
+                                                "one per feature; relative to the cell config, else a shipped "
+                                                "calibration's name")
     max_hold_s: Real = Field(600.0, gt=0, le=7 * 86400,
                              description="a grip held this long (sample time) is released: the gripper vents")
     slip_drop_kpa: Real = Field(0.3, gt=0, le=100,
@@ -36,12 +38,13 @@ class GripperConfig(StrictModel):
 
 
 def resolve_calibrations(data: dict[str, Any], path: Path) -> dict[str, Any]:
-    """The cell config's data with its calibration file names made relative to the file."""
+    """The cell config's data with its calibration files found: next to the file, else
+    shipped (a missing one is ``FILE: gripper.calibrations.N: ...``)."""
     section = data.get("gripper")
     if not isinstance(section, dict) or not isinstance(section.get("calibrations"), list):
         return data  # absent, or the validation says what is wrong with it
-    names = [str(path.parent / c) if isinstance(c, str) and not Path(c).is_absolute() else c
-             for c in section["calibrations"]]
+    names = [str(named_file(c, path, f"gripper.calibrations.{i}", "calibrations", ".json"))
+             if isinstance(c, str) else c for i, c in enumerate(section["calibrations"])]
     return {**data, "gripper": {**section, "calibrations": names}}
 
 

@@ -25,6 +25,7 @@ from fluidsense.common.files import (
     read_bounded,
 )
 from fluidsense.common.models import FieldError
+from fluidsense.config import SHIPPED
 from fluidsense.controller.config import yamlfile
 from pydantic import BaseModel, ValidationError
 
@@ -119,4 +120,50 @@ def referenced_file(path: str | Path, by: str | Path, field: str) -> Path:
     return Path(text)
 
 
-__all__ = ["format_errors", "load_model", "one_line", "read_yaml", "referenced_file", "validate"]
+def _missing(text: str) -> bool:
+    try:
+        os.stat(text)
+    except FileNotFoundError:
+        return True
+    except (OSError, ValueError):
+        return False  # there, or a name that cannot be: referenced_file says which
+    return False
+
+
+def shipped_candidates(name: str, folder: str, suffix: str) -> list[Path]:
+    """Where a shipped ``folder`` (profiles, calibrations) file named ``name`` would be:
+    ``NAME``, ``NAME`` + ``suffix`` in it, or ``folder/NAME`` as a copy of a shipped config
+    names it. Only plain names: nothing that climbs out of the shipped folder."""
+    parts = Path(name).parts
+    if not parts or Path(name).is_absolute() or ".." in parts or "\0" in name:
+        return []
+    if len(parts) == 2 and parts[0] == folder:
+        parts = parts[1:]
+    if len(parts) != 1:
+        return []
+    base = SHIPPED / folder / parts[0]
+    return [base] if parts[0].endswith(suffix) else [base.with_name(parts[0] + suffix), base]
+
+
+def named_file(name: str, by: str | Path, field: str, folder: str, suffix: str) -> Path:
+    """A profile or calibration named by a cell config. The resolution order: (1) the name
+    as a path, absolute or relative to the folder of the file ``by`` that names it; (2)
+    when no such file exists, the shipped one of that name (``pneunet-gripper``,
+    ``pneunet-gripper.yaml`` or ``profiles/pneunet-gripper.yaml``), so that a copy of a
+    shipped config works from anywhere. The error names both places looked at."""
+    local = Path(by).parent / name
+    text = os.fspath(local)
+    if "\0" in text or not _missing(text):
+        return referenced_file(local, by, field)
+    candidates = shipped_candidates(name, folder, suffix)
+    if not candidates:  # a path of the user's own: only it was looked at
+        return referenced_file(local, by, field)
+    for candidate in candidates:
+        if not _missing(os.fspath(candidate)):
+            return referenced_file(candidate, by, field)
+    known = ", ".join(sorted(p.name.removesuffix(suffix) for p in (SHIPPED / folder).glob(f"*{suffix}")))
+    raise ConfigError(f"{by}: {field}: {one_line(text)}: No such file or directory, and no shipped file of "
+                      f"that name in {folder}/ (shipped: {known})")
+
+
+__all__ = ["format_errors", "load_model", "named_file", "one_line", "read_yaml", "referenced_file", "validate"]

@@ -90,6 +90,7 @@ class GripHandler(Sink):
         self._t_opened: float | None = None  # a held grip left HOLD (released, aborted, faulted)
         self._slip: SlipWatch | None = None
         self._follow: asyncio.Task[None] | None = None
+        self._storing_reference = False  # the cycle that runs measures the free-air reference
 
     # ------------------------------------------------------------------ state
     @property
@@ -160,6 +161,7 @@ class GripHandler(Sink):
         fut = await cell.start_cycle(p0_kpa=p0_kpa, label=label, store_reference=store_reference, hold=hold)
         cycle = cell.cycle
         self.op, self.cycle_id, self.t_grasp, self._reason = op, cycle.cycle_id, None, None
+        self._storing_reference = store_reference
         self._deadline = float("inf") if timeout_s is None else cell.now() + timeout_s
         self._sign = -1.0 if cycle.p0_pa < 0 else 1.0
         reference = None if store_reference else cell.reference(cycle.p0_pa)
@@ -188,7 +190,10 @@ class GripHandler(Sink):
             await self.cell.fail(f"gripper: {type(exc).__name__}: {exc}")
 
     def _grasp(self, res: CycleResult) -> None:
-        contact = None if not res.has_reference else res.t_c_threshold is not None
+        # a measure that stored the free-air reference was asked for with nothing in the
+        # gripper: that is what it reports, never a size (its reading is the free level)
+        contact = False if self._storing_reference else None if not res.has_reference else \
+            res.t_c_threshold is not None
         ests = E.of_result(self.calibrations, res)
         if contact is False:
             ests = [E.no_object(e) for e in ests]
@@ -196,7 +201,9 @@ class GripHandler(Sink):
             e["status"] == "no_object" for e in ests) else None
         ok = [e["status"] == "ok" for e in ests]
         note = None
-        if not res.has_reference:
+        if self._storing_reference:
+            note = "free-air reference stored at this P0: nothing in the gripper, as asked"
+        elif not res.has_reference:
             note = "no free-air reference at this P0: contact and object cannot be told (measure with " \
                    "store_reference and nothing in the gripper)"
         if not self.calibrations:

@@ -187,8 +187,11 @@ class Calibration:
                                       f"{self.feature} {y:.4g} {self.feature_unit} is beyond what the curve reaches")
         inv = self.invert(y, n_measurements, coverage)
         a, b = inv.interval95
-        if b < lo or a > hi:
-            above = a > hi
+        # a size beyond the calibrated targets would be an extrapolation, and at the range's
+        # edge that faces the free level (the smallest object a gripper closes on) an empty
+        # gripper reads about what that object does: only the bound is said there
+        if not lo <= inv.estimate <= hi:
+            above = inv.estimate > hi
             return self._out_of_range(base, hi if above else lo, above, factor,
                                       f"the reading points to {inv.estimate:.3g} {self.target_unit}, outside the "
                                       f"calibrated {lo:g} .. {hi:g} {self.target_unit}")

@@ -119,3 +119,10 @@ class SerialDriverConfig(DriverEntry):
     sim_control_port: Port | None = Field(
         None, description="simulated devices only (python -m lab simserial): its control port on 127.0.0.1; absent for "
         "a real device")
+
+    def emulator_hint(self) -> str | None:
+        if self.sim_control_port is None:
+            return None
+        return ("this config is for the emulated serial device (it names sim_control_port): start it first, "
+                "`python -m lab simserial --config` with this same file (in a checkout); for a real board set "
+                "driver.port to it and delete sim_control_port")

@@ -33,6 +33,13 @@ class UrBoxEntry(DriverEntry):
                           analog=self.analog, watchdog=self.watchdog, arm=self.arm is not None,
                           modbus_port=self._modbus_port(), sim_control_port=self.sim_control_port)
 
+    def emulator_hint(self) -> str | None:
+        if self.sim_control_port is None:
+            return None
+        return ("this config is for the emulated control box (it names sim_control_port): start it first, "
+                "`fluidsense simcell --config` with this same file; for a real box set driver.host to it and "
+                "delete sim_control_port")
+
     def needs_operator(self) -> bool:
         # an emulated box's control port lays the scene out; a real box has nobody else
         return self.sim_control_port is None

@@ -196,6 +196,15 @@ class Worker:
         receiving thread, without holding the GIL, and a daemon stopping waits for this.
         The interfaces are then kept until the process ends (drivers/child.py): their
         destructors would wait as long again, one after the other."""
+        if self.control is not None:
+            # an orderly end: the script stops now (the box's run-state actions hold the
+            # valves safe) rather than by its RTDE watchdog, which the box reports as a
+            # runtime error. The daemon vented before it closed this worker's input.
+            try:
+                if self.control.isProgramRunning():
+                    self.control.stopScript()
+            except Exception:  # noqa: BLE001, S110 - the watchdog stops it anyway
+                pass
         ifaces = [iface for iface in (self.control, self.io, self.receive) if iface is not None]
         threads = [threading.Thread(target=_disconnect, args=(iface,)) for iface in ifaces]
         for t in threads:

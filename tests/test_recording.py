@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 from fluidsense import cli
 from fluidsense.common.errors import ConfigError, EndOfRecording, RecordingError
 from fluidsense.common.scenes import CylinderScene, EmptyScene
@@ -38,7 +37,8 @@ from fluidsense.drivers.recording.sink import new_path
 from fluidsense.drivers.recording.writer import RecordingWriter
 from mcap.reader import make_reader
 from support.events import fast_profile
-from support.harness import PROFILE, REPO, sim_config
+from support.configs import whole
+from support.harness import REPO, sim_config
 from support.recording import cell, record, the_file
 
 
@@ -498,10 +498,7 @@ class Probe(Sink):
 def test_replay_driver_feeds_the_recorded_blocks_to_a_controller(tmp_path, good_file):
     with RecordingReader(good_file) as reader:
         recorded = [r.data for r in reader.records() if r.topic == SAMPLES]
-    data = {"driver": {"kind": "replay", "file": str(good_file)}, "profile": str(PROFILE)}
-    path = tmp_path / "replay.yaml"
-    path.write_text(yaml.safe_dump(data))
-    cfg = load_cell_config(path)
+    cfg = load_cell_config(sim_config(tmp_path, driver=whole({"kind": "replay", "file": str(good_file)})))
 
     async def main():
         async with app.controller(cfg) as ctrl:

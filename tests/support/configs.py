@@ -17,6 +17,7 @@ config on purpose passes ``check=False``.
 
 from __future__ import annotations
 
+import copy
 import uuid
 from pathlib import Path
 from typing import Any
@@ -82,23 +83,23 @@ def profile_config(tmp_path: Path, name: str | Path = "pneunet-gripper", *, chec
 
 
 # ---------------------------------------------------------------------- cell configs
-def cell_data(tmp_path: Path, base: str | Path = "cell-sim", *, profile: str | Path | dict | None = None,
+def cell_data(tmp_path: Path, base: str | Path | dict = "cell-sim", *, profile: str | Path | dict | None = None,
               **sections: Any) -> dict[str, Any]:
     """The data ``cell_config`` writes. A shipped ``base`` gets the test's own endpoints
     (ipc in ``tmp_path``) and recording directory, and its relative file names made
     absolute (the copy lives elsewhere); a ``base`` path (a config a test or fixture
-    wrote) keeps its own. ``profile``: a shipped profile's name or a path, or overrides
-    merged into the base's profile (then written inline)."""
+    wrote) keeps its own, and so does a mapping. ``profile``: a shipped profile's name or
+    a path, or overrides merged into the base's profile (then written inline)."""
     from support.harness import ipc_endpoints
 
-    source = _shipped(base, CONFIG)
-    data = yaml.safe_load(source.read_text())
+    source = CONFIG / "base.yaml" if isinstance(base, dict) else _shipped(base, CONFIG)
+    data = copy.deepcopy(base) if isinstance(base, dict) else yaml.safe_load(source.read_text())
     here = source.resolve().parent
     if isinstance(data.get("profile"), str):
         data["profile"] = str(here / data["profile"])
     if isinstance(data.get("gripper"), dict) and data["gripper"].get("calibrations"):
         data["gripper"]["calibrations"] = [str(here / c) for c in data["gripper"]["calibrations"]]
-    if source.parent.resolve() == CONFIG.resolve():
+    if not isinstance(base, dict) and source.parent.resolve() == CONFIG.resolve():
         pub, cmd = ipc_endpoints(Path(tmp_path))
         data["publisher"] = merged(data.get("publisher"), {"pub": pub, "cmd": cmd})
         data["recording"] = {"dir": str(Path(tmp_path) / "runs"), "min_free_mb": 16}  # never into the repository
@@ -111,7 +112,7 @@ def cell_data(tmp_path: Path, base: str | Path = "cell-sim", *, profile: str | P
     return merged(data, sections)
 
 
-def cell_config(tmp_path: Path, base: str | Path = "cell-sim", *, check: bool = True,
+def cell_config(tmp_path: Path, base: str | Path | dict = "cell-sim", *, check: bool = True,
                 profile: str | Path | dict | None = None, **sections: Any) -> Path:
     """A cell config (``cell_data``) written next to the test; with ``check`` it must
     validate as a CellConfig (files it names need not exist yet: a pty appears later)."""

@@ -37,7 +37,7 @@ def sim_config(tmp_path: Path, *, clock: str = "virtual", seed: int = 1, scene: 
         # a daemon records (docs/recording.md): into the test's directory, never the repository
         "recording": {"dir": str(tmp_path / "runs"), "min_free_mb": 16},
     }
-    return cell_config(tmp_path, write_cell(tmp_path, base), check=check, **sections)
+    return cell_config(tmp_path, base, check=check, **sections)
 
 
 def write_cell(tmp_path: Path, data: dict) -> Path:
@@ -69,6 +69,7 @@ def free_simcell(tmp_path: Path, kind: str, profile: str | None = None, driver: 
         try:
             box.start(timeout_s=30)
         except Exception:  # noqa: BLE001 - lost a race for the address: take the next one
+            box.__exit__(None, None, None)  # a box that did not start in time is not left running
             if "cannot listen" in box.log():
                 continue
             raise

@@ -11,8 +11,8 @@ import subprocess
 import sys
 
 import pytest
+import yaml
 from fluidsense.client import Gripper
-from support.configs import cell_config, read
 from support.gripper import drain
 from support.harness import REPO, Daemon, free_simcell
 
@@ -29,12 +29,15 @@ WORLD = {"slots": [{"name": "pick", "pose": pick_and_place.PICK, "object": "cyl6
 def test_pick_and_place_holds_the_cylinder_while_ur_rtde_moves_the_arm(tmp_path):
     with free_simcell(tmp_path, "gripper-modbus") as (box, cell):
         box.command({"cmd": "world", "world": WORLD})
-        host = read(cell)["driver"]["host"]  # the box's address (ur_rtde's too)
+        data = yaml.safe_load(cell.read_text())
+        host = data["driver"]["host"]  # the box's address (ur_rtde's too)
         # The emulated box, a Python process, stops answering for a moment while it loads
         # ur_rtde's control script (the example's connection): the daemon's samples pause
         # for longer than the default 0.5 s (a no_data fault, none missed). A real box does
         # not: here the pause is let pass (a fault afterwards still fails the test).
-        d = Daemon(cell_config(tmp_path, cell, supervision={"no_data_s": 5.0}))
+        data["supervision"] = {"no_data_s": 5.0}
+        cell.write_text(yaml.safe_dump(data))
+        d = Daemon(cell)
         try:
             d.wait_welcome()
             with Gripper(d.cmd, d.pub, topics=("contact", "grasp", "slip", "released", "fault")) as g:

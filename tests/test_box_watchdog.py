@@ -244,13 +244,11 @@ def test_fluidsense_watchdog_prints_what_the_driver_installs(tmp_path):
     import subprocess
     import sys
 
-    import yaml
-    from support.harness import REPO, write_cell
+    from support.configs import cell_config
+    from support.harness import REPO
 
-    data = yaml.safe_load((CONFIG / "cell-modbus-sim.yaml").read_text())
-    data["driver"]["arm"] = None
-    data["profile"] = str(CONFIG / "profiles" / "sorting-gripper.yaml")
-    out = subprocess.run([sys.executable, "-m", "fluidsense", "watchdog", "--config", str(write_cell(tmp_path, data))],
+    cell = cell_config(tmp_path, "cell-modbus-sim", driver={"arm": None})
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "watchdog", "--config", str(cell)],
                          capture_output=True, text=True, timeout=60, cwd=REPO)
     assert out.returncode == 0, out.stderr
     program = WatchdogProgram.from_source(out.stdout)

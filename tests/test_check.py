@@ -15,9 +15,9 @@ import sys
 import threading
 
 import pytest
-import yaml
 from pymodbus.client import ModbusTcpClient
-from support.harness import REPO, free_loopback, free_simcell, sim_config, write_cell
+from support.configs import cell_config, read, whole
+from support.harness import REPO, free_loopback, free_simcell, sim_config
 
 MODBUS_PORT = 5020  # the emulated box's Modbus server for both kinds (simcell's default, the modbus config's)
 OUTPUTS, SET_MASK = 1, 2  # the UR box's Modbus registers: output bits (read), set mask (write)
@@ -43,13 +43,12 @@ def not_about_rate(found: list[str]) -> list[str]:
 def swapped(cell, tmp_path, whole_entries: bool = False):
     """The same cell with the supply and actuate valves' outputs swapped in the wiring
     (``whole_entries``: with their open_when_energised too)."""
-    data = yaml.safe_load(cell.read_text())
-    valves = data["driver"]["wiring"]["valves"]
+    supply, actuate = (read(cell)["driver"]["wiring"]["valves"][v] for v in ("supply", "actuate"))
     if whole_entries:
-        valves["supply"], valves["actuate"] = valves["actuate"], valves["supply"]
+        valves = {"supply": whole(actuate), "actuate": whole(supply)}
     else:
-        valves["supply"]["output"], valves["actuate"]["output"] = valves["actuate"]["output"], valves["supply"]["output"]
-    return write_cell(tmp_path, data)
+        valves = {"supply": {"output": actuate["output"]}, "actuate": {"output": supply["output"]}}
+    return cell_config(tmp_path, cell, driver={"wiring": {"valves": valves}})
 
 
 def output_bits(host: str) -> int:
@@ -94,7 +93,7 @@ def test_correct_wiring_passes_and_ends_safe(kind, tmp_path):
 @pytest.mark.parametrize("kind", ["ur", "modbus"])
 def test_read_only_changes_no_output_and_flags_unsafe_ones(kind, tmp_path):
     with free_simcell(tmp_path, kind) as (_, cell):
-        host = yaml.safe_load(cell.read_text())["driver"]["host"]
+        host = read(cell)["driver"]["host"]
         energise(host, 1)  # actuate open, as a crashed program might leave it
         before = output_bits(host)
         r = check(cell)
@@ -139,7 +138,7 @@ def test_a_normally_closed_supply_valve_held_open_is_flagged(tmp_path):
 @pytest.mark.parametrize("kind", ["ur", "modbus"])
 def test_swapped_outputs_are_named(kind, tmp_path):
     with free_simcell(tmp_path, kind) as (_, cell):
-        host = yaml.safe_load(cell.read_text())["driver"]["host"]
+        host = read(cell)["driver"]["host"]
         r = check(swapped(cell, tmp_path), "--actuate", "--yes")
         assert r.returncode == 4, r.stdout + r.stderr
         found = not_about_rate(problems(r.stdout))
@@ -202,13 +201,13 @@ def test_a_job_on_a_box_that_is_not_running_says_what_check_says(kind, tmp_path)
 
 def test_silent_modbus_server_is_a_timeout(tmp_path):
     """A box that accepts the connection and never answers."""
+    from support.configs import DELETE
     from support.harness import simcell_config
 
     host = free_loopback([MODBUS_PORT])
-    data = yaml.safe_load(simcell_config(tmp_path, "modbus", host).read_text())
-    data["driver"]["arm"] = None  # no robot: only the Modbus server is asked
-    del data["driver"]["sim_control_port"]  # a real box's config: the advice is about the box
-    cell = write_cell(tmp_path, data)
+    # no robot: only the Modbus server is asked; a real box's config (no sim_control_port): the
+    # advice is about the box
+    cell = simcell_config(tmp_path, "modbus", host, driver={"arm": None, "sim_control_port": DELETE})
     with socket.create_server((host, MODBUS_PORT)) as server:
         accepted: list[socket.socket] = []
         threading.Thread(target=lambda: accepted.append(server.accept()[0]), daemon=True).start()
@@ -220,11 +219,7 @@ def test_silent_modbus_server_is_a_timeout(tmp_path):
 
 
 def test_bad_config_is_exit_2_with_file_and_field(tmp_path):
-    from support.harness import simcell_config
-
-    data = yaml.safe_load(simcell_config(tmp_path, "modbus", "127.0.0.1").read_text())
-    data["driver"]["wiring"]["valves"]["supply"]["output"] = 99
-    cell = write_cell(tmp_path, data)
+    cell = cell_config(tmp_path, "cell-modbus-sim", check=False, driver={"wiring": {"valves": {"supply": {"output": 99}}}})
     r = check(cell)
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == [f"fluidsense: error: {cell}: driver.wiring.valves.supply.output: "
@@ -242,9 +237,8 @@ def test_actuate_without_a_terminal_asks_and_moves_nothing(tmp_path):
 def test_sim_driver_miswired_sensor_is_flagged(tmp_path):
     """The sim driver has no wiring to swap: its plant is the profile's. A vented actuator
     reading far from zero (a sensor with a large offset) is what the read-only look flags."""
-    profile = yaml.safe_load((REPO / "config" / "profiles" / "pneunet-gripper.yaml").read_text())
-    profile["sensor"] = {**profile.get("sensor", {}), "offset_kpa": 5.0}
-    r = check(sim_config(tmp_path, clock="virtual", profile=profile), "--actuate", "--yes")
+    r = check(cell_config(tmp_path, sim_config(tmp_path, clock="virtual"), profile={"sensor": {"offset_kpa": 5.0}}),
+              "--actuate", "--yes")
     assert r.returncode == 4, r.stdout + r.stderr
     found = problems(r.stdout)
     assert len(found) == 1 and found[0].startswith("p_act: reads +5."), found
@@ -253,7 +247,7 @@ def test_sim_driver_miswired_sensor_is_flagged(tmp_path):
 
 def test_ctrl_c_while_pulsing_ends_vented(tmp_path):
     with free_simcell(tmp_path, "modbus") as (_, cell):
-        host = yaml.safe_load(cell.read_text())["driver"]["host"]
+        host = read(cell)["driver"]["host"]
         proc = subprocess.Popen([sys.executable, "-m", "fluidsense", "check", "--config", str(cell), "--seconds",
                                  "1", "--actuate", "--yes", "--pulse-s", "2"], stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True, cwd=REPO, stdin=subprocess.DEVNULL)

@@ -10,7 +10,8 @@ import pytest
 import yaml
 from fluidsense.common.errors import ConfigError
 from fluidsense.controller.config import load_cell_config, load_profile
-from support.harness import CONFIG, PROFILE, REPO, sim_config
+from support.configs import cell_data, profile_config, profile_data, whole
+from support.harness import CONFIG, REPO, sim_config
 
 
 def write(tmp_path: Path, name: str, data) -> Path:
@@ -20,14 +21,16 @@ def write(tmp_path: Path, name: str, data) -> Path:
 
 
 def cell(tmp_path: Path, **changes) -> dict:
-    data = yaml.safe_load(sim_config(tmp_path).read_text())
+    """The test's sim cell with ``changes`` ("driver.block_size": -1) set, unchecked: most
+    of these tests write a bad config on purpose."""
+    nested: dict = {}
     for dotted, value in changes.items():
-        node = data
         *parents, leaf = dotted.split(".")
+        node = nested
         for p in parents:
-            node = node[p]
-        node[leaf] = value
-    return data
+            node = node.setdefault(p, {})
+        node[leaf] = whole(value) if isinstance(value, dict) else value
+    return cell_data(tmp_path, sim_config(tmp_path), **nested)
 
 
 @pytest.mark.parametrize("name", sorted(p.name for p in CONFIG.glob("cell-*.yaml")))
@@ -139,11 +142,9 @@ def test_missing_section(tmp_path):
     ("limits", {"max_kpa": 10, "min_kpa": 20}, "limits", "must be below"),
 ])
 def test_bad_profile_names_the_profile_file(tmp_path, section, change, field, reason):
-    profile = yaml.safe_load(PROFILE.read_text())
-    profile[section] = {**profile[section], **change} if section != "actuator" else change
-    if section == "circuit":
-        profile[section] = change | {"kind": "tank"}
-    ppath = write(tmp_path, "bad-profile.yaml", profile)
+    if section in ("actuator", "circuit"):  # the whole section: only the keys given
+        change = whole(change | {"kind": "tank"} if section == "circuit" else change)
+    ppath = profile_config(tmp_path, check=False, **{section: change})
     path = write(tmp_path, "cell.yaml", cell(tmp_path, profile=str(ppath)))
     with pytest.raises(ConfigError) as err:
         load_cell_config(path)
@@ -212,18 +213,16 @@ def test_other_ports_and_one_endpoint_for_both_sockets(tmp_path):
     data["publisher"]["cmd"] = data["publisher"]["pub"]
     assert refused_at(tmp_path, data) == f"publisher.cmd: '{data['publisher']['cmd']}' is also the pub endpoint: " \
         "each socket needs its own"
-    modbus = yaml.safe_load((CONFIG / "cell-modbus-sim.yaml").read_text())
-    modbus["profile"] = str(CONFIG / "profiles" / "sorting-gripper.yaml")
     for port in (0, 70000):
-        modbus["driver"]["port"] = port
+        modbus = cell_data(tmp_path, "cell-modbus-sim", driver={"port": port})
         assert refused_at(tmp_path, modbus).startswith("driver.port: Input should be ")
 
 
 def test_p0_must_stay_a_margin_inside_the_limits(tmp_path):
     """P0 at the limit faulted every cycle (the tank sensor reads P0 plus noise). The
     margin follows from the profile's sensors and regulator (Profile.p0_margin_kpa)."""
-    profile = yaml.safe_load(PROFILE.read_text())
-    margin = load_profile(PROFILE).p0_margin_kpa
+    profile = profile_data()
+    margin = load_profile(CONFIG / "profiles" / "pneunet-gripper.yaml").p0_margin_kpa
     sensor, tank = profile["sensor"], profile["tank_sensor"]
     assert margin == pytest.approx(max(abs(sensor["offset_kpa"]), abs(tank.get("offset_kpa", 0)))
                                    + max(sensor.get("quantum_kpa", 0.016), tank.get("quantum_kpa", 0.016))
@@ -231,8 +230,7 @@ def test_p0_must_stay_a_margin_inside_the_limits(tmp_path):
                                    + 6 * max(sensor["noise_sd_kpa"], tank["noise_sd_kpa"]))
     top = profile["limits"]["max_kpa"]
     for p0, ok in ((top, False), (top - margin + 0.01, False), (top - margin - 0.01, True)):
-        profile["sequence"]["p0_kpa"] = p0
-        path = write(tmp_path, "p.yaml", profile)
+        path = profile_config(tmp_path, check=False, sequence={"p0_kpa": p0})
         if ok:
             assert load_profile(path).sequence.p0_kpa == p0
             continue
@@ -240,10 +238,10 @@ def test_p0_must_stay_a_margin_inside_the_limits(tmp_path):
             load_profile(path)
         assert str(err.value).startswith(f"{path}: sequence.p0_kpa: {p0} is within {margin:.2f} kPa of limits "
                                          f"[{profile['limits']['min_kpa']}, {top}] kPa: the readings around P0")
-    vacuum = yaml.safe_load((CONFIG / "profiles" / "suction-cup.yaml").read_text())
-    vacuum["sequence"]["p0_kpa"] = vacuum["limits"]["min_kpa"] + 0.5
+    vacuum = profile_config(tmp_path, "suction-cup", check=False,
+                            sequence={"p0_kpa": profile_data("suction-cup")["limits"]["min_kpa"] + 0.5})
     with pytest.raises(ConfigError, match=r"sequence.p0_kpa: -79.5 is within 1.06 kPa of limits \[-80.0, 5.0\]"):
-        load_profile(write(tmp_path, "vacuum.yaml", vacuum))
+        load_profile(vacuum)
 
 
 @pytest.mark.parametrize("rate, block, reason", [
@@ -276,9 +274,7 @@ def test_block_period_bounds_and_rate(tmp_path):
     ({"offset_s": 0.003}, "profile.sequence.offset_s"),
 ])
 def test_windows_hold_a_few_samples(tmp_path, sequence, field):
-    profile = yaml.safe_load(PROFILE.read_text())
-    profile["sequence"].update(sequence)
-    msg = refused_at(tmp_path, cell(tmp_path, profile=profile))
+    msg = refused_at(tmp_path, cell_data(tmp_path, sim_config(tmp_path), profile={"sequence": sequence}))
     assert msg.startswith(f"{field}: ") and msg.endswith("samples at 1000 Hz: a mean over fewer than 5 samples is "
                                                          "mostly sensor noise")
 

@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 from fluidsense.common.errors import (
     ConfigError,
     DeviceTimeoutError,
@@ -37,19 +36,15 @@ from nidaqmx.constants import (
 )
 from nidaqmx.error_codes import DAQmxErrors
 from nidaqmx.errors import DaqNotFoundError
+from support.configs import cell_config, whole
 from support.daqmx_fake import FakeRig, daq_error
 from support.harness import CONFIG, REPO
 
 EXAMPLE = CONFIG / "cell-nidaqmx.yaml"
 
 
-def _config(tmp_path: Path, **driver) -> Path:
-    data = yaml.safe_load(EXAMPLE.read_text())
-    data["driver"].update(driver)
-    data["profile"] = str(CONFIG / "profiles" / "sorting-gripper.yaml")
-    path = tmp_path / "cell-nidaqmx.yaml"
-    path.write_text(yaml.safe_dump(data))
-    return path
+def _config(tmp_path: Path, check: bool = True, **driver) -> Path:
+    return cell_config(tmp_path, EXAMPLE, check=check, driver=driver)
 
 
 def _backend(tmp_path: Path, **driver):
@@ -67,26 +62,27 @@ def _signals(cfg, pressures_pa: np.ndarray) -> list[tuple[float, ...]]:
 
 # ------------------------------------------------------------------ config
 @pytest.mark.parametrize("driver, field, reason", [
-    ({"wiring": {"valves": {"supply": {"line": 0}, "actuate": {"line": 0}},
-                 "sensors": {"p_act": {"ai": 0, "transfer": {"kind": "linear", "range_kpa": [0, 100]}},
-                             "p_tank": {"ai": 1, "transfer": {"kind": "linear", "range_kpa": [0, 900]}}},
-                 "regulator": {"analog_output": 0}}}, "driver.wiring", "two valves on one digital line"),
+    ({"wiring": whole({"valves": {"supply": {"line": 0}, "actuate": {"line": 0}},
+                       "sensors": {"p_act": {"ai": 0, "transfer": {"kind": "linear", "range_kpa": [0, 100]}},
+                                   "p_tank": {"ai": 1, "transfer": {"kind": "linear", "range_kpa": [0, 900]}}},
+                       "regulator": {"analog_output": 0}})}, "driver.wiring", "two valves on one digital line"),
     ({"buffer_s": 0.1, "rate_hz": 100, "block_size": 5}, "driver", "at least four blocks"),
     ({"device": "Dev1; rm"}, "driver.device", "pattern"),
-    ({"wiring": {"valves": {"supply": {"line": 0}, "actuate": {"line": 1}},
-                 "sensors": {"p_act": {"ai": 0, "transfer": {"kind": "linear", "range_kpa": [0, 100]}}},
-                 "regulator": {"analog_output": 0}}}, "driver.wiring", "channels ['p_tank'] have no analog input"),
+    ({"wiring": whole({"valves": {"supply": {"line": 0}, "actuate": {"line": 1}},
+                       "sensors": {"p_act": {"ai": 0, "transfer": {"kind": "linear", "range_kpa": [0, 100]}}},
+                       "regulator": {"analog_output": 0}})}, "driver.wiring", "channels ['p_tank'] have no analog input"),
 ])
 def test_a_config_the_driver_cannot_use_is_refused_at_load(tmp_path, driver, field, reason):
+    path = _config(tmp_path, check=False, **driver)
     with pytest.raises(ConfigError) as err:
-        load_cell_config(_config(tmp_path, **driver))
+        load_cell_config(path)
     text = str(err.value)
-    assert text.startswith(f"{tmp_path / 'cell-nidaqmx.yaml'}: {field}"), text
+    assert text.startswith(f"{path}: {field}"), text
     assert reason in text and "\n" not in text
 
 
 def test_the_cli_refuses_a_bad_nidaqmx_config_with_one_line_and_exit_2(tmp_path):
-    path = _config(tmp_path, rate_hz=0)
+    path = _config(tmp_path, check=False, rate_hz=0)
     out = subprocess.run([sys.executable, "-m", "fluidsense", "run", "--config", str(path)], cwd=REPO,
                          capture_output=True, text=True, timeout=60, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     assert out.returncode == 2, out.stderr
@@ -125,10 +121,9 @@ def test_channels_scales_and_timing_reach_the_tasks_as_configured(tmp_path):
 
 
 def test_a_current_loop_sensor_gets_a_current_channel_in_amps(tmp_path):
-    wiring = yaml.safe_load(EXAMPLE.read_text())["driver"]["wiring"]
-    wiring["sensors"]["p_tank"] = {"ai": 3, "terminal": "differential",
-                                   "transfer": {"kind": "linear", "output": "current", "range_kpa": [0, 1000]}}
-    backend, rig, _ = _backend(tmp_path, wiring=wiring)
+    p_tank = whole({"ai": 3, "terminal": "differential",
+                    "transfer": {"kind": "linear", "output": "current", "range_kpa": [0, 1000]}})
+    backend, rig, _ = _backend(tmp_path, wiring={"sensors": {"p_tank": p_tank}})
 
     async def body():
         async with backend:

@@ -20,7 +20,6 @@ import time
 
 import numpy as np
 import pytest
-import yaml
 from fluidsense.common.errors import ConfigError, DriverError, SafetyError
 from fluidsense.common.wiring import Linear, Mpx, Ratiometric, RegulatorWiring
 from fluidsense.controller.config import load_cell_config
@@ -28,7 +27,8 @@ from fluidsense.controller.service import Controller
 from fluidsense.drivers.config import build_backend
 from fluidsense.simulator.controlbox.model import AnalogDomain
 from fluidsense.simulator.controlbox.plant import PlantModel
-from support.harness import CONFIG, REPO, Daemon, free_simcell, write_cell
+from support.configs import DELETE, cell_config, task_config, whole
+from support.harness import CONFIG, REPO, Daemon, free_simcell
 
 KINDS = ["ur", "modbus"]
 
@@ -90,57 +90,45 @@ def test_the_plant_follows_the_box_outputs_through_the_wiring():
     assert abs(pressure_kpa("p_act")) < 1.0
 
 
-def _cell_data(kind: str) -> dict:
-    data = yaml.safe_load((CONFIG / f"cell-{kind}-sim.yaml").read_text())
-    data["profile"] = str(CONFIG / data["profile"])
-    return data
-
-
 def test_a_ur_config_asking_1khz_is_refused_with_the_rtde_limit(tmp_path):
-    data = _cell_data("ur")
-    data["driver"]["rate_hz"] = 1000
-    path = write_cell(tmp_path, data)
+    path = cell_config(tmp_path, "cell-ur-sim", check=False, driver={"rate_hz": 1000})
     with pytest.raises(ConfigError) as err:
         load_cell_config(path)
     assert str(path) in str(err.value) and "driver.rate_hz" in str(err.value)
     assert "RTDE at 500 Hz at most" in str(err.value)
-    data["driver"].update(rate_hz=200, controller="cb3")
     with pytest.raises(ConfigError, match="125 Hz at most on cb3"):
-        load_cell_config(write_cell(tmp_path, data))
+        load_cell_config(cell_config(tmp_path, "cell-ur-sim", check=False, driver={"rate_hz": 200, "controller": "cb3"}))
 
 
 def test_a_modbus_config_asking_more_than_the_boxs_refresh_is_refused(tmp_path):
     """A UR box refreshes its Modbus registers at its control rate: a faster poll would read
     each value again and stamp it as a new sample. A Modbus I/O module states its own."""
-    data = _cell_data("modbus")
-    data["driver"]["rate_hz"] = 1000
-    path = write_cell(tmp_path, data)
+    def modbus(check=False, **driver):
+        return cell_config(tmp_path, "cell-modbus-sim", check=check, driver=driver)
+
+    path = modbus(rate_hz=1000)
     with pytest.raises(ConfigError) as err:
         load_cell_config(path)
     assert str(err.value).startswith(f"{path}: driver.rate_hz: 1000 Hz: ") and "\n" not in str(err.value)
     assert "through its Modbus server at 500 Hz at most on e-series" in str(err.value)
-    data["driver"].update(rate_hz=200, controller="cb3")
     with pytest.raises(ConfigError, match="125 Hz at most on cb3"):
-        load_cell_config(write_cell(tmp_path, data))
-    data["driver"].update(rate_hz=125)
-    assert load_cell_config(write_cell(tmp_path, data)).driver.rate_hz == 125
-    data["driver"].update(rate_hz=1000, controller="io-module")
-    assert load_cell_config(write_cell(tmp_path, data)).driver.rate_hz == 1000
+        load_cell_config(modbus(rate_hz=200, controller="cb3"))
+    assert load_cell_config(modbus(True, rate_hz=125, controller="cb3")).driver.rate_hz == 125
+    assert load_cell_config(modbus(True, rate_hz=1000, controller="io-module")).driver.rate_hz == 1000
     out = subprocess.run([sys.executable, "-m", "fluidsense", "run", "--config", str(path)], cwd=REPO,
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and f"{path}: driver.rate_hz: 1000 Hz" in out.stderr and "Traceback" not in out.stderr
 
 
 def test_wiring_that_does_not_match_the_profile_is_refused(tmp_path):
-    data = _cell_data("modbus")
-    del data["driver"]["wiring"]["valves"]["supply"]
-    data["driver"]["wiring"]["sensors"]["p_tank"]["analog_input"] = 0
+    def wiring(p_tank_input: int) -> dict:
+        return {"wiring": {"valves": {"supply": DELETE}, "sensors": {"p_tank": {"analog_input": p_tank_input}}}}
+
     with pytest.raises(ConfigError) as err:
-        load_cell_config(write_cell(tmp_path, data))
+        load_cell_config(cell_config(tmp_path, "cell-modbus-sim", check=False, driver=wiring(0)))
     assert "two sensors on one analog input" in str(err.value)
-    data["driver"]["wiring"]["sensors"]["p_tank"]["analog_input"] = 1
     with pytest.raises(ConfigError, match=r"driver.wiring: valves \['supply'\] of the profile's circuit are not wired"):
-        load_cell_config(write_cell(tmp_path, data))
+        load_cell_config(cell_config(tmp_path, "cell-modbus-sim", check=False, driver=wiring(1)))
 
 
 def test_simcell_refuses_a_config_without_a_control_box():
@@ -199,10 +187,8 @@ def test_outputs_reach_the_box_and_inputs_come_back_in_pascal(kind, tmp_path):
 
 def test_a_sensor_on_an_input_set_to_the_other_domain_stops_the_modbus_driver_at_setup(tmp_path):
     with free_simcell(tmp_path, "modbus") as (_, cell):
-        data = yaml.safe_load(cell.read_text())
-        data["driver"]["wiring"]["sensors"]["p_act"]["transfer"] = {"kind": "linear", "output": "current",
-                                                                    "range_kpa": [-50, 50]}
-        cfg = load_cell_config(write_cell(tmp_path, data))
+        current = whole({"kind": "linear", "output": "current", "range_kpa": [-50, 50]})
+        cfg = load_cell_config(cell_config(tmp_path, cell, driver={"wiring": {"sensors": {"p_act": {"transfer": current}}}}))
 
         async def body():
             backend = build_backend(cfg.driver, cfg.profile.hardware)
@@ -351,10 +337,8 @@ def test_sorting_task_through_both_drivers_at_once_on_a_busy_machine(tmp_path, b
         runs = {}
         for kind in KINDS:
             _, cell = stack.enter_context(free_simcell(tmp_path, kind, profile="sorting-gripper-quick.yaml"))
-            task = yaml.safe_load((CONFIG / "tasks" / "sorting.yaml").read_text())
-            task.update(cell=str(cell), motion={"speed_m_s": 1.0, "acc_m_s2": 3.0, "approach_m": 0.05})
-            task_file = tmp_path / f"sorting-{kind}.yaml"
-            task_file.write_text(yaml.safe_dump(task))
+            task_file = task_config(tmp_path, "sorting", cell=str(cell),
+                                    motion={"speed_m_s": 1.0, "acc_m_s2": 3.0, "approach_m": 0.05})
             runs[kind] = stack.enter_context(subprocess.Popen(
                 [sys.executable, "-m", "fluidsense", "task", "run", str(task_file), "--order", "40,100", "--json"],
                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO))

@@ -6,13 +6,12 @@ shipped calibration (config/calibrations/pneunet-gripper-p_eq.json)."""
 from __future__ import annotations
 
 import asyncio
-from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 from fluidsense.client import AsyncGripper, GripEnded, Gripper, Refused
 from fluidsense.controller.requests.grip_watch import SlipWatch
+from support.configs import cell_config
 from support.gripper import grip_a_60_mm_cylinder, slip_to_40_mm
 from support.harness import REPO, ipc_endpoints, sim_config
 
@@ -20,11 +19,8 @@ CALIBRATION = REPO / "config" / "calibrations" / "pneunet-gripper-p_eq.json"
 
 
 def gripper_config(tmp_path, calibrated: bool = True, **gripper):
-    path = sim_config(tmp_path, clock="virtual")
-    data = yaml.safe_load(path.read_text())
-    data["gripper"] = {"calibrations": [str(CALIBRATION)] if calibrated else [], **gripper}
-    path.write_text(yaml.safe_dump(data))
-    return path
+    return sim_config(tmp_path, clock="virtual",
+                      gripper={"calibrations": [str(CALIBRATION)] if calibrated else [], **gripper})
 
 
 
@@ -147,13 +143,8 @@ def test_a_grip_not_grasped_within_its_timeout_is_given_up_and_vented(tmp_path, 
     vent before its valve opens, so its grasp cannot come within a timeout_s just long
     enough for the plan (0.5 + 0.5 + 5 s): the grip is given up and vented, and says so.
     The next grip, on the vented actuator, grasps within the same timeout."""
-    path = gripper_config(tmp_path, calibrated=False)
-    data = yaml.safe_load(path.read_text())
-    profile = yaml.safe_load(Path(data["profile"]).read_text())
-    profile["sequence"].update(charge_s=0.5, isolate_s=0.5)
-    data["profile"] = profile
-    data["driver"]["perturb"] = {"residual_kpa": 8.0}
-    path.write_text(yaml.safe_dump(data))
+    path = cell_config(tmp_path, gripper_config(tmp_path, calibrated=False), driver={"perturb": {"residual_kpa": 8.0}},
+                       profile={"sequence": {"charge_s": 0.5, "isolate_s": 0.5}})
     d = daemon_factory(path)
     d.wait_welcome()
     with Gripper(d.cmd, d.pub) as g:
@@ -178,10 +169,7 @@ def test_a_calibration_of_another_profile_stops_the_daemon_before_it_starts(tmp_
 
     other = json.loads(CALIBRATION.read_text()) | {"profile": "sorting-gripper"}
     (tmp_path / "other.json").write_text(json.dumps(other))
-    path = gripper_config(tmp_path)
-    data = yaml.safe_load(path.read_text())
-    data["gripper"]["calibrations"] = ["other.json"]  # relative to the cell config
-    path.write_text(yaml.safe_dump(data))
+    path = gripper_config(tmp_path, calibrations=["other.json"])  # relative to the cell config
     out = subprocess.run([sys.executable, "-m", "fluidsense", "run", "--config", str(path)], cwd=REPO,
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "Traceback" not in out.stderr

@@ -13,21 +13,16 @@ asserts on wall-clock speed.
 from __future__ import annotations
 
 import pytest
-import yaml
 from fluidsense.client import Gripper
+from support.configs import read, whole
 from support.gripper import grip_a_60_mm_cylinder, slip_to_40_mm
 from support.harness import CONFIG, Daemon, free_simcell
 
-GRIPPER_CELL = yaml.safe_load((CONFIG / "cell-gripper-modbus-sim.yaml").read_text())
-# the ur-rtde driver on the same box wiring (arm and box watchdog through ur_rtde's script)
-UR_DRIVER = {"wiring": GRIPPER_CELL["driver"]["wiring"]}
-
-
-def _ur_gripper_cell(cell):
-    data = yaml.safe_load(cell.read_text())
-    data["gripper"] = {"calibrations": [str(CONFIG / c) for c in GRIPPER_CELL["gripper"]["calibrations"]]}
-    cell.write_text(yaml.safe_dump(data))
-    return cell
+GRIPPER_CELL = read(CONFIG / "cell-gripper-modbus-sim.yaml")
+# the ur-rtde driver on the same box wiring (arm and box watchdog through ur_rtde's script),
+# with the gripper's calibrations
+UR_GRIPPER = {"driver": {"wiring": whole(GRIPPER_CELL["driver"]["wiring"])},
+              "gripper": {"calibrations": [str(CONFIG / c) for c in GRIPPER_CELL["gripper"]["calibrations"]]}}
 
 
 @pytest.mark.parametrize("kind", ["gripper-modbus", "ur"])
@@ -36,9 +31,7 @@ def test_grip_a_60_mm_cylinder_let_it_slip_then_grip_nothing_through_the_box(kin
     ur-rtde driver (the box's program is then the daemon's control script); the
     calibration made through Modbus applies, as it calibrates the gripper, not the path."""
     profile = "pneunet-gripper-quick.yaml" if kind == "ur" else None
-    with free_simcell(tmp_path, kind, profile=profile, driver=UR_DRIVER if kind == "ur" else None) as (_, cell):
-        if kind == "ur":
-            cell = _ur_gripper_cell(cell)
+    with free_simcell(tmp_path, kind, profile=profile, **(UR_GRIPPER if kind == "ur" else {})) as (_, cell):
         d = Daemon(cell)
         try:
             d.wait_welcome()

@@ -30,7 +30,8 @@ from fluidsense.controller.config.yamlfile import MAX_DEPTH, MAX_NODES
 from fluidsense.controller.sensing.calibration import MAX_FILE_BYTES, Calibration
 from fluidsense.tasks.config import SortingTask, load_task
 from hypothesis import HealthCheck, given, settings
-from support.harness import CONFIG, REPO, sim_config
+from support.configs import read, task_config
+from support.harness import REPO, sim_config
 
 from lab.bench import fuzz_files
 
@@ -89,9 +90,7 @@ def test_a_profile_path_that_is_not_a_regular_file_names_the_cell_file(tmp_path,
         sock = socket.socket(socket.AF_UNIX)
         sock.bind(str(target))
     try:
-        data = cell_data(tmp_path)
-        data["profile"] = str(target)
-        path = write(tmp_path, "cell.yaml", yaml.safe_dump(data))
+        path = sim_config(tmp_path, profile=str(target), check=False)
         msg = refused(load_cell_config, path)
     finally:
         if sock is not None:
@@ -195,7 +194,7 @@ def test_a_number_that_is_not_finite_is_refused_where_it_is(tmp_path, value):
 
 
 def test_nan_in_a_task_field_is_refused(tmp_path):
-    task = yaml.safe_load((CONFIG / "tasks" / "sorting.yaml").read_text())
+    task = read(task_config(tmp_path, "sorting"))
     path = write(tmp_path, "task.yaml", yaml.safe_dump(task).replace("order_mm:\n- 60", "order_mm:\n- .nan"))
     msg = refused(load_task, path)
     assert msg.startswith(f"{path}:") and msg.endswith(": order_mm.0: '.nan' is not a finite number")
@@ -356,24 +355,17 @@ def test_run_with_a_duplicate_key_exits_2_and_starts_nothing(tmp_path):
 
 
 def test_task_run_with_a_hostile_task_file_exits_2(tmp_path):
-    task = yaml.safe_load((CONFIG / "tasks" / "sorting.yaml").read_text())
-    task["cell"] = str(CONFIG / "cell-sorting-sim.yaml")
-    task["motion"]["speed_m_s"] = "fast"
-    path = write(tmp_path, "task.yaml", yaml.safe_dump(task))
+    path = task_config(tmp_path, "sorting", check=False, motion={"speed_m_s": "fast"})
     one_error(fluidsense("task", "run", str(path), cwd=tmp_path),
               f"{path}: motion.speed_m_s: Input should be a valid number")
-    task["motion"]["speed_m_s"] = 0.25
-    task["cell"] = "no-such-cell.yaml"
-    path.write_text(yaml.safe_dump(task))
-    one_error(fluidsense("task", "run", str(path), cwd=tmp_path),
-              f"{path}: cell: {tmp_path}/no-such-cell.yaml: No such file or directory")
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["task.yaml"]
+    other = task_config(tmp_path, "sorting", check=False, cell="no-such-cell.yaml")
+    one_error(fluidsense("task", "run", str(other), cwd=tmp_path),
+              f"{other}: cell: {tmp_path}/no-such-cell.yaml: No such file or directory")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([path.name, other.name])
 
 
 def test_a_config_with_several_problems_gives_one_prefixed_line_each(tmp_path):
-    data = cell_data(tmp_path)
-    data["driver"].update(rate_hz="fast", seed=-1)
-    path = write(tmp_path, "cell.yaml", yaml.safe_dump(data))
+    path = sim_config(tmp_path, check=False, driver={"rate_hz": "fast", "seed": -1})
     out = fluidsense("run", "--config", str(path), cwd=tmp_path)
     assert out.returncode == 2
     assert out.stderr.splitlines() == [f"fluidsense: error: {path}: driver.rate_hz: Input should be a valid number",

@@ -11,7 +11,6 @@ import sys
 from pathlib import Path
 
 import pytest
-import yaml
 from fluidsense.common.errors import CommandError, ConfigError, JobStopped
 from fluidsense.common.scenes import CylinderScene
 from fluidsense.controller.config import CellConfig, load_profile
@@ -19,7 +18,8 @@ from fluidsense.daemon import app
 from fluidsense.drivers.config import SimDriverConfig
 from fluidsense.tasks.calibrate import calibrate
 from fluidsense.tasks.journal import CycleJournal, journal_path
-from support.harness import CONFIG, REPO, free_simcell, write_cell
+from support.configs import DELETE, cell_config, task_config
+from support.harness import CONFIG, REPO, free_simcell
 
 
 def _cell(seed: int = 2) -> CellConfig:
@@ -157,10 +157,8 @@ def test_a_task_stopped_by_a_fault_reports_it_with_what_it_did():
 def test_a_task_run_stopped_by_a_fault_exits_4_with_the_partial_summary(tmp_path):
     """Through a production driver, as a user runs it: the box's sensor freezes mid-task."""
     with free_simcell(tmp_path, "modbus", profile="sorting-gripper-quick.yaml", driver={"watchdog": None}) as (box, cell):
-        task = yaml.safe_load((CONFIG / "tasks" / "sorting.yaml").read_text())
-        task.update(cell=str(cell), motion={"speed_m_s": 1.0, "acc_m_s2": 3.0, "approach_m": 0.05})
-        task_file = tmp_path / "sorting.yaml"
-        task_file.write_text(yaml.safe_dump(task))
+        task_file = task_config(tmp_path, "sorting", cell=str(cell),
+                                motion={"speed_m_s": 1.0, "acc_m_s2": 3.0, "approach_m": 0.05})
         run = subprocess.Popen([sys.executable, "-m", "fluidsense", "task", "run", str(task_file),
                                 "--order", "60,100,80,40", "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                text=True, cwd=REPO)
@@ -174,11 +172,9 @@ def test_a_task_run_stopped_by_a_fault_exits_4_with_the_partial_summary(tmp_path
 
 
 def test_calibrating_a_real_cell_without_a_terminal_is_refused_before_anything_starts(tmp_path):
-    data = yaml.safe_load((CONFIG / "cell-modbus-sim.yaml").read_text())
-    del data["driver"]["sim_control_port"]  # a real cell: nobody but the operator places targets
-    data["driver"]["host"] = "127.0.0.254"  # nothing there: the refusal must come first
-    data["profile"] = str(CONFIG / "profiles" / "sorting-gripper.yaml")
-    cell = write_cell(tmp_path, data)
+    cell = cell_config(tmp_path, "cell-modbus-sim", driver={
+        "sim_control_port": DELETE,  # a real cell: nobody but the operator places targets
+        "host": "127.0.0.254"})  # nothing there: the refusal must come first
     out = subprocess.run([sys.executable, "-m", "fluidsense", "calibrate", "--config", str(cell),
                           "--out", str(tmp_path / "cal.json")], stdin=subprocess.DEVNULL, capture_output=True,
                          text=True, timeout=60, cwd=REPO)

@@ -10,7 +10,6 @@ import struct
 
 import numpy as np
 import pytest
-import yaml
 from fluidsense.controller.telemetry.live import parse_listen
 from fluidsense.controller.telemetry.live_bridge import LIVE_TOPICS
 from fluidsense.drivers.recording.schema import event_schema
@@ -60,12 +59,8 @@ class Viewer:
 
 
 def live_daemon(tmp_path, **live) -> tuple[Daemon, int]:
-    path = sim_config(tmp_path, clock="realtime")
-    data = yaml.safe_load(path.read_text())
     port = free_port()
-    data["live"] = {"enabled": True, "port": port, **live}
-    path.write_text(yaml.safe_dump(data))
-    return Daemon(path), port
+    return Daemon(sim_config(tmp_path, clock="realtime", live={"enabled": True, "port": port, **live})), port
 
 
 def test_parse_listen():
@@ -137,11 +132,7 @@ def test_a_taken_port_is_refused_before_anything_starts(tmp_path):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         s.listen()
-        path = sim_config(tmp_path, clock="realtime")
-        data = yaml.safe_load(path.read_text())
-        data["live"] = {"enabled": True, "port": s.getsockname()[1]}
-        path.write_text(yaml.safe_dump(data))
-        daemon = Daemon(path)
+        daemon = Daemon(sim_config(tmp_path, clock="realtime", live={"enabled": True, "port": s.getsockname()[1]}))
         rc = daemon.proc.wait(60)
         err = daemon.proc.stderr.read().decode()
         daemon.close()

@@ -7,6 +7,7 @@ import asyncio
 import errno
 import json
 import logging
+import math
 import os
 import shutil
 import struct
@@ -17,12 +18,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 from fluidsense import cli
 from fluidsense.common.errors import ConfigError, EndOfRecording, RecordingError
 from fluidsense.common.scenes import CylinderScene, EmptyScene
 from fluidsense.controller.config import CellConfig, load_cell_config
-from fluidsense.controller.cycles.reanalysis import CycleReplay, comparable, replay_file
+from fluidsense.controller.cycles.reanalysis import REPRODUCIBLE, CycleReplay, _differences, comparable, replay_file
 from fluidsense.controller.service import Sink
 from fluidsense.controller.telemetry.queued import QueuedSink
 from fluidsense.daemon import app
@@ -38,7 +38,8 @@ from fluidsense.drivers.recording.sink import new_path
 from fluidsense.drivers.recording.writer import RecordingWriter
 from mcap.reader import make_reader
 from support.events import fast_profile
-from support.harness import PROFILE, REPO, sim_config
+from support.configs import whole
+from support.harness import REPO, sim_config
 from support.recording import cell, record, the_file
 
 
@@ -346,7 +347,7 @@ def test_cli_replay_json_and_exit_codes(tmp_path, good_file):
 
     def nudge(topic, payload):
         if topic == "cycle" and payload["cycle_id"] == 2:
-            payload = {**payload, "p_eq_kpa": payload["p_eq_kpa"] + 1e-9}
+            payload = {**payload, "p_eq_kpa": payload["p_eq_kpa"] + 1e-6}  # 1 mPa: 1/16000 of a sensor quantum
         return payload
 
     tampered = tmp_path / "tampered.mcap"
@@ -512,10 +513,7 @@ class Probe(Sink):
 def test_replay_driver_feeds_the_recorded_blocks_to_a_controller(tmp_path, good_file):
     with RecordingReader(good_file) as reader:
         recorded = [r.data for r in reader.records() if r.topic == SAMPLES]
-    data = {"driver": {"kind": "replay", "file": str(good_file)}, "profile": str(PROFILE)}
-    path = tmp_path / "replay.yaml"
-    path.write_text(yaml.safe_dump(data))
-    cfg = load_cell_config(path)
+    cfg = load_cell_config(sim_config(tmp_path, driver=whole({"kind": "replay", "file": str(good_file)})))
 
     async def main():
         async with app.controller(cfg) as ctrl:
@@ -745,3 +743,21 @@ def test_a_recording_written_before_the_move_reads_and_replays_the_same():
     assert names == {topic: event_schema(topic)["title"] for topic in names}  # what the writer registers today
     assert {"samples", "command", "cycle_start", "state", "cycle", "heartbeat"} <= set(names)
     assert names["command"] == "fluidsense.Command" and names["samples"] == "fluidsense.SampleBlock"
+
+
+def test_a_replayed_number_off_in_its_last_bits_agrees_and_a_changed_one_does_not():
+    """tests/data/recording-format-1.mcap's contact time replays on an AVX2 kernel one
+    ulp from the recorded one (another CPU sums and interpolates in another order): the
+    same result. A change the pipeline could make (here 1e-6 relative, far under a sensor
+    quantum) is a difference, at the top level and inside a window."""
+    live = {"t_s": 1.0, "t_c_threshold_s": 0.15123473920597566, "p_eq_kpa": 34.6, "label": "c60",
+            "windows": [{"name": "eq", "mean_kpa": 34.6}]}
+    ulp = {**live, "t_c_threshold_s": 0.15123473920597563,
+           "windows": [{"name": "eq", "mean_kpa": math.nextafter(34.6, 40.0)}]}
+    assert _differences(ulp, live) == []
+    moved = {**live, "t_c_threshold_s": live["t_c_threshold_s"] * (1 + 1e3 * REPRODUCIBLE)}
+    assert _differences(moved, live) == ["t_c_threshold_s"]
+    window = {**live, "windows": [{"name": "eq", "mean_kpa": 34.6 * (1 + 1e3 * REPRODUCIBLE)}]}
+    assert _differences(window, live) == ["windows"]
+    assert _differences({**live, "p_eq_kpa": None}, live) == ["p_eq_kpa"]
+    assert _differences({**live, "label": "c40"}, live) == ["label"]

@@ -8,13 +8,13 @@ import sys
 
 import jsonschema
 import pytest
-import yaml
 from fluidsense.common.errors import ConfigError
 from fluidsense.controller.config import load_cell_config
 from fluidsense.daemon import app
 from fluidsense.tasks.config import cell_path, load_task
 from fluidsense.tasks.runner import run_task
 from support.events import SCHEMAS
+from support.configs import task_config
 from support.harness import CONFIG, REPO, run, sim_config
 
 TASKS = CONFIG / "tasks"
@@ -101,16 +101,11 @@ def test_ripeness_picks_out_the_overripe_tomato_in_every_round():
 
 
 def test_task_file_errors_name_file_and_field(tmp_path):
-    data = yaml.safe_load((TASKS / "sorting.yaml").read_text())
-    data["input_slots"] = ["in1", "nowhere"]
-    bad = tmp_path / "bad.yaml"
-    bad.write_text(yaml.safe_dump(data))
-    with pytest.raises(ConfigError, match=r"bad.yaml: \(top level\): .*nowhere"):
+    bad = task_config(tmp_path, "sorting", check=False, input_slots=["in1", "nowhere"])
+    with pytest.raises(ConfigError, match=rf"^{bad}: \(top level\): .*nowhere"):
         load_task(bad)
-    data = yaml.safe_load((TASKS / "sorting.yaml").read_text())
-    data["motion"]["speed_m_s"] = 7
-    bad.write_text(yaml.safe_dump(data))
-    with pytest.raises(ConfigError, match=r"bad.yaml: motion.speed_m_s: "):
+    bad = task_config(tmp_path, "sorting", check=False, motion={"speed_m_s": 7})
+    with pytest.raises(ConfigError, match=rf"^{bad}: motion.speed_m_s: "):
         load_task(bad)
 
 

@@ -10,8 +10,9 @@ cycle's blocks are those the live recorder took: after the start, up to the samp
 at which the result was emitted. The features then come from the same
 ``analysis.analyse`` with the same reference handling as the controller
 (``store_reference`` cycles make the reference for later cycles at the same P0). For a
-complete cycle the replayed result must equal the recorded one, float for float; a cycle
-cut off by the end of the recording is reported as incomplete with what its samples give.
+complete cycle the replayed result must equal the recorded one, every number to within
+REPRODUCIBLE (below); a cycle cut off by the end of the recording is reported as
+incomplete with what its samples give.
 """
 
 from __future__ import annotations
@@ -237,9 +238,32 @@ class CycleReplay:
                                aborted=f"analysis failed: {exc}", missed=cur.recorder.missed)
 
 
+# How far a replayed number may lie from the recorded one and still be the same result:
+# relative 1e-9, and 1e-9 absolute (kPa, s, ml) for the numbers near zero that are
+# differences of large ones (dP of a free grip: 1e-3 kPa out of 35 kPa minus 35 kPa). The same analysis on the same float64 samples gives the same bits on the
+# machine that recorded them, but another CPU may not: numpy and OpenBLAS choose their
+# SIMD kernels at run time, and a sum or an interpolation taken in another order differs
+# in its last bits (a contact time recorded as 0.15123473920597566 s replays on an AVX2
+# kernel as ...563, 2e-16 relative). Any change of the pipeline (a window, a threshold, a
+# sample more or less) moves a feature by far more than 1e-9: at least a sensor quantum
+# (16 Pa against 35 kPa, 5e-4) or a sample period (1 ms against 0.15 s).
+REPRODUCIBLE = 1e-9
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Equal, numbers to within REPRODUCIBLE (inside lists and mappings too: the windows)."""
+    if isinstance(a, float) and isinstance(b, float):
+        return a == b or math.isclose(a, b, rel_tol=REPRODUCIBLE, abs_tol=REPRODUCIBLE)
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    return a == b
+
+
 def _differences(replay: dict[str, Any], live: dict[str, Any]) -> list[str]:
     keys = sorted(set(replay) | (set(live) - {"t_s"}))
-    return [k for k in keys if replay.get(k) != live.get(k)]
+    return [k for k in keys if not _same(replay.get(k), live.get(k))]
 
 
 async def replay_file(path: str | Path) -> ReplayReport:

@@ -6,7 +6,6 @@ import json
 import re
 
 import jsonschema
-import yaml
 
 from support.harness import PROFILE, REPO
 
@@ -22,9 +21,8 @@ def check(topic: str, msg: dict) -> None:
 
 def fast_profile(tmp_path):
     """The gripper with a 3.5 s cycle so that real-time tests stay short."""
-    profile = yaml.safe_load(PROFILE.read_text())
-    profile["sequence"].update(charge_s=0.5, isolate_s=0.5, actuate_s=2.0, vent_s=0.5, offset_s=0.3,
-                               windows=[{"name": "eq", "start_s": 1.0, "end_s": 1.5}])
-    path = tmp_path / "fast.yaml"
-    path.write_text(yaml.safe_dump(profile))
-    return str(path)
+    from support.configs import profile_config
+
+    return str(profile_config(tmp_path, PROFILE, sequence={
+        "charge_s": 0.5, "isolate_s": 0.5, "actuate_s": 2.0, "vent_s": 0.5, "offset_s": 0.3,
+        "windows": [{"name": "eq", "start_s": 1.0, "end_s": 1.5}]}))

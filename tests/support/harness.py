@@ -23,10 +23,14 @@ PROFILE = CONFIG / "profiles" / "pneunet-gripper.yaml"
 
 
 def sim_config(tmp_path: Path, *, clock: str = "virtual", seed: int = 1, scene: dict | None = None,
-               profile: dict | str | None = None, endpoints: tuple[str, str] | None = None) -> Path:
-    """Write a cell config next to the test and return its path."""
+               profile: dict | str | None = None, endpoints: tuple[str, str] | None = None,
+               check: bool = True, **sections) -> Path:
+    """The simulated cell the tests start from, written next to the test; ``sections``
+    are overrides merged in and checked as support.configs.cell_config's are."""
+    from support.configs import cell_config
+
     pub, cmd = endpoints or ipc_endpoints(tmp_path)
-    data = {
+    base = {
         "driver": {"kind": "sim", "clock": clock, "rate_hz": 1000, "block_size": 10, "seed": seed,
                    "scene": scene or {"kind": "none"}},
         "profile": profile if profile is not None else str(PROFILE),
@@ -34,45 +38,39 @@ def sim_config(tmp_path: Path, *, clock: str = "virtual", seed: int = 1, scene: 
         # a daemon records (docs/recording.md): into the test's directory, never the repository
         "recording": {"dir": str(tmp_path / "runs"), "min_free_mb": 16},
     }
-    path = tmp_path / f"cell-{uuid.uuid4().hex[:6]}.yaml"
-    path.write_text(yaml.safe_dump(data))
-    return path
+    return cell_config(tmp_path, base, check=check, **sections)
 
 
 def write_cell(tmp_path: Path, data: dict) -> Path:
+    """``data`` as it is, unchecked (a test's deliberately bad config)."""
     path = tmp_path / f"cell-{uuid.uuid4().hex[:6]}.yaml"
     path.write_text(yaml.safe_dump(data))
     return path
 
 
 def simcell_config(tmp_path: Path, kind: str, host: str, profile: str | None = None,
-                   driver: dict | None = None) -> Path:
+                   driver: dict | None = None, **sections) -> Path:
     """config/cell-{kind}-sim.yaml moved to ``host``, with ipc endpoints in the test's
-    directory; ``driver`` replaces keys of its driver section."""
-    data = yaml.safe_load((CONFIG / f"cell-{kind}-sim.yaml").read_text())
-    data["driver"].update(driver or {})
-    data["driver"]["host"] = host
-    data["profile"] = str(CONFIG / "profiles" / (profile or data["profile"].rsplit("/", 1)[-1]))
-    if data.get("gripper", {}).get("calibrations"):  # named relative to config/: the copy is elsewhere
-        data["gripper"]["calibrations"] = [str(CONFIG / c) for c in data["gripper"]["calibrations"]]
-    pub, cmd = ipc_endpoints(tmp_path)
-    data["publisher"] = {"pub": pub, "cmd": cmd}
-    data["recording"] = {"dir": str(tmp_path / "runs"), "min_free_mb": 16}  # never into the repository
-    return write_cell(tmp_path, data)
+    directory; ``driver`` replaces keys of its driver section (support.configs.cell_config)."""
+    from support.configs import cell_config
+
+    return cell_config(tmp_path, f"cell-{kind}-sim", profile=profile, driver={**(driver or {}), "host": host},
+                       **sections)
 
 
 @contextlib.contextmanager
-def free_simcell(tmp_path: Path, kind: str, profile: str | None = None, driver: dict | None = None):
+def free_simcell(tmp_path: Path, kind: str, profile: str | None = None, driver: dict | None = None, **sections):
     """``fluidsense simcell`` for a ``kind`` (ur, modbus) cell config on a free 127.0.0.x;
     yields (the box process, the cell config). The box must end cleanly."""
     from fluidsense.simulator.controlbox.process import EmulatorProcess
 
     for _ in range(5):
-        cell = simcell_config(tmp_path, kind, free_loopback(SIMCELL_PORTS), profile, driver)
+        cell = simcell_config(tmp_path, kind, free_loopback(SIMCELL_PORTS), profile, driver, **sections)
         box = EmulatorProcess(command=[sys.executable, "-m", "fluidsense", "simcell", "--config", str(cell)])
         try:
             box.start(timeout_s=30)
         except Exception:  # noqa: BLE001 - lost a race for the address: take the next one
+            box.__exit__(None, None, None)  # a box that did not start in time is not left running
             if "cannot listen" in box.log():
                 continue
             raise

@@ -111,7 +111,7 @@ def test_fresh_box_passes_the_read_only_look(kind, tmp_path):
     the actuator vented through the 3/2 actuate valve. Nothing holds anything: no problem
     about the valves, and p_act is judged as vented."""
     with free_simcell(tmp_path, kind) as (_, cell):
-        host = yaml.safe_load(cell.read_text())["driver"]["host"]
+        host = read(cell)["driver"]["host"]
         assert output_bits(host) & 0b11 == 0  # fresh: nothing energised
         r = check(cell)
         assert output_bits(host) & 0b11 == 0  # and still nothing: read-only
@@ -125,10 +125,9 @@ def test_fresh_box_passes_the_read_only_look(kind, tmp_path):
 def test_a_normally_closed_supply_valve_held_open_is_flagged(tmp_path):
     """Only a valve at rest (output off) may sit away from its safe position: a normally
     closed supply valve that reads open has its output energised by something."""
-    supply_nc = {"wiring": {**yaml.safe_load((REPO / "config" / "cell-modbus-sim.yaml").read_text())["driver"]["wiring"]}}
-    supply_nc["wiring"]["valves"]["supply"] = {"output": 0, "open_when_energised": True}
+    supply_nc = {"wiring": {"valves": {"supply": whole({"output": 0, "open_when_energised": True})}}}
     with free_simcell(tmp_path, "modbus", driver=supply_nc) as (_, cell):
-        host = yaml.safe_load(cell.read_text())["driver"]["host"]
+        host = read(cell)["driver"]["host"]
         energise(host, 0)
         r = check(cell)
         assert r.returncode == 4, r.stdout + r.stderr
@@ -164,6 +163,7 @@ def test_swapped_valve_entries_answer_as_the_other_valve(tmp_path):
 
 @pytest.mark.parametrize("kind", ["ur", "modbus"])
 def test_no_box_is_a_timeout_naming_the_address(kind, tmp_path):
+    from support.configs import DELETE
     from support.harness import simcell_config
 
     host = free_loopback()
@@ -171,9 +171,9 @@ def test_no_box_is_a_timeout_naming_the_address(kind, tmp_path):
     assert r.returncode == 3, r.stdout + r.stderr
     assert host in r.stderr and "start it first, `fluidsense simcell --config` with this same file" in r.stderr
     assert "Traceback" not in r.stderr
-    real = yaml.safe_load(simcell_config(tmp_path, kind, host).read_text())
-    del real["driver"]["sim_control_port"]  # a real box's config: what to check on the box
-    r = check(write_cell(tmp_path, real), "--timeout", "5")
+    # a real box's config (no sim_control_port): what to check on the box
+    real = simcell_config(tmp_path, kind, host, driver={"sim_control_port": DELETE})
+    r = check(real, "--timeout", "5")
     assert r.returncode == 3, r.stdout + r.stderr
     assert host in r.stderr and "check that the" in r.stderr and "simcell" not in r.stderr
 

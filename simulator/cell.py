@@ -13,10 +13,8 @@ import numpy as np
 from fluidsense.common.hardware import (
     ACTUATE,
     SUPPLY,
-    VENT,
     FlowControlledCircuit,
     Hardware,
-    TankCircuit,
 )
 from fluidsense.common.scenes import EmptyScene, PullScene
 from fluidsense.common.units import KPA

@@ -189,12 +189,8 @@ def test_a_grip_waiting_across_a_daemon_restart_ends_and_never_takes_the_new_dae
     endpoints = ipc_endpoints(tmp_path)
 
     def config(clock):
-        path = sim_config(tmp_path, clock=clock, endpoints=endpoints,
-                          scene={"kind": "cylinder", "diameter_mm": 60})
-        data = yaml.safe_load(path.read_text())
-        data["gripper"] = {"calibrations": [str(CALIBRATION)]}
-        path.write_text(yaml.safe_dump(data))
-        return path
+        return sim_config(tmp_path, clock=clock, endpoints=endpoints, scene={"kind": "cylinder", "diameter_mm": 60},
+                          gripper={"calibrations": [str(CALIBRATION)]})
 
     x = daemon_factory(config("realtime"))  # a grip charges for seconds: A is waiting when X stops
     x.wait_welcome()

@@ -80,7 +80,7 @@ def test_speed_accuracy_reproduces_one_scene_and_says_it_against_the_floor(commi
                        response_s=committed_sa["response_s"])
     fresh = SA._round(res["rows"])
     assert SA._round(res["check"]["rows"]) == fresh  # a run of CHECK_TRIALS trials is its own check
-    assert len(fresh) == len(check["rows"]) == len(SA.DECISION_TIMES) * 5
+    assert len(fresh) == len(check["rows"]) == len(SA.decision_times(res["floors"]["gripper-cylinder fast"])) * 5
     assert [(r["method"], r["decision_time_s"]) for r in fresh] == [(r["method"], r["decision_time_s"])
                                                                    for r in check["rows"]]
     _same_within_sampling_error(fresh, check["rows"], SA.CHECK_TRIALS)
@@ -97,6 +97,28 @@ def test_speed_accuracy_reproduces_one_scene_and_says_it_against_the_floor(commi
     slow = [r for r in committed_sa["rows"] if r["scene"] == "gripper-cylinder" and r["circuit"] == "slow"
             and r["decision_time_s"] == 0.1 and r["method"] in ("t_c_threshold", "early")]
     assert all(r["decided_fraction"] < 0.05 for r in slow)
+
+
+def test_the_grid_resolves_each_earliest_decision_as_a_ratio_to_its_floor(committed_sa):
+    """Between the farthest contact and twice the settled time, no two decision times are
+    further apart than FINE_STEP_OF_FLOOR of the floor, for every scene and circuit; the
+    README states each earliest decision as that ratio."""
+    from lab.bench import _speed_chart as chart
+
+    rows, first = committed_sa["rows"], SA.earliest(committed_sa["rows"], committed_sa["trials"])
+    readme = (REPO / "docs" / "speed-accuracy" / "README.md").read_text()
+    for scene in SA.SCENES:
+        for circuit in SA.CIRCUITS:
+            fl = committed_sa["floors"][f"{scene} {circuit}"]
+            times = SA.times_of(rows, scene, circuit)
+            assert 5.0 in times and min(times) <= fl["contact_s"] + SA.FINE_STEP_OF_FLOOR * fl["settled_s"]
+            near = [t for t in times if t <= min(SA.FINE_UP_TO_FLOORS * fl["settled_s"], 5.0)]
+            gaps = [b - a for a, b in zip(near, near[1:]) if b > fl["contact_s"]]
+            assert max(gaps) <= SA.FINE_STEP_OF_FLOOR * fl["settled_s"] + 1.5e-3, (scene, circuit, max(gaps))
+            best = chart.best_ratio(first, scene, circuit, fl)
+            if best is not None:
+                assert f"x{best:.2f}" in readme
+    assert chart.headline(committed_sa) in readme
 
 
 def test_the_same_as_tolerance_is_the_sampling_error_of_a_95th_percentile():

@@ -31,10 +31,14 @@ from .speed_spec import (  # noqa: F401
     CIRCUITS,
     DECIDED,
     DECISION_TIMES,
+    FINE_STEP_OF_FLOOR,
+    FINE_UP_TO_FLOORS,
     SCENES,
     _round,
+    decision_times,
     earliest,
     same_as,
+    times_of,
 )
 
 NAME = "speed-accuracy"
@@ -97,7 +101,7 @@ def floor(scene: str, circuit: str, response_s: float | None = None) -> dict[str
             "settled_s": max(settled_time(r, SETTLED_KPA) for r in resps)}
 
 
-async def _collect(prof, target: str, cal_targets, test_targets, cal_cycles: int, seed: int):
+async def _collect(prof, target: str, cal_targets, test_targets, cal_cycles: int, seed: int, times):
     from fluidsense.controller.sensing.decision import features_at
     from fluidsense.controller.service import Controller
     from fluidsense.tasks.experiments import reference, sim_cell, sweep
@@ -112,7 +116,7 @@ async def _collect(prof, target: str, cal_targets, test_targets, cal_cycles: int
     thr = prof.sequence.contact_threshold_kpa
 
     def feats(runs):
-        return [(r.target, features_at(*r.result.trace, rt, rp, DECISION_TIMES, contact_kpa=thr)) for r in runs]
+        return [(r.target, features_at(*r.result.trace, rt, rp, times, contact_kpa=thr)) for r in runs]
 
     return feats(cal), feats(test)
 
@@ -171,12 +175,12 @@ def _sorting(pairs: list[tuple[float, float]], spacing: float) -> float | None:
 CHECK_PAIR, CHECK_TRIALS = ("gripper-cylinder", "fast"), 40
 
 
-def _pair_rows(scene: str, circuit: str, cal, test) -> list[dict[str, Any]]:
+def _pair_rows(scene: str, circuit: str, cal, test, times) -> list[dict[str, Any]]:
     from fluidsense.controller.sensing.decision import METHODS
 
     rows = []
     for method in METHODS:
-        for td in DECISION_TIMES:
+        for td in times:
             ev = _evaluate(cal, test, method, td)
             pairs = ev.pop("estimates")
             rows.append({"scene": scene, "circuit": circuit, "method": method, "decision_time_s": td, **ev,
@@ -198,12 +202,13 @@ def run_bench(trials: int = 200, cal_cycles: int = 6, seed: int = SEED,
             if only is not None and (scene, circuit) != tuple(only):
                 continue
             prof = _profile(pname, resistor, lag)
-            floors[f"{scene} {circuit}"] = floor(scene, circuit, lag)
-            cal, test = asyncio.run(_collect(prof, target, cal_targets, test_targets, cal_cycles, seed))
-            rows += _pair_rows(scene, circuit, cal, test)
+            fl = floors[f"{scene} {circuit}"] = floor(scene, circuit, lag)
+            times = decision_times(fl)
+            cal, test = asyncio.run(_collect(prof, target, cal_targets, test_targets, cal_cycles, seed, times))
+            rows += _pair_rows(scene, circuit, cal, test, times)
             if (scene, circuit) == CHECK_PAIR and trials >= CHECK_TRIALS:
                 check = {"scene": scene, "circuit": circuit, "trials": CHECK_TRIALS,
-                         "rows": _pair_rows(scene, circuit, cal, test[:CHECK_TRIALS])}
+                         "rows": _pair_rows(scene, circuit, cal, test[:CHECK_TRIALS], times)}
     return {"rows": rows, "floors": floors, "check": check, "seed": seed, "trials": trials,
             "wall_s": time.perf_counter() - t0,
             "resistors_pa_s_per_m3": CIRCUITS, "response_s": lag, "early_half_width_mm": EARLY_HALF_WIDTH_MM,

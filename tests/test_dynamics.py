@@ -122,4 +122,4 @@ def test_a_row_must_say_what_kind_it_is():
     with pytest.raises(ValueError, match="kind"):
         sec.row("q", "1", "1", True, "", "Fig. 1", kind="tuned")
     with pytest.raises(ValueError, match="reason"):
-        sec.row("q", "1", "2", False, "", "Fig. 1", kind="predicted")
+        sec.row("q", "1 kPa", "2 kPa", False, "", "Fig. 1", kind="predicted", figures=("1 kPa",), tolerance="t")

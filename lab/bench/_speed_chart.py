@@ -18,6 +18,7 @@ from .speed_spec import (
     SCENES,
     _round,
     earliest,
+    fine_step,
     ratio_to_floor,
     same_as,
     times_of,
@@ -223,8 +224,7 @@ def best_ratio(first, scene: str, circuit: str, fl: dict[str, float]) -> float |
 
 
 def _step(rows, scene: str, circuit: str, fl: dict[str, float]) -> str:
-    fine = [t for t in times_of(rows, scene, circuit) if fl["contact_s"] <= t <= FINE_UP_TO_FLOORS * fl["settled_s"]]
-    return f"{min(b - a for a, b in zip(fine, fine[1:])):.3g}" if len(fine) > 1 else "-"
+    return f"{fine_step(fl):.3g}"
 
 
 def headline(res: dict[str, Any]) -> str:

@@ -24,10 +24,15 @@ CIRCUITS = {"fast": 0.0, "slow": 5.7e8}
 DECIDED = 0.95  # a method "decides" at t_d when at least this fraction of cycles has an estimate
 
 
+def fine_step(floor: dict[str, float]) -> float:
+    """The fine grid's step for one floor, rounded to the ms."""
+    return max(1e-3, round(FINE_STEP_OF_FLOOR * floor["settled_s"], 3))
+
+
 def decision_times(floor: dict[str, float]) -> tuple[float, ...]:
     """The grid of one scene and circuit: the coarse one and the fine one around its floor
     (``floor``: the bench's ``contact_s`` and ``settled_s``), in seconds rounded to the ms."""
-    step = max(1e-3, round(FINE_STEP_OF_FLOOR * floor["settled_s"], 3))
+    step = fine_step(floor)
     first = np.ceil(floor["contact_s"] / step - 1e-9) * step
     last = min(FINE_UP_TO_FLOORS * floor["settled_s"], DECISION_TIMES[-1])
     fine = [t for t in np.arange(first, last + step / 2, step) if t <= last + 1e-9]

@@ -4,7 +4,7 @@ experiment"), run with the project's own command on the task files in config/tas
 The report runs exactly what a user runs, ``python -m fluidsense task run FILE --json``, in a
 child process, and scores the summary it prints. The ripeness variants (D0 from the first
 rise of dP, from t_c at a dP threshold, from dP_max) are the shipped task file with only
-``d0_from`` changed, written beside the report's other outputs while it runs.
+``d0_from`` changed, written to a temporary directory while it runs.
 """
 
 from __future__ import annotations
@@ -90,7 +90,7 @@ def tasks(out: Path, seed: int) -> Section:
             kind="predicted")
     rows, rates = [], {}
     base = (TASKS / "ripeness.yaml").read_text()
-    with tempfile.TemporaryDirectory(dir=out) as tmp:
+    with tempfile.TemporaryDirectory(prefix="fluidsense-ripeness-") as tmp:  # never in the report's own directory
         for d0 in PAPER_RIPENESS:
             text, n = re.subn(r"(?m)^d0_from: \S+", f"d0_from: {d0}", base)
             if n != 1:

@@ -73,7 +73,7 @@ def ripeness_events(summary: dict[str, Any]) -> dict[str, tuple[int, int]]:
 def tasks(out: Path, seed: int) -> Section:
     sec = Section("tasks", "Closed-loop tasks: tomato picking and ripeness")
     pick_file = TASKS / "picking.yaml"
-    pick = run_task_file(pick_file)
+    pick = run_task_file(pick_file, "--seed", str(seed))  # the report's seed drives the cell's
     counts = pick["counts"]
     slipped = [t for t in pick["tomatoes"] if t["truth"]["slipped"]]
     # the paper's claims about a picking cycle: dP above 0.2 kPa recognises a pick; a tomato
@@ -97,7 +97,7 @@ def tasks(out: Path, seed: int) -> Section:
                 raise RuntimeError(f"{TASKS / 'ripeness.yaml'}: expected one 'd0_from:' line, found {n}")
             path = Path(tmp) / f"ripeness-{d0}.yaml"
             path.write_text(text)
-            s = run_task_file(path, "--config", str(REPO / "config" / "cell-ripeness-sim.yaml"))
+            s = run_task_file(path, "--config", str(REPO / "config" / "cell-ripeness-sim.yaml"), "--seed", str(seed))
             rates[d0] = ripeness_events(s)
     for d0, ((pk_d, pn_d), (pk_t, pn_t)) in PAPER_RIPENESS.items():
         ours = rates[d0]
@@ -119,8 +119,8 @@ def tasks(out: Path, seed: int) -> Section:
                         "ripeness_events": {d0: {w: list(v) for w, v in r.items()} for d0, r in rates.items()},
                         "ripeness_rates": {d0: {w: r4(v[0] / v[1]) for w, v in r.items()} for d0, r in rates.items()}})
     sec.markdown = "\n".join([
-        "Run with the shipped task files and their command: `python -m fluidsense task run config/tasks/picking.yaml "
-        "--json` and `python -m fluidsense task run config/tasks/ripeness.yaml --json` (the ripeness file with "
+        f"Run with the shipped task files and their command: `python -m fluidsense task run config/tasks/picking.yaml "
+        f"--json --seed {seed}` and `python -m fluidsense task run config/tasks/ripeness.yaml --json --seed {seed}` (the ripeness file with "
         "`d0_from` set to each of the paper's three choices). Picking: "
         + ", ".join(f"{t['slot']} {t['outcome']} ({len(t['attempts'])} attempt(s))" for t in pick["tomatoes"]) + ".",
         "", md_table(["D0 from", "objects", "paper successes", "ours"], rows)])

@@ -120,8 +120,8 @@ def tasks(out: Path, seed: int) -> Section:
                         "ripeness_rates": {d0: {w: r4(v[0] / v[1]) for w, v in r.items()} for d0, r in rates.items()}})
     sec.markdown = "\n".join([
         f"Run with the shipped task files and their command: `python -m fluidsense task run config/tasks/picking.yaml "
-        f"--json --seed {seed}` and `python -m fluidsense task run config/tasks/ripeness.yaml --json --seed {seed}` (the ripeness file with "
-        "`d0_from` set to each of the paper's three choices). Picking: "
+        f"--json --seed {seed}` and `python -m fluidsense task run config/tasks/ripeness.yaml --json --seed {seed}` "
+        "(the ripeness file with `d0_from` set to each of the paper's three choices). Picking: "
         + ", ".join(f"{t['slot']} {t['outcome']} ({len(t['attempts'])} attempt(s))" for t in pick["tomatoes"]) + ".",
         "", md_table(["D0 from", "objects", "paper successes", "ours"], rows)])
     return sec

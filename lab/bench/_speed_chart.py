@@ -165,15 +165,16 @@ def _markdown(res: dict[str, Any]) -> str:
              f"{FINE_UP_TO_FLOORS:g} floors, so each ratio is resolved to {FINE_STEP_OF_FLOOR:g}. Each cell: "
              "decision time (95 % error in mm) and the ratio to the floor.", "",
              "| scene | circuit | 5 s window (mm) | farthest touched (s) | floor: settled (s) | grid step (s) | "
-             "earliest / floor | " + " | ".join(METHODS) + " |", "|---|---|---|---|---|---|---|" + "---|" * len(METHODS)]
+             "earliest / floor | " + " | ".join(METHODS) + " |",
+             "|---|---|---|---|---|---|---|" + "---|" * len(METHODS)]
     for scene in SCENES:
         for circuit in CIRCUITS:
             fl = floors[f"{scene} {circuit}"]
             cells = []
             for m in METHODS:
                 e = next(x for x in first if x["scene"] == scene and x["circuit"] == circuit and x["method"] == m)
-                cells.append("-" if e["decision_time_s"] is None else
-                             f"{e['decision_time_s']:g} s ({e['err95_mm']:.2f}), x{ratio_to_floor(e['decision_time_s'], fl):.2f}")
+                t = e["decision_time_s"]
+                cells.append("-" if t is None else f"{t:g} s ({e['err95_mm']:.2f}), x{ratio_to_floor(t, fl):.2f}")
             best = best_ratio(first, scene, circuit, fl)
             ref = _row(rows, scene, circuit, "window", 5.0)["err95_mm"]
             lines.append(f"| {scene} | {circuit} | {ref:.2f} | {fl['contact_s']:.3f} | {fl['settled_s']:.3f} | "

@@ -4,6 +4,7 @@ produce, and the findings they rest on hold in virtual time."""
 from __future__ import annotations
 
 import json
+from itertools import combinations
 
 import numpy as np
 import pytest
@@ -38,6 +39,38 @@ def committed_sa():
     return json.loads((REPO / "docs" / "speed-accuracy" / "results.json").read_text())
 
 
+def _binomial_margin(p: float, n: int) -> float:
+    """Two sampling sd of a fraction of n, plus one trial (so that p = 0 or 1 still allows one)."""
+    return 2 * np.sqrt(p * (1 - p) / n) + 1 / n
+
+
+def _same_within_sampling_error(fresh, committed, n: int) -> None:
+    """What a rerun on another CPU must give again: not every digit (an early fit a few samples
+    after contact is ill-conditioned, and OpenBLAS's kernels differ in rounding, so one trial may
+    decide on one CPU and not on another), but whether a row decides where the committed one is
+    clear of the DECIDED line, each fraction, 95th percentile and bias within its sampling error,
+    and the order of the methods at each decision time where the committed gap is wider than
+    that error."""
+    rel = 2 * SA.same_as(n)  # two standard errors of the difference of two 95th percentiles
+    for a, b in zip(fresh, committed):
+        what = (b["method"], b["decision_time_s"], a, b)
+        assert abs(a["decided_fraction"] - b["decided_fraction"]) <= _binomial_margin(b["decided_fraction"], n), what
+        if abs(b["decided_fraction"] - SA.DECIDED) > _binomial_margin(SA.DECIDED, n):
+            assert (a["decided_fraction"] >= SA.DECIDED) == (b["decided_fraction"] >= SA.DECIDED), what
+        if b["decided_fraction"] >= SA.DECIDED + _binomial_margin(SA.DECIDED, n):
+            assert a["err95_mm"] == pytest.approx(b["err95_mm"], rel=rel), what
+            se_mean = b["err95_mm"] / 1.96 / np.sqrt(n)  # the 95th percentile of |e| is ~1.96 sd
+            assert abs(a["bias_mm"] - b["bias_mm"]) <= 2 * np.sqrt(2) * se_mean, what
+    for td in {r["decision_time_s"] for r in committed}:
+        sure = [i for i, r in enumerate(committed) if r["decision_time_s"] == td
+                and r["decided_fraction"] >= SA.DECIDED + _binomial_margin(SA.DECIDED, n)]
+        for i, j in combinations(sure, 2):
+            lo, hi = sorted((committed[i]["err95_mm"], committed[j]["err95_mm"]))
+            if hi > lo * (1 + 2 * rel):  # clearly apart: the rerun keeps them in this order
+                ci, cj = committed[i]["err95_mm"], committed[j]["err95_mm"]
+                assert (fresh[i]["err95_mm"] < fresh[j]["err95_mm"]) == (ci < cj), (td, fresh[i], fresh[j])
+
+
 def test_speed_accuracy_reproduces_one_scene_and_says_it_against_the_floor(committed_sa):
     """The committed run's first CHECK_TRIALS trials of one scene, recomputed: the same
     cells, in the same order, as the committed 200 (its ``check`` rows come from them)."""
@@ -47,9 +80,10 @@ def test_speed_accuracy_reproduces_one_scene_and_says_it_against_the_floor(commi
                        response_s=committed_sa["response_s"])
     fresh = SA._round(res["rows"])
     assert SA._round(res["check"]["rows"]) == fresh  # a run of CHECK_TRIALS trials is its own check
-    assert len(fresh) == len(check["rows"]) == len(SA.DECISION_TIMES) * 5
-    for a, b in zip(fresh, check["rows"]):
-        assert all(_close(a[k], b[k]) for k in b), (a, b)
+    assert len(fresh) == len(check["rows"]) == len(SA.decision_times(res["floors"]["gripper-cylinder fast"])) * 5
+    assert [(r["method"], r["decision_time_s"]) for r in fresh] == [(r["method"], r["decision_time_s"])
+                                                                   for r in check["rows"]]
+    _same_within_sampling_error(fresh, check["rows"], SA.CHECK_TRIALS)
     floor = committed_sa["floors"]["gripper-cylinder fast"]
     assert all(_close(res["floors"]["gripper-cylinder fast"][k], floor[k]) for k in floor)
     # the actuator lag is in the scene: without it the farthest cylinder is touched far sooner
@@ -63,6 +97,29 @@ def test_speed_accuracy_reproduces_one_scene_and_says_it_against_the_floor(commi
     slow = [r for r in committed_sa["rows"] if r["scene"] == "gripper-cylinder" and r["circuit"] == "slow"
             and r["decision_time_s"] == 0.1 and r["method"] in ("t_c_threshold", "early")]
     assert all(r["decided_fraction"] < 0.05 for r in slow)
+
+
+def test_the_grid_resolves_each_earliest_decision_as_a_ratio_to_its_floor(committed_sa):
+    """Between the farthest contact and twice the settled time, no two decision times are
+    further apart than FINE_STEP_OF_FLOOR of the floor, for every scene and circuit; the
+    README states each earliest decision as that ratio."""
+    from lab.bench import _speed_chart as chart
+
+    rows, first = committed_sa["rows"], SA.earliest(committed_sa["rows"], committed_sa["trials"])
+    readme = (REPO / "docs" / "speed-accuracy" / "README.md").read_text()
+    for scene in SA.SCENES:
+        for circuit in SA.CIRCUITS:
+            fl = committed_sa["floors"][f"{scene} {circuit}"]
+            times = SA.times_of(rows, scene, circuit)
+            step = SA.FINE_STEP_OF_FLOOR * fl["settled_s"] + 1.5e-3  # (the step is rounded to the ms)
+            near = [t for t in times if fl["contact_s"] <= t <= min(SA.FINE_UP_TO_FLOORS * fl["settled_s"], 5.0)]
+            assert 5.0 in times and near[0] - fl["contact_s"] <= step, (scene, circuit, near[0])
+            gaps = [b - a for a, b in zip(near, near[1:])]
+            assert max(gaps) <= step, (scene, circuit, max(gaps))
+            best = chart.best_ratio(first, scene, circuit, fl)
+            if best is not None:
+                assert f"x{best:.2f}" in readme
+    assert chart.headline(committed_sa) in readme
 
 
 def test_the_same_as_tolerance_is_the_sampling_error_of_a_95th_percentile():

@@ -12,10 +12,16 @@ from .speed_spec import (
     CIRCUITS,
     DECIDED,
     DECISION_TIMES,
+    FINE_STEP_OF_FLOOR,
+    FINE_UP_TO_FLOORS,
+    GOAL_RATIO,
     SCENES,
     _round,
     earliest,
+    fine_step,
+    ratio_to_floor,
     same_as,
+    times_of,
 )
 
 # The paper's data on this chart's axes: the sorting protocols read the window mean of a
@@ -59,7 +65,8 @@ def _chart(out_dir: Path, res: dict[str, Any]) -> None:
         for i, scene in enumerate(SCENES):
             a = ax[i, j]
             for m in METHODS:
-                _method_line(a, [_row(rows, scene, circuit, m, td) for td in DECISION_TIMES], colours[m], m)
+                _method_line(a, [_row(rows, scene, circuit, m, td) for td in times_of(rows, scene, circuit)],
+                             colours[m], m)
             ref = _row(rows, scene, circuit, "window", 5.0)["err95_mm"]
             a.axhline(ref, color="grey", lw=0.8, ls="-.", label="5 s window (the reference)")
             _floor_lines(a, floors[f"{scene} {circuit}"])
@@ -68,7 +75,7 @@ def _chart(out_dir: Path, res: dict[str, Any]) -> None:
         a = ax[2, j]
         for spacing, ls in ((20, "-"), (10, ":")):
             pts = [(td, _row(rows, "gripper-cylinder", circuit, "window", td)[f"sorting_{spacing}mm"])
-                   for td in DECISION_TIMES]
+                   for td in times_of(rows, "gripper-cylinder", circuit)]
             pts = [(t, v) for t, v in pts if v is not None]
             if not pts:  # no pair that far apart among the held-out targets
                 continue
@@ -102,11 +109,11 @@ def _method_line(a, rows, colour, label) -> None:
     if known:
         a.plot(*zip(*known), "-", color=colour, lw=1, label=label)
     if decided:
-        a.plot(*zip(*decided), "o", color=colour, ms=3.5)
+        a.plot(*zip(*decided), "o", color=colour, ms=2)
     if partial:
-        a.plot(*zip(*partial), "o", mfc="white", mec=colour, ms=4)
+        a.plot(*zip(*partial), "o", mfc="white", mec=colour, ms=2.5)
     if undecided:
-        a.plot(undecided, [ERR_LIM[1] * 0.85] * len(undecided), "x", color=colour, ms=4)
+        a.plot(undecided, [ERR_LIM[1] * 0.85] * len(undecided), "x", color=colour, ms=2.5)
 
 
 def _floor_lines(a, fl) -> None:
@@ -150,25 +157,35 @@ def _markdown(res: dict[str, Any]) -> str:
              "error no worse than the 5 s window mean's on the same scene and circuit (the paper's sorting reads "
              "at 5 s and publishes no error in mm, so the reference is ours), within "
              f"{100 * same_as(res['trials']):.1f} % (one standard error of the difference of two 95th percentiles "
-             f"from {res['trials']} cycles each); the grid is "
-             + ", ".join(f"{t:g}" for t in DECISION_TIMES) + " s.", "",
-             "| scene | circuit | 5 s window (mm) | farthest touched (s) | settled (s) | "
-             + " | ".join(METHODS) + " |", "|---|---|---|---|---|" + "---|" * len(METHODS)]
+             f"from {res['trials']} cycles each). The floor is the settled time (noise-free step responses at both "
+             f"ends of the range within {res['settled_kpa']:g} kPa of their final value): after it a reading no "
+             "longer depends on when it is taken; a decision may come before it, since each decision time has its "
+             "own calibration. Grid: " + ", ".join(f"{t:g}" for t in DECISION_TIMES) + " s, and per scene and "
+             f"circuit steps of {100 * FINE_STEP_OF_FLOOR:g} % of its floor from the farthest contact to "
+             f"{FINE_UP_TO_FLOORS:g} floors, so each ratio is resolved to {FINE_STEP_OF_FLOOR:g}. Each cell: "
+             "decision time (95 % error in mm) and the ratio to the floor.", "",
+             "| scene | circuit | 5 s window (mm) | farthest touched (s) | floor: settled (s) | grid step (s) | "
+             "earliest / floor | " + " | ".join(METHODS) + " |",
+             "|---|---|---|---|---|---|---|" + "---|" * len(METHODS)]
     for scene in SCENES:
         for circuit in CIRCUITS:
             fl = floors[f"{scene} {circuit}"]
             cells = []
             for m in METHODS:
                 e = next(x for x in first if x["scene"] == scene and x["circuit"] == circuit and x["method"] == m)
-                cells.append("-" if e["decision_time_s"] is None else f"{e['decision_time_s']:g} s ({e['err95_mm']:.2f})")
+                t = e["decision_time_s"]
+                cells.append("-" if t is None else f"{t:g} s ({e['err95_mm']:.2f}), x{ratio_to_floor(t, fl):.2f}")
+            best = best_ratio(first, scene, circuit, fl)
             ref = _row(rows, scene, circuit, "window", 5.0)["err95_mm"]
             lines.append(f"| {scene} | {circuit} | {ref:.2f} | {fl['contact_s']:.3f} | {fl['settled_s']:.3f} | "
+                         f"{_step(rows, scene, circuit, fl)} | {'-' if best is None else f'x{best:.2f}'} | "
                          + " | ".join(cells) + " |")
     lines += ["", "\"-\": not by 5 s on this grid."]
     for scene in SCENES:
         for circuit in CIRCUITS:
             lines += ["", f"## {scene}, {circuit} circuit", "",
-                      "95 % absolute error in mm (fraction of cycles decided when below 100 %):", "",
+                      "95 % absolute error in mm (fraction of cycles decided when below 100 %), on the coarse "
+                      "grid (every time of the fine grid is in results.json and on the chart):", "",
                       "| method | " + " | ".join(f"{t:g} s" for t in DECISION_TIMES) + " |",
                       "|---|" + "---|" * len(DECISION_TIMES)]
             for m in METHODS:
@@ -200,36 +217,43 @@ def _markdown(res: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def best_ratio(first, scene: str, circuit: str, fl: dict[str, float]) -> float | None:
+    """The earliest decision of any method on one scene and circuit, over its floor."""
+    ts = [e["decision_time_s"] for e in first if e["scene"] == scene and e["circuit"] == circuit
+          and e["decision_time_s"] is not None]
+    return ratio_to_floor(min(ts), fl) if ts else None
+
+
+def _step(rows, scene: str, circuit: str, fl: dict[str, float]) -> str:
+    return f"{fine_step(fl):.3g}"
+
+
 def headline(res: dict[str, Any]) -> str:
-    """The speed claim for the gripper on the fast circuit, said against its physical floor."""
-    rows, fl = res["rows"], res["floors"]["gripper-cylinder fast"]
-    first = [e for e in earliest(rows, res["trials"]) if e["scene"] == "gripper-cylinder"
-             and e["circuit"] == "fast" and e["decision_time_s"] is not None]
-    ref = _row(rows, "gripper-cylinder", "fast", "window", 5.0)["err95_mm"]
-    text = (f"Gripper on cylinders, fast circuit, actuator lag {res['response_s']:g} s: the 5 s window mean's 95 % "
-            f"error is {ref:.2f} mm. ")
-    if not first:
-        return text + "No method reaches it before 5 s."
-    t = min(e["decision_time_s"] for e in first)
-    best = sorted((e for e in first if e["decision_time_s"] == t), key=lambda e: e["err95_mm"])
-    text += (f"The earliest decision at that accuracy is at {t:g} s: "
-             + ", ".join(f"`{e['method']}` {e['err95_mm']:.2f} mm" for e in best) + ". "
-             f"The physical floor: the farthest cylinder is touched at {fl['contact_s']:.3f} s and the pressure "
-             f"settles (within {res['settled_kpa']:g} kPa) at {fl['settled_s']:.3f} s; ")
-    before = [td for td in DECISION_TIMES if td < t]
-    if before:
-        td = before[-1]
-        errs = [r["err95_mm"] for r in rows if r["scene"] == "gripper-cylinder" and r["circuit"] == "fast"
-                and r["decision_time_s"] == td and r["err95_mm"] is not None and r["decided_fraction"] >= DECIDED]
-        text += (f"at {td:g} s the best decided method is at {min(errs):.2f} mm. " if errs
-                 else f"at {td:g} s no method decides {100 * DECIDED:.0f} % of cycles. ")
-    lead = t - fl["contact_s"]
-    text += (f"So the decision comes {1e3 * lead:.0f} ms after the last contact"
-             + (", before the pressure has settled: calibrating at the same decision time removes the repeatable "
-                "part of the transient." if t < fl["settled_s"] else ", after the pressure has settled.")
-             + (f" The grid is coarse: the true earliest time is between {before[-1]:g} and {t:g} s, and not before "
-               "the last contact (until then the untouched targets read alike)." if before else ""))
-    return text
+    """The speed claim: per scene and circuit, the earliest decision at the 5 s accuracy as a
+    ratio to its floor, against the goal of GOAL_RATIO floors."""
+    rows, floors = res["rows"], res["floors"]
+    first = earliest(rows, res["trials"])
+    parts, within = [], 0
+    for scene in SCENES:
+        for circuit in CIRCUITS:
+            fl = floors[f"{scene} {circuit}"]
+            best = best_ratio(first, scene, circuit, fl)
+            if best is None:
+                parts.append(f"{scene} on the {circuit} circuit: no method by 5 s (floor {fl['settled_s']:.3f} s)")
+                continue
+            t = best * fl["settled_s"]
+            who = sorted((e for e in first if e["scene"] == scene and e["circuit"] == circuit
+                          and e["decision_time_s"] is not None and abs(e["decision_time_s"] - t) < 1e-9),
+                         key=lambda e: e["err95_mm"])
+            within += best <= GOAL_RATIO
+            parts.append(f"{scene} on the {circuit} circuit decides at {t:.3g} s against a floor of "
+                         f"{fl['settled_s']:.3f} s, x{best:.2f} ("
+                         + ", ".join(f"`{e['method']}` {e['err95_mm']:.2f} mm" for e in who) + ")")
+    n = len(SCENES) * len(CIRCUITS)
+    return (f"Actuator lag {res['response_s']:g} s, each scene against its own 5 s window mean: "
+            + "; ".join(parts) + f". Goal: every scene and circuit within x{GOAL_RATIO:g} of its floor; "
+            f"{within} of {n} are." + ("" if within == n else " The others are reported as they are: the physics "
+                                          "was not changed to reach the goal."))
 
 
 def _f(x) -> str:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import os
 import time
 from itertools import combinations
 from pathlib import Path
@@ -31,10 +32,14 @@ from .speed_spec import (  # noqa: F401
     CIRCUITS,
     DECIDED,
     DECISION_TIMES,
+    FINE_STEP_OF_FLOOR,
+    FINE_UP_TO_FLOORS,
     SCENES,
     _round,
+    decision_times,
     earliest,
     same_as,
+    times_of,
 )
 
 NAME = "speed-accuracy"
@@ -56,6 +61,8 @@ def register(p: argparse.ArgumentParser) -> None:
                    "0.05 s, assumed; 0: quasi-static), to see how the figures depend on it")
     p.add_argument("--only", nargs=2, metavar=("SCENE", "CIRCUIT"), help="one scene and circuit, e.g. "
                    "gripper-cylinder fast (writes no chart)")
+    p.add_argument("--jobs", "-j", type=int, default=min(2, os.cpu_count() or 1),
+                   help="worker processes, one scene and circuit each (the figures do not depend on it)")
     p.add_argument("--json", action="store_true")
 
 
@@ -97,7 +104,7 @@ def floor(scene: str, circuit: str, response_s: float | None = None) -> dict[str
             "settled_s": max(settled_time(r, SETTLED_KPA) for r in resps)}
 
 
-async def _collect(prof, target: str, cal_targets, test_targets, cal_cycles: int, seed: int):
+async def _collect(prof, target: str, cal_targets, test_targets, cal_cycles: int, seed: int, times):
     from fluidsense.controller.sensing.decision import features_at
     from fluidsense.controller.service import Controller
     from fluidsense.tasks.experiments import reference, sim_cell, sweep
@@ -112,7 +119,7 @@ async def _collect(prof, target: str, cal_targets, test_targets, cal_cycles: int
     thr = prof.sequence.contact_threshold_kpa
 
     def feats(runs):
-        return [(r.target, features_at(*r.result.trace, rt, rp, DECISION_TIMES, contact_kpa=thr)) for r in runs]
+        return [(r.target, features_at(*r.result.trace, rt, rp, times, contact_kpa=thr)) for r in runs]
 
     return feats(cal), feats(test)
 
@@ -171,12 +178,12 @@ def _sorting(pairs: list[tuple[float, float]], spacing: float) -> float | None:
 CHECK_PAIR, CHECK_TRIALS = ("gripper-cylinder", "fast"), 40
 
 
-def _pair_rows(scene: str, circuit: str, cal, test) -> list[dict[str, Any]]:
+def _pair_rows(scene: str, circuit: str, cal, test, times) -> list[dict[str, Any]]:
     from fluidsense.controller.sensing.decision import METHODS
 
     rows = []
     for method in METHODS:
-        for td in DECISION_TIMES:
+        for td in times:
             ev = _evaluate(cal, test, method, td)
             pairs = ev.pop("estimates")
             rows.append({"scene": scene, "circuit": circuit, "method": method, "decision_time_s": td, **ev,
@@ -184,26 +191,46 @@ def _pair_rows(scene: str, circuit: str, cal, test) -> list[dict[str, Any]]:
     return rows
 
 
+def _pair(args: tuple[str, str, int, int, int, float]) -> tuple[list, dict, dict | None]:
+    """One scene and circuit on its own seeded cell: its rows, floor and (for CHECK_PAIR)
+    check rows. The same in a worker process as in this one."""
+    scene, circuit, trials, cal_cycles, seed, lag = args
+    pname, target, cal_targets, (lo, hi) = SCENES[scene]
+    rng = np.random.default_rng(seed)
+    test_targets = [round(float(x), 3) for x in rng.uniform(lo, hi, trials)]
+    prof = _profile(pname, CIRCUITS[circuit], lag)
+    fl = floor(scene, circuit, lag)
+    times = decision_times(fl)
+    cal, test = asyncio.run(_collect(prof, target, cal_targets, test_targets, cal_cycles, seed, times))
+    check = None
+    if (scene, circuit) == CHECK_PAIR and trials >= CHECK_TRIALS:
+        check = {"scene": scene, "circuit": circuit, "trials": CHECK_TRIALS,
+                 "rows": _pair_rows(scene, circuit, cal, test[:CHECK_TRIALS], times)}
+    return _pair_rows(scene, circuit, cal, test, times), fl, check
+
+
 def run_bench(trials: int = 200, cal_cycles: int = 6, seed: int = SEED,
-              only: tuple[str, str] | None = None, response_s: float | None = None) -> dict[str, Any]:
+              only: tuple[str, str] | None = None, response_s: float | None = None, jobs: int = 1) -> dict[str, Any]:
     """All scenes and circuits, or ``only`` one (scene, circuit): its rows are the same
-    either way (each pair has its own seeded cell). ``check``: CHECK_PAIR's rows over its
-    first CHECK_TRIALS trials, when the run has that many."""
+    either way (each pair has its own seeded cell), and so with ``jobs`` worker processes.
+    ``check``: CHECK_PAIR's rows over its first CHECK_TRIALS trials, when the run has that many."""
     lag = _response_s(response_s)
-    rows, floors, check, t0 = [], {}, None, time.perf_counter()
-    for scene, (pname, target, cal_targets, (lo, hi)) in SCENES.items():
-        rng = np.random.default_rng(seed)
-        test_targets = [round(float(x), 3) for x in rng.uniform(lo, hi, trials)]
-        for circuit, resistor in CIRCUITS.items():
-            if only is not None and (scene, circuit) != tuple(only):
-                continue
-            prof = _profile(pname, resistor, lag)
-            floors[f"{scene} {circuit}"] = floor(scene, circuit, lag)
-            cal, test = asyncio.run(_collect(prof, target, cal_targets, test_targets, cal_cycles, seed))
-            rows += _pair_rows(scene, circuit, cal, test)
-            if (scene, circuit) == CHECK_PAIR and trials >= CHECK_TRIALS:
-                check = {"scene": scene, "circuit": circuit, "trials": CHECK_TRIALS,
-                         "rows": _pair_rows(scene, circuit, cal, test[:CHECK_TRIALS])}
+    t0 = time.perf_counter()
+    work = [(scene, circuit, trials, cal_cycles, seed, lag) for scene in SCENES for circuit in CIRCUITS
+            if only is None or (scene, circuit) == tuple(only)]
+    if jobs > 1 and len(work) > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+            done = list(pool.map(_pair, work))
+    else:
+        done = [_pair(w) for w in work]
+    rows, floors, check = [], {}, None
+    for (scene, circuit, *_), (pair_rows, fl, pair_check) in zip(work, done):
+        rows += pair_rows
+        floors[f"{scene} {circuit}"] = fl
+        check = pair_check or check
     return {"rows": rows, "floors": floors, "check": check, "seed": seed, "trials": trials,
             "wall_s": time.perf_counter() - t0,
             "resistors_pa_s_per_m3": CIRCUITS, "response_s": lag, "early_half_width_mm": EARLY_HALF_WIDTH_MM,
@@ -214,7 +241,7 @@ def run(args: argparse.Namespace) -> int:
     from ._speed_chart import write
 
     res = run_bench(args.trials, args.cal_cycles, args.seed, tuple(args.only) if args.only else None,
-                    args.response_s)
+                    args.response_s, jobs=max(1, args.jobs))
     if args.out and not args.only:
         write(Path(args.out), res)
     rows = _round(res["rows"])

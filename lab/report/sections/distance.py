@@ -60,6 +60,7 @@ def _accuracy_rows(sec: Section, key: str, label: str, err: np.ndarray, source: 
         why = "our model's noise at this method is larger than the paper's"
     sec.row(f"distance accuracy, {label} (95 % of predicted - true)", f"{p_lo:+.1f} to {p_hi:+.1f} mm",
             f"{lo:+.2f} to {hi:+.2f} mm", ok, why, source, kind="predicted",
+            figures=(f"{p_lo:+.1f} mm", f"{p_hi:+.1f} mm"),
             tolerance="half-width within 25 % of the paper's (sampling error of a 95 % interval)")
     return lo, hi
 
@@ -110,8 +111,9 @@ def _distance(key: str, profile_name: str, feature: str, label: str, fit_kind: s
             f"{PAPER_ACCURACY[key][1]:+.1f} mm)."]
     if key == "tank":
         sec.row("average distance resolution, tank method", "about 0.04 kPa/mm", f"{abs(cal.slope):.4f} kPa/mm",
-                abs(abs(cal.slope) - 0.04) < 0.01, "bending actuator defaults derived from it (docs/physics.md)",
-                "Results; Methods, distance sensing", kind="fitted: contact_ratio", tolerance="+-0.005 kPa/mm")
+                abs(abs(cal.slope) - 0.04) <= 0.005, "bending actuator defaults derived from it (docs/physics.md)",
+                "Results; Methods, distance sensing", kind="fitted", parameter="contact_ratio",
+                set_from=("0.04 kPa/mm",), figures=("0.04 kPa/mm",), tolerance="+-0.005 kPa/mm (last digit given)")
     if with_tc:
         tc_cal = fit(cal_runs, "t_c_slope", "poly2", target="height_mm", target_unit="mm")
         tc_err = errors_on(tc_cal, test_runs, "t_c_slope")
@@ -158,7 +160,8 @@ def _distance(key: str, profile_name: str, feature: str, label: str, fit_kind: s
         sec.numbers["free_standard_volume_ml"] = r4(v_std)
         sec.row("air in the free actuator at the tank equilibrium", "28.7 ml (snapshot)", f"{v_std:.1f} ml",
                 abs(v_std - 28.7) < 3, "v0 and compliance chosen with it", "Fig. 1a",
-                kind="fitted: v0, compliance", tolerance="+-3 ml (read off a figure)")
+                kind="fitted", parameter="v0, compliance", set_from=("28.7 ml",), figures=("28.7 ml",),
+                tolerance="+-3 ml (reading error of a snapshot in a figure)")
     sec.markdown = "\n".join(text)
     return sec
 

@@ -3,13 +3,14 @@ optional simulation scenario (what lies in which slot on a simulated cell)."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Annotated, Literal
 
 from fluidsense.common.models import Integer, Real, StrictModel
 from fluidsense.common.world import Pose, WorldObject
 from fluidsense.controller.config import load_model
-from fluidsense.controller.config.loading import referenced_file
+from fluidsense.controller.config.loading import referenced_file, shipped_candidates
 from pydantic import Field, RootModel, model_validator
 
 
@@ -139,6 +140,20 @@ class TaskDocument(RootModel[TaskFile]):
     """A whole task file."""
 
 
+def task_file(name: str | Path) -> Path:
+    """The task file ``name`` names: the path as given when it exists, else the shipped task of
+    that name (``sorting``, ``sorting.yaml`` or ``tasks/sorting.yaml``), so that the commands
+    of the docs run from an integrator's own folder as from the checkout. Neither there: the
+    path as given, which load_task then reports as unreadable."""
+    given = Path(name)
+    if given.exists():
+        return given
+    for candidate in shipped_candidates(os.fspath(name), "tasks", ".yaml"):
+        if candidate.is_file():
+            return candidate
+    return given
+
+
 def load_task(path: str | Path) -> SortingTask | PickingTask | RipenessTask:
     """Load a task file; errors name the file and the field."""
     return load_model(TaskDocument, path).root
@@ -150,4 +165,4 @@ def cell_path(task_path: str | Path, task) -> Path:
 
 
 __all__ = ["Motion", "PickingTask", "RipenessTask", "SortingTask", "TaskFile", "Tomato", "WorldObject",
-           "cell_path", "load_task"]
+           "cell_path", "load_task", "task_file"]

@@ -9,54 +9,19 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 import re
 import signal
 import socket
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 import yaml
 from fluidsense.client import Gripper
+from support.docs import run_as_written, shell_blocks
 from support.harness import REPO, SIMCELL_PORTS, Daemon, free_loopback, free_simcell, simcell_config
 
 EXAMPLES = REPO / "examples"
-
-
-def shell_blocks(doc: Path) -> list[list[str]]:
-    """The fenced ``sh`` blocks of a document, in order: their command lines."""
-    blocks, current = [], None
-    for line in doc.read_text().splitlines():
-        if current is None and line.strip() == "```sh":
-            current = []
-        elif current is not None and line.strip() == "```":
-            blocks.append(current)
-            current = None
-        elif current is not None and line.strip() and not line.lstrip().startswith("#"):
-            current.append(line.strip())
-    return blocks
-
-
-def run_as_written(lines: list[str], subs: dict[str, str], tmp_path: Path, timeout_s: float = 600):
-    """Each line as a shell runs it from the repository's folder (``&``: in the background),
-    with only ``subs`` replaced; the venv's ``fluidsense`` and ``python`` first on PATH.
-    Returns (the background processes, the foreground results)."""
-    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}", "PYTHONUNBUFFERED": "1"}
-    background, results = [], []
-    for line in lines:
-        for old, new in subs.items():
-            line = line.replace(old, new)
-        if line.endswith("&"):
-            log = open(tmp_path / f"bg{len(background)}.log", "w")  # noqa: SIM115 - closed with the process
-            # exec: the process is the command itself, which a signal then reaches (not a shell)
-            background.append((subprocess.Popen(["sh", "-c", "exec " + line[:-1]], cwd=REPO, env=env, stdout=log,
-                                                 stderr=subprocess.STDOUT), log))
-        else:
-            results.append(subprocess.run(line, shell=True, cwd=REPO, env=env, capture_output=True, text=True,
-                                          timeout=timeout_s))
-    return background, results
 
 
 def test_examples_readme_pick_and_place_runs_as_written(tmp_path):

@@ -18,7 +18,8 @@ def register(sub) -> None:
     tasks = p.add_subparsers(dest="task_command", required=True, metavar="ACTION")
     r = tasks.add_parser("run", help="run a task file", description="Run a task and print its summary. On a "
                          "simulated cell the summary scores itself against the known truth.")
-    r.add_argument("file", help="task file, e.g. config/tasks/sorting.yaml")
+    r.add_argument("file", help="task file, e.g. config/tasks/sorting.yaml, or a shipped task's name: sorting, "
+                                    "picking, ripeness")
     r.add_argument("--config", "-c", help="cell config to use instead of the one the task file names")
     r.add_argument("--order", help="sorting on a simulated cell: diameters (mm) in the input slots, e.g. 100,40,60,80")
     r.add_argument("--seed", type=int, help="seed of a simulated cell")
@@ -29,12 +30,13 @@ def register(sub) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from fluidsense.daemon import app
-    from fluidsense.tasks.config import cell_path, load_task
+    from fluidsense.tasks.config import cell_path, load_task, task_file
     from fluidsense.tasks.runner import run_task
 
-    task = load_task(args.file)
+    path = task_file(args.file)
+    task = load_task(path)
     overrides = {"driver": {"seed": args.seed}} if args.seed is not None else None
-    cfg = app.load(args.config or cell_path(args.file, task), overrides)
+    cfg = app.load(args.config or cell_path(path, task), overrides)
     setup_logging(cfg.log_level, quiet=args.json)
     order = None
     if args.order:

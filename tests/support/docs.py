@@ -1,0 +1,49 @@
+"""Running a document's shell blocks as written: the fenced ``sh`` blocks in order, each
+line as a shell runs it (``&``: in the background), only announced names replaced."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from support.harness import REPO
+
+
+def shell_blocks(doc: Path) -> list[list[str]]:
+    """The fenced ``sh`` blocks of a document, in order: their command lines."""
+    blocks, current = [], None
+    for line in doc.read_text().splitlines():
+        if current is None and line.strip() == "```sh":
+            current = []
+        elif current is not None and line.strip() == "```":
+            blocks.append(current)
+            current = None
+        elif current is not None and line.strip() and not line.lstrip().startswith("#"):
+            current.append(line.strip())
+    return blocks
+
+
+def run_as_written(lines: list[str], subs: dict[str, str], tmp_path: Path, timeout_s: float = 600,
+                   cwd: Path = REPO, background: list | None = None):
+    """Each line as a shell runs it from ``cwd`` (``&``: in the background), with only
+    ``subs`` replaced; the venv's ``fluidsense`` and ``python`` first on PATH. Returns (the
+    background processes with their logs, the foreground results); ``background`` collects
+    across calls."""
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}", "PYTHONUNBUFFERED": "1"}
+    background = [] if background is None else background
+    results = []
+    for line in lines:
+        for old, new in subs.items():
+            line = line.replace(old, new)
+        if line.endswith("&") or " & " in line:
+            command = line.split(" & ")[0].rstrip("& ").strip()  # the comment after '&' is not the shell's
+            log = open(tmp_path / f"bg{len(background)}.log", "w")  # noqa: SIM115 - closed with the process
+            # exec: the process is the command itself, which a signal then reaches (not a shell)
+            background.append((subprocess.Popen(["sh", "-c", "exec " + command], cwd=cwd, env=env, stdout=log,
+                                                 stderr=subprocess.STDOUT), log))
+        else:
+            results.append(subprocess.run(line, shell=True, cwd=cwd, env=env, capture_output=True, text=True,
+                                          timeout=timeout_s))
+    return background, results

@@ -22,6 +22,7 @@ for m in MODULES:
 
 # a valid instance for the models that have required fields
 EXAMPLES = {
+    "Hose": {"bore_mm": 4.3, "length_m": 3.3},  # the paper's sorting line (config/profiles/sorting-gripper.yaml)
     "Window": {"name": "eq", "start_s": 4, "end_s": 5},
     "Limits": {"max_kpa": 90, "min_kpa": -5},
     "Profile": {"name": "p"},

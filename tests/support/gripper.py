@@ -49,4 +49,10 @@ def slip_to_40_mm(g: Gripper, cycle: int) -> None:
     g.scene({"kind": "cylinder", "diameter_mm": 40})
     (slip,) = [e for e in drain(g, "slip", cycle) if e.topic == "slip"]
     assert slip.data["drop_kpa"] > 0.5 and slip.data["object"] is True, (slip.data["p_kpa"], slip.data["estimates"])
-    assert slip.data["estimates"][0]["value_mm"] == pytest.approx(40, abs=3), (slip.data["p_kpa"], slip.data["estimates"])
+    est = slip.data["estimates"][0]
+    # 40 mm is the calibration's smallest target: a reading just below it says out_of_range at
+    # that bound (no extrapolated size), one just above it a size
+    if est["status"] == "out_of_range":
+        assert est["hi_mm"] == pytest.approx(40) and est["lo_mm"] is None, (slip.data["p_kpa"], est)
+    else:
+        assert est["value_mm"] == pytest.approx(40, abs=3), (slip.data["p_kpa"], est)

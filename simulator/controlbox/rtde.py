@@ -21,6 +21,7 @@ never starts). Outputs are sent at the recipe's frequency from the controller cy
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import struct
 from collections import deque
@@ -111,6 +112,10 @@ class RtdeSession:
             pass
         finally:
             self.close()
+            # a client gone with a reset leaves its exception in the stream's close future too;
+            # unretrieved, asyncio logs it with a traceback when the future is collected
+            with contextlib.suppress(Exception):
+                await self.writer.wait_closed()
             log.info("RTDE client %s disconnected", self.peer)
 
     def _warn_once(self, key, message: str, *args) -> None:

@@ -85,6 +85,7 @@ class Session:
         self.attached = pub is None  # nothing to attach to
         self.instance = ""  # the daemon instance of the last welcome ("" before one, or none sent)
         self._restarted: str | None = None  # a welcome from another instance came: its id
+        self.held: tuple[int, str] | None = None  # the grip this client closed and has not released: cycle, instance
 
     # ------------------------------------------------------------------ requests
     def request(self, body: dict[str, Any], timeout_s: float | None = None) -> Call[dict[str, Any]]:
@@ -110,8 +111,10 @@ class Session:
         if not wait:
             return reply["cycle_id"]
         limit = self.event_timeout_s if timeout_s is None else timeout_s + self.timeout_s
-        return Grasp.of((yield from self.wait_for("grasp", reply["cycle_id"], limit, fail_on_end=True,
-                                                  instance=self._of(reply))))
+        grasp = Grasp.of((yield from self.wait_for("grasp", reply["cycle_id"], limit, fail_on_end=True,
+                                                   instance=self._of(reply))))
+        self.held = (reply["cycle_id"], self._of(reply))
+        return grasp
 
     def measure(self, p0_kpa: float | None = None, label: str | None = None, store_reference: bool = False,
                 wait: bool = True) -> Call[Grasp | int]:
@@ -126,8 +129,22 @@ class Session:
         return grasp
 
     def release(self, wait: bool = True) -> Call[Released | int]:
-        """Open (vent); once open, the ``released`` event."""
-        reply = yield from self.request({"cmd": "release"})
+        """Open (vent); once open, the ``released`` event. ``GripEnded`` when the grip this
+        client holds had already opened by itself (a fault, an abort, its timeout): the
+        daemon refuses the release, and the ``released`` event says why it opened."""
+        held, self.held = self.held, None
+        try:
+            reply = yield from self.request({"cmd": "release"})
+        except Refused as refused:
+            if held is None or "nothing to release" not in str(refused.reply.get("error")):
+                raise
+            # the daemon published the event before it answered, on another socket: it is
+            # read already or on its way
+            try:
+                ev = yield from self.wait_for("released", held[0], self.timeout_s, instance=held[1])
+            except (NoReply, DaemonRestarted):
+                raise refused from None
+            raise GripEnded(Released.of(ev), "its release") from refused
         if not wait:
             return reply["cycle_id"]
         return Released.of((yield from self.wait_for("released", reply["cycle_id"], self.event_timeout_s,

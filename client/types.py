@@ -27,10 +27,11 @@ class NoWelcome(NoReply):
 
 
 class GripEnded(FluidsenseError, RuntimeError):
-    """The cycle ended (aborted, faulted, timed out) before the event waited for."""
+    """The cycle ended (aborted, faulted, timed out) before what was asked: its grasp, or
+    a ``release`` of a grip that had already opened by itself. ``released`` says why."""
 
-    def __init__(self, released: Released):
-        super().__init__(f"cycle {released.cycle_id} ended before its grasp: {released.reason}")
+    def __init__(self, released: Released, before: str = "its grasp"):
+        super().__init__(f"cycle {released.cycle_id} ended before {before}: {released.reason}")
         self.released = released
 
 

@@ -89,6 +89,32 @@ def test_a_grip_whose_cycle_ends_first_says_how_it_ended():
     assert drive(session.next_event(0), [])[0].topic == "released"  # kept for whoever reads the events
 
 
+def test_a_release_of_a_grip_that_opened_by_itself_says_why_it_opened():
+    """The daemon refuses a release once the grip is open (a fault vented it during the
+    carry); the client that held it says the grip's own end, not only the refusal."""
+    session = Session("cmd", "pub", timeout_s=2.0, event_timeout_s=60.0)
+    session.attached = True
+    grasp = event("grasp", 1, cycle_id=5, command="grip", object=True, contact=True, t_c_s=0.1, estimates=[],
+                  in_range=None, features={}, note=None)
+    got, _ = drive(session.grip(), [ok(cycle_id=5, p0_kpa=63.0, reference=True), grasp])
+    assert got.cycle_id == 5 and session.held == (5, "")
+    refusal = json.dumps({"ok": False, "error": "nothing to release: the gripper is open"}).encode()
+    released = event("released", 2, cycle_id=5, command="grip", at_s=3.0, reason="fault: no_data", held_s=1.5,
+                     ok=False)
+    ended, steps = drive(session.release(), [refusal, event("state", 3, cycle_id=5), released])
+    assert isinstance(ended, GripEnded) and ended.released.reason == "fault: no_data"
+    assert "cycle 5 ended before its release: fault: no_data" in str(ended)
+    assert isinstance(ended.__cause__, Refused) and session.held is None
+    assert all(s.timeout_s <= 2.0 for s in steps[1:])  # a reply's wait, not an event's
+    # a client that holds nothing is told the refusal as it came
+    again, steps = drive(session.release(), [refusal])
+    assert isinstance(again, Refused) and not isinstance(again, GripEnded) and len(steps) == 1
+    # and if the event never comes (read by someone else), the refusal is not lost
+    session.held = (6, "")
+    silent, _ = drive(session.release(), [refusal, None])
+    assert isinstance(silent, Refused) and "nothing to release" in str(silent)
+
+
 def test_a_wait_ends_when_another_daemon_instance_welcomes_and_never_takes_its_cycle():
     """A grip on daemon X waits; X stops and Y starts on the same endpoints (its welcome);
     Y's cycle 1 is another client's. The wait ends at Y's welcome with DaemonRestarted,

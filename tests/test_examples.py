@@ -35,9 +35,12 @@ def test_examples_readme_pick_and_place_runs_as_written(tmp_path):
     cell = simcell_config(tmp_path, "gripper-modbus", free_loopback(SIMCELL_PORTS))
     data = yaml.safe_load(cell.read_text())
     background, results = run_as_written(block, {"config/cell-gripper-modbus-sim.yaml": str(cell)}, tmp_path)
+    def logs() -> str:  # the box's and the daemon's, for a failure's message
+        return "\n".join((tmp_path / f"bg{i}.log").read_text() for i in range(len(background)))
+
     try:
         (out,) = results
-        assert out.returncode == 0, out.stdout + out.stderr
+        assert out.returncode == 0, out.stdout + out.stderr + "\n--- box and daemon:\n" + logs()[-6000:]
         assert "free-air reference taken" in out.stdout and "arm: retract" in out.stdout, out.stdout
         line = next(x for x in out.stdout.splitlines() if x.startswith("grasp:"))
         value, lo, hi = (float(v) for v in re.search(r"diameter ([\d.]+) mm \[([\d.]+), ([\d.]+)\]", line).groups())
@@ -50,9 +53,8 @@ def test_examples_readme_pick_and_place_runs_as_written(tmp_path):
             proc.send_signal(signal.SIGTERM)  # as `kill %1 %2` does
             codes.append(proc.wait(60))
             log.close()
-    logs = "\n".join((tmp_path / f"bg{i}.log").read_text() for i in range(len(background)))
-    assert codes == [0, 0], logs
-    assert "Traceback" not in logs, logs
+    assert codes == [0, 0], logs()
+    assert "Traceback" not in logs(), logs()
     world = world["truth"]["world"]
     # the box's world: closed at the pick slot, carried (held well enough to lift), opened at the place slot
     assert world["content"] == {"pick": None, "place": "cylinder"} and world["holding"] is None

@@ -146,3 +146,39 @@ def test_a_stalled_loop_is_an_overrun_vented_at_once_and_latched_once_and_the_co
     assert first.kind == "overrun" and vented and vent_delay_s == 0.0
     assert second is None
     assert stopped
+
+
+@pytest.mark.parametrize("bad, kind", [
+    (np.nan, "sensor_nan"), (np.inf, "sensor_nan"), (-np.inf, "sensor_nan"), (103.4e3, "sensor_range"),
+    (95e3, "over_pressure"), (-6e3, "under_pressure"),
+])
+@pytest.mark.parametrize("where", [0, 4, 9])
+def test_a_bad_reading_anywhere_in_a_block_is_found_at_its_own_sample(bad, kind, where):
+    """The per-block check works on plain floats (cheaper than numpy at ten samples): a bad
+    reading first, in the middle or last of a block is still that fault, at its sample."""
+    sup = Supervisor(load_profile(CONFIG / "profiles" / "pneunet-gripper.yaml"))
+    t = 1.0 + np.arange(10) * 1e-3
+    values = np.column_stack([np.linspace(20e3, 21e3, 10), np.full(10, 60e3)])
+    assert sup.check(SampleBlock(1, t, values.copy(), ("p_act", "p_tank"))) is None
+    values[where, 0] = bad
+    fault = sup.check(SampleBlock(2, t + 0.01, values, ("p_act", "p_tank")))
+    assert fault is not None and fault.kind == kind and fault.channel == "p_act"
+    assert fault.t == pytest.approx(t[where] + 0.01)
+
+
+def test_a_frozen_channel_is_stuck_after_stuck_s_and_one_changed_reading_restarts_it():
+    sup = Supervisor(load_profile(CONFIG / "profiles" / "pneunet-gripper.yaml"))
+    stuck_s = sup.cfg.stuck_s
+    fault, changed_at = None, 5
+    for k in range(int(stuck_s / 0.01) + changed_at + 5):
+        t = k * 0.01 + np.arange(10) * 1e-3
+        live = 60e3 + np.arange(10) + 10 * k  # the tank channel stays live
+        p = np.full(10, 20e3)
+        if k == changed_at:
+            p[3] = 20.5e3  # one changed reading, mid-block: the frozen time starts again after it
+        fault = sup.check(SampleBlock(k, t, np.column_stack([p, live]), ("p_act", "p_tank")))
+        if fault is not None:
+            break
+    assert fault is not None and fault.kind == "sensor_stuck" and fault.channel == "p_act"
+    restart = changed_at * 0.01 + 4e-3  # the first reading back at 20 kPa after the change
+    assert fault.t == pytest.approx(restart + stuck_s)

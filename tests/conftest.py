@@ -12,15 +12,22 @@ from fluidsense.simulator.controlbox.process import EmulatorProcess
 from support.controlbox import MODBUS_PORT, free_host
 from support.harness import REPO, Daemon, sim_config
 
-# The files that take longest (seconds of one worker, `PYTEST_ADDOPTS=--durations=0 make
-# test` summed per file, 2026-11-25), longest first. `make test` hands whole files to the
-# workers in collection order (--dist loadfile --no-loadscope-reorder), so these go
-# first and the short ones fill in at the end, rather than one long file starting last.
+# The files that take longest, longest first: seconds of each file run alone
+# (`pytest -n 0 --durations=0 tests/test_x.py`, setup + call + teardown summed; 2026-11-26, on
+# the 2-core machine shared with other work, load 3-7): test_speed_stability 214,
+# test_bringup_doc 146 (one test: a real-time sorting task), test_drivers 118, test_check 117,
+# test_scenes 88, test_serial 84, test_recording 75, ..., test_cli 30; every other file under
+# 25 s. `make test` hands whole files to the workers in collection order (--dist loadfile
+# --no-loadscope-reorder), so these go first and the short ones fill in at the end, rather
+# than one long file starting last. (The list, not the measured seconds, is what matters:
+# with these files first, a simulation of xdist's scheduling from the measured seconds
+# leaves the two workers within a few seconds of each other.)
 LONGEST_FIRST = [
-    "test_drivers.py", "test_check.py", "test_speed_stability.py", "test_gripper_box.py", "test_recording.py",
-    "test_scenes.py", "test_zmq.py", "test_serial.py", "test_calibration.py", "test_accuracy.py",
-    "test_examples.py", "test_controlbox.py", "test_box_watchdog.py", "test_tasks.py", "test_security.py",
-    "test_report.py", "test_backends.py", "test_soak.py", "test_protocol.py",
+    "test_speed_stability.py", "test_bringup_doc.py", "test_drivers.py", "test_check.py", "test_scenes.py",
+    "test_serial.py", "test_recording.py", "test_calibration.py", "test_tasks.py", "test_gripper_box.py",
+    "test_accuracy.py", "test_controlbox.py", "test_security.py", "test_report.py", "test_zmq.py",
+    "test_hostile_files.py", "test_examples.py", "test_ship.py", "test_soak.py", "test_box_watchdog.py",
+    "test_serial_lies.py", "test_protocol.py", "test_jobs.py", "test_cli.py",
 ]
 
 

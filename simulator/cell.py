@@ -16,7 +16,7 @@ from fluidsense.common.hardware import (
     FlowControlledCircuit,
     Hardware,
 )
-from fluidsense.common.scenes import EmptyScene, PullScene
+from fluidsense.common.scenes import EmptyScene, PlateScene, PullScene
 from fluidsense.common.units import KPA
 
 from .actuators import (
@@ -295,6 +295,8 @@ class SimulatedCell:
         if scene != self._nominal_scene:  # placed anew (by hand): within the placement error
             self._nominal_scene = scene
             scene = self.draws.place(scene)
+        elif isinstance(scene, PlateScene):  # the same setting again: the plate stays where it landed
+            scene = self.scene
         law = volume_law(self.hw.actuator, scene, self.p_atm)
         self.scene, self.scene_set_t, self.detached_at = scene, t_eff, None
         self._invalidate(t_eff)

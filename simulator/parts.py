@@ -80,7 +80,8 @@ FIGURES: tuple[Figure, ...] = (
            "'as low as 0.25 % FSS'", (0.25, 1.0),
            drawn="per cycle (flow_sensor_of_reading); its zero is removed by the per-cycle flow offset"),
     Figure(HAF, "noise per sample (sd)", 0.004, "SLPM", "assumption",
-           "existing flow_sensor.noise_sd_slpm", drawn="per sample"),
+           "existing flow_sensor.noise_sd_slpm; integrated over 30 s it moves V_eq by about 0.01 ml, so "
+           "halving or doubling it changes no method", (0.002, 0.008), drawn="per sample"),
     Figure(MFC, "accuracy of rate (20-100 % FS)", 0.9, "% of rate", "recalled",
            "Brooks SLA5800 series product data sheet", (0.7, 1.0),
            drawn="per session (flow_controller_of_rate = 0.009)"),

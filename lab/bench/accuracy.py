@@ -30,6 +30,8 @@ DESCRIPTION = __doc__
 CASES: dict[str, tuple[str, float, str]] = {
     "plate": ("pneunet-bending", 50.0, "+-1.7 mm (tank method); time of first contact -2.9 to +3.8 mm"),
     "gripper": ("pneunet-gripper", 115.0, "not given as an interval (linear fit over D = 40-100 mm)"),
+    "plate-pressure-flow": ("pneunet-bending-pressure-flow", 50.0, "+-4.7 mm (pressure control + flow measurement)"),
+    "plate-flow-control": ("pneunet-bending-flow-control", 50.0, "+-3.4 mm (flow control + pressure measurement)"),
 }
 CAL_SEED = 9001  # the calibration's cell; held-out sessions use other seeds
 FIRST_SEED = 100

@@ -38,12 +38,15 @@ SOURCES = ("regulator repeatability (per cycle)", "regulator setpoint (per sessi
 class Plant:
     """One method's static plant and its draws."""
 
-    def __init__(self, method: str, on: frozenset[str] = frozenset(SOURCES)):
+    def __init__(self, method: str, on: frozenset[str] = frozenset(SOURCES), override: dict | None = None):
         from fluidsense.cli.options import profile_path
         from fluidsense.controller.config import load_profile
 
         self.method = method
         self.prof = load_profile(profile_path(METHODS[method]))
+        if override:  # a figure varied over its stated range (simulator/parts.py)
+            budget = self.prof.budget.model_copy(update=override)
+            self.prof = self.prof.model_copy(update={"budget": type(budget).model_validate(budget.model_dump())})
         self.on = on
         c, b, seq = self.prof.circuit, self.prof.budget, self.prof.sequence
         self.rep_kpa = getattr(c, "regulator_repeatability_kpa", 0.0) if seq.p0_kpa else 0.0
@@ -106,14 +109,19 @@ class Plant:
 
 
 def predict(method: str, n_cal: int = 20, n_test: int = 50, seed: int = 1,
-            on: frozenset[str] = frozenset(SOURCES)) -> dict[str, float]:
+            on: frozenset[str] = frozenset(SOURCES), override: dict | None = None) -> dict[str, float]:
     """95 % |error| (mm), mean error and the coverage of the 95 % intervals over
     ``n_cal`` calibrations x ``n_test`` fresh held-out sessions."""
     from fluidsense.controller.sensing.calibration import Calibration
 
-    plant = Plant(method, on)
+    plant = Plant(method, on, override)
     rng = np.random.default_rng([seed, 26])
-    err, cover = [], []
+    # what an interval would need to carry the budget: the feature's spread over session
+    # draws alone (per-cycle parts off), at mid range; a test differs from its calibration
+    # by two such draws (the calibration's and its own)
+    quiet = Plant(method, on & {SOURCES[1], SOURCES[2]}, override)
+    session_sd = float(np.std([quiet.cycle(rng, quiet.session(rng), 20.0) for _ in range(200)]))
+    err, cover, cover_s = [], [], []
     for _ in range(n_cal):
         sess = plant.session(rng)
         x, y = [], []
@@ -129,18 +137,22 @@ def predict(method: str, n_cal: int = 20, n_test: int = 50, seed: int = 1,
             inv = cal.invert(plant.cycle(rng, plant.session(rng), plant.placed(rng, h)))
             err.append(inv.estimate - h)
             cover.append(inv.interval95[0] <= h <= inv.interval95[1])
+            half = math.hypot(inv.half_width, 1.96 * math.sqrt(2) * session_sd / abs(cal.slope))
+            cover_s.append(abs(inv.estimate - h) <= half)
     e = np.array(err)
     return {"abs_error_95_mm": float(np.percentile(np.abs(e), 95)), "mean_error_mm": float(e.mean()),
-            "coverage95": float(np.mean(cover)), "trials": len(e)}
+            "coverage95": float(np.mean(cover)), "coverage95_with_session_term": float(np.mean(cover_s)),
+            "session_sd": session_sd, "trials": len(e)}
 
 
-def table(n_cal: int, n_test: int, seed: int) -> list[dict]:
+def table(n_cal: int, n_test: int, seed: int, override: dict | None = None,
+          methods: list[str] | None = None) -> list[dict]:
     rows = []
-    for method in METHODS:
-        full = predict(method, n_cal, n_test, seed)
+    for method in methods or list(METHODS):
+        full = predict(method, n_cal, n_test, seed, override=override)
         parts = {}
         for src in SOURCES:
-            alone = predict(method, max(n_cal // 2, 2), max(n_test // 2, 5), seed, frozenset({src}))
+            alone = predict(method, max(n_cal // 2, 2), max(n_test // 2, 5), seed, frozenset({src}), override)
             parts[src] = alone["abs_error_95_mm"]
         paper = PAPER_HALF_MM[method]
         rows.append({"method": method, "profile": METHODS[method], **full, "paper_half_mm": paper,
@@ -153,11 +165,15 @@ def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("--calibrations", type=int, default=20, help="calibration sessions (default 20)")
     p.add_argument("--held-out", type=int, default=50, help="fresh held-out sessions per calibration (default 50)")
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--method", choices=list(METHODS), action="append", help="one method (repeatable; default all)")
+    p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                   help="vary a budget figure over its stated range, e.g. --set placement_mm=1.0")
     p.add_argument("--json", action="store_true")
 
 
 def run(args: argparse.Namespace) -> int:
-    rows = table(args.calibrations, args.held_out, args.seed)
+    override = {k: float(v) for k, v in (item.split("=", 1) for item in args.set)}
+    rows = table(args.calibrations, args.held_out, args.seed, override or None, args.method)
     if args.json:
         print(json.dumps(rows, indent=1))
         return 0
@@ -165,7 +181,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"{r['method']} ({r['profile']}): 95 % |error| {r['abs_error_95_mm']:.2f} mm over {r['trials']} "
               f"held-out sessions (paper +-{r['paper_half_mm']} mm, x{r['ratio_to_paper']:.2f}, "
               f"{'within' if r['within_25pct'] else 'outside'} 25 %); mean {r['mean_error_mm']:+.2f} mm; "
-              f"95 % intervals cover {100 * r['coverage95']:.1f} %")
+              f"95 % intervals cover {100 * r['coverage95']:.1f} % ({100 * r['coverage95_with_session_term']:.1f} % "
+              f"with the session term added)")
         for src, v in r["alone_mm"].items():
             if v > 0:
                 print(f"    {src}: alone {v:.2f} mm")

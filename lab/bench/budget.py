@@ -146,12 +146,12 @@ def predict(method: str, n_cal: int = 20, n_test: int = 50, seed: int = 1,
 
 
 def table(n_cal: int, n_test: int, seed: int, override: dict | None = None,
-          methods: list[str] | None = None) -> list[dict]:
+          methods: list[str] | None = None, shares: bool = True) -> list[dict]:
     rows = []
     for method in methods or list(METHODS):
         full = predict(method, n_cal, n_test, seed, override=override)
         parts = {}
-        for src in SOURCES:
+        for src in SOURCES if shares else ():
             alone = predict(method, max(n_cal // 2, 2), max(n_test // 2, 5), seed, frozenset({src}), override)
             parts[src] = alone["abs_error_95_mm"]
         paper = PAPER_HALF_MM[method]
@@ -168,12 +168,13 @@ def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("--method", choices=list(METHODS), action="append", help="one method (repeatable; default all)")
     p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="vary a budget figure over its stated range, e.g. --set placement_mm=1.0")
+    p.add_argument("--no-shares", action="store_true", help="skip each part's share (one run per part)")
     p.add_argument("--json", action="store_true")
 
 
 def run(args: argparse.Namespace) -> int:
     override = {k: float(v) for k, v in (item.split("=", 1) for item in args.set)}
-    rows = table(args.calibrations, args.held_out, args.seed, override or None, args.method)
+    rows = table(args.calibrations, args.held_out, args.seed, override or None, args.method, not args.no_shares)
     if args.json:
         print(json.dumps(rows, indent=1))
         return 0

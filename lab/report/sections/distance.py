@@ -54,8 +54,9 @@ def _accuracy_rows(sec: Section, key: str, label: str, err: np.ndarray, source: 
         why = ("in the model contact is a sharp kink of the volume law; a real tip touches gradually, "
                "which widens the paper's interval")
     elif ours_half < paper_half:
-        why = ("the simulated cell has only the noise and cycle-to-cycle variation we model; the real actuator "
-               "adds hysteresis and creep")
+        why = ("in the calibration's own session the parts' per-session errors (regulator setpoint, flow "
+               "controller accuracy) are common to calibration and test and cancel; the fresh-session row "
+               "carries them")
     else:
         why = "our model's noise at this method is larger than the paper's"
     sec.row(f"distance accuracy, {label} (95 % of predicted - true, held-out heights in the calibration's "

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
+from fluidsense.common.budget import PartsBudget
 from fluidsense.common.models import Real, StrictModel
 from fluidsense.common.units import KPA, LITRE, ML, MM, P_ATM, SLPM
 from pydantic import Field, model_validator
@@ -375,6 +376,7 @@ class Hardware(StrictModel):
     sensor: Sensor = Sensor()
     tank_sensor: Sensor = Sensor(offset_kpa=0.0)
     flow_sensor: FlowSensor = FlowSensor()
+    budget: PartsBudget = PartsBudget()
 
     @property
     def channels(self) -> tuple[str, ...]:

@@ -16,7 +16,7 @@ from fluidsense.common.hardware import (
     FlowControlledCircuit,
     Hardware,
 )
-from fluidsense.common.scenes import EmptyScene, PullScene
+from fluidsense.common.scenes import EmptyScene, PlateScene, PullScene
 from fluidsense.common.units import KPA
 
 from .actuators import (
@@ -27,6 +27,7 @@ from .actuators import (
     volume_law,
 )
 from .arm import ArmModel
+from .budget import SessionDraws
 from .circuit import AIR, FAULT_LEAK, FAULT_SUPPLY, FAULTS, network, sensed_node
 from .plant import Plant
 from .sensor import SensorModel
@@ -64,14 +65,18 @@ class SimulatedCell:
         self.hw = hw
         c = hw.circuit
         self.p_atm = c.p_atm
-        seeds = np.random.SeedSequence(cfg.seed).spawn(5)
+        # children keep their keys whatever their number: a sixth stream leaves the five as before
+        seeds = np.random.SeedSequence(cfg.seed).spawn(6)
+        self.draws = SessionDraws(hw.budget, np.random.default_rng(seeds[5]))
         self.rng_regulator = np.random.default_rng(seeds[0])
         self.rng_flow = np.random.default_rng(seeds[4])
         self.sensors = {"p_act": SensorModel.pressure(hw.sensor, np.random.default_rng(seeds[1])),
                         "p_tank": SensorModel.pressure(hw.tank_sensor, np.random.default_rng(seeds[2])),
                         "flow": SensorModel.flow(hw.flow_sensor, np.random.default_rng(seeds[3]))}
+        self.sensors["p_act"].offset += self.draws.sensor_zero_pa
         self.channels = hw.channels
         self.scene = cfg.scene
+        self._nominal_scene = cfg.scene  # as set on the caliper; self.scene is where it landed
         self.scene_set_t = 0.0
         net, valves = network(hw, volume_law(hw.actuator, cfg.scene, self.p_atm))
         self.act_node = net.index["actuator"]
@@ -218,6 +223,8 @@ class SimulatedCell:
         t_eff = max(t, self.t_last) + self.hw.circuit.valve_delay_s
         self._invalidate(t_eff)
         self.plant.schedule_valve(t_eff, valve, open_)
+        if valve == ACTUATE and open_:  # a new cycle: the flow sensor repeats only within its figure
+            self.sensors["flow"].gain = self.draws.flow_sensor_gain()
         warming = self.cfg.perturb.tank_warming_k
         if warming and valve == SUPPLY and not open_ and self.tank_node is not None:
             # the freshly charged tank's air settles to another temperature (approximated
@@ -244,12 +251,14 @@ class SimulatedCell:
         t_eff = max(t, self.t_last)
         self._invalidate(t_eff)
         bias = self.cfg.perturb.regulator_bias_kpa * KPA if pressure_pa else 0.0
-        self.plant.schedule_regulator(t_eff, self.p_atm + self.setpoint_pa + self.regulator_error_pa + bias)
+        session = self.draws.regulator_error_pa if pressure_pa else 0.0
+        self.plant.schedule_regulator(t_eff, self.p_atm + self.setpoint_pa + self.regulator_error_pa + bias + session)
 
     def command_flow_profile(self, times: np.ndarray, flows: np.ndarray, t: float) -> None:
         """Flow setpoint following (times, flows) piecewise linearly; 0 after the last point."""
         c = self.hw.circuit
         gain = 1.0 + float(self.rng_flow.normal(0.0, getattr(c, "flow_repeatability", 0.0)))
+        gain *= self.draws.flow_controller_gain  # the session's accuracy of rate
         tt, qq = np.asarray(times, float), np.asarray(flows, float) * gain
 
         def flow_of_t(x):
@@ -283,6 +292,11 @@ class SimulatedCell:
             self._apply_scene(scene, max(t, self.t_last))
 
     def _apply_scene(self, scene, t_eff: float) -> None:
+        if scene != self._nominal_scene:  # placed anew (by hand): within the placement error
+            self._nominal_scene = scene
+            scene = self.draws.place(scene)
+        elif isinstance(scene, PlateScene):  # the same setting again: the plate stays where it landed
+            scene = self.scene
         law = volume_law(self.hw.actuator, scene, self.p_atm)
         self.scene, self.scene_set_t, self.detached_at = scene, t_eff, None
         self._invalidate(t_eff)

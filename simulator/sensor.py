@@ -18,6 +18,7 @@ class SensorModel:
         self.noise_sd = noise_sd
         self.quantum = quantum
         self.rng = rng
+        self.gain = 1.0  # repeatability of reading, redrawn per cycle by the cell (simulator/budget.py)
         self.fault: str | None = None  # injected: "nan", "stuck", "rail"
         self.fault_from = float("inf")
         self._stuck_value: float | None = None
@@ -34,7 +35,7 @@ class SensorModel:
 
     def read(self, t: np.ndarray, true: np.ndarray) -> np.ndarray:
         """What the sensor reports for the true values at times t."""
-        out = true + self.offset + self.drift_per_s * t
+        out = true * self.gain + self.offset + self.drift_per_s * t
         if self.noise_sd > 0:
             out = out + self.rng.normal(0.0, self.noise_sd, size=out.shape)
         if self.quantum > 0:

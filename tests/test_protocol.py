@@ -8,6 +8,7 @@ import asyncio
 
 import numpy as np
 import pytest
+from fluidsense.common.budget import PartsBudget
 from fluidsense.common.scenes import PlateScene
 from fluidsense.controller.config import SequenceConfig
 from fluidsense.controller.cycles import features as F
@@ -20,7 +21,9 @@ def _run(profile: str, body, seed: int = 3, residual_kpa: float = 0.0, **sequenc
     from fluidsense.daemon import app
     from fluidsense.drivers.config import Perturbations, SimDriverConfig
 
-    prof = load_profile(CONFIG / "profiles" / f"{profile}.yaml")
+    # the protocol is about the tube, not the parts: without the profile's error budget the
+    # sensor's offset is its fixed one (a session's zero draw would move it within the TEB)
+    prof = load_profile(CONFIG / "profiles" / f"{profile}.yaml").model_copy(update={"budget": PartsBudget()})
     if sequence:
         prof = prof.model_copy(update={"sequence": prof.sequence.model_copy(update=sequence)})
     cfg = CellConfig(driver=SimDriverConfig(clock="virtual", seed=seed,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from typing import Literal
 
+from fluidsense.common.budget import PartsBudget
 from fluidsense.common.hardware import (
     Actuator,
     Circuit,
@@ -179,6 +180,8 @@ class Profile(StrictModel):
     limits: Limits = Limits(max_kpa=90.0, min_kpa=-5.0)
     sequence: SequenceConfig = SequenceConfig()
     calibration: CalibrationPlan | None = None
+    budget: PartsBudget = Field(default_factory=PartsBudget, description="the parts' error budget "
+                                "(common/budget.py; figures and sources in simulator/parts.py)")
 
     @model_validator(mode="after")
     def _consistent(self) -> Profile:
@@ -224,4 +227,4 @@ class Profile(StrictModel):
     @property
     def hardware(self) -> Hardware:
         return Hardware(circuit=self.circuit, actuator=self.actuator, sensor=self.sensor,
-                        tank_sensor=self.tank_sensor, flow_sensor=self.flow_sensor)
+                        tank_sensor=self.tank_sensor, flow_sensor=self.flow_sensor, budget=self.budget)

@@ -30,7 +30,13 @@ DESCRIPTION = __doc__
 CASES: dict[str, tuple[str, float, str]] = {
     "plate": ("pneunet-bending", 50.0, "+-1.7 mm (tank method); time of first contact -2.9 to +3.8 mm"),
     "gripper": ("pneunet-gripper", 115.0, "not given as an interval (linear fit over D = 40-100 mm)"),
+    "plate-pressure-flow": ("pneunet-bending-pressure-flow", 50.0, "+-4.7 mm (pressure control + flow measurement)"),
+    "plate-flow-control": ("pneunet-bending-flow-control", 50.0, "+-3.4 mm (flow control + pressure measurement)"),
+    "plate-tc": ("pneunet-bending", 50.0, "-2.9 to +3.8 mm (time of first contact)"),
 }
+# a case that reads another feature than its profile's calibration plan: (feature, fit), as
+# the report's time-of-first-contact section fits it
+FEATURE = {"plate-tc": ("t_c_slope", "poly2")}
 CAL_SEED = 9001  # the calibration's cell; held-out sessions use other seeds
 FIRST_SEED = 100
 
@@ -89,14 +95,15 @@ def _cell(profile_name: str, seed: int):
     return CellConfig(driver=SimDriverConfig(clock="virtual", seed=seed), profile=prof)
 
 
-async def _calibrate(profile_name: str, seed: int):
+async def _calibrate(profile_name: str, seed: int, feature: tuple[str, str] | None = None):
     from fluidsense.daemon import app
     from fluidsense.tasks.calibrate import calibrate
 
     cfg = _cell(profile_name, seed)
     plan = cfg.profile.calibration
+    name, fit = feature or (plan.feature, plan.fit)
     async with app.controller(cfg) as ctrl:
-        run = await calibrate(ctrl, plan.scene, plan.target, plan.values, feature=plan.feature, fit=plan.fit,
+        run = await calibrate(ctrl, plan.scene, plan.target, plan.values, feature=name, fit=fit,
                               cycles=plan.cycles, drop_first=plan.drop_first, seed=seed, free_cycles=plan.cycles)
     return run.calibration
 
@@ -108,7 +115,7 @@ async def _session(cal, profile_name: str, seed: int, targets: list[float], beyo
     from fluidsense.common.scenes import EmptyScene
     from fluidsense.controller.sensing.calibration import feature_value
     from fluidsense.daemon import app
-    from fluidsense.tasks.calibrate import scene_with
+    from fluidsense.tasks.calibrate import NEEDS_REFERENCE, ensure_reference, scene_with
 
     cfg = _cell(profile_name, seed)
     plan = cfg.profile.calibration
@@ -124,6 +131,8 @@ async def _session(cal, profile_name: str, seed: int, targets: list[float], beyo
         return cal.estimate(None if y is None else y / scale)
 
     async with app.controller(cfg) as ctrl:
+        if cal.feature in NEEDS_REFERENCE:  # a fresh session records its own free-air reference first
+            await ensure_reference(ctrl, ctrl.scene.place)
         for x in targets:
             est = await measure(scene_with(plan.scene, plan.target, x))
             study.truth.append(x)
@@ -148,7 +157,8 @@ def study(case: str, sessions: int, per_session: int, cal_seed: int = CAL_SEED, 
     """Calibrate once (or use ``calibration``), then ``sessions`` fresh cells with
     ``per_session`` held-out targets each."""
     profile_name, beyond, _ = CASES[case]
-    cal = calibration if calibration is not None else asyncio.run(_calibrate(profile_name, cal_seed))
+    cal = calibration if calibration is not None else asyncio.run(_calibrate(profile_name, cal_seed,
+                                                                           FEATURE.get(case)))
     lo, hi = min(cal.x), max(cal.x)
     seeds = list(range(first_seed, first_seed + sessions))
     st = Study(case, profile_name, cal.target, cal.target_unit, cal_seed, seeds, beyond=beyond,

@@ -54,15 +54,41 @@ def _accuracy_rows(sec: Section, key: str, label: str, err: np.ndarray, source: 
         why = ("in the model contact is a sharp kink of the volume law; a real tip touches gradually, "
                "which widens the paper's interval")
     elif ours_half < paper_half:
-        why = ("the simulated cell has only the noise and cycle-to-cycle variation we model; the real actuator "
-               "adds hysteresis and creep")
+        why = ("in the calibration's own session the parts' per-session errors (regulator setpoint, flow "
+               "controller accuracy) are common to calibration and test and cancel; the fresh-session row "
+               "carries them")
     else:
         why = "our model's noise at this method is larger than the paper's"
-    sec.row(f"distance accuracy, {label} (95 % of predicted - true)", f"{p_lo:+.1f} to {p_hi:+.1f} mm",
+    sec.row(f"distance accuracy, {label} (95 % of predicted - true, held-out heights in the calibration's "
+            f"session)", f"{p_lo:+.1f} to {p_hi:+.1f} mm",
             f"{lo:+.2f} to {hi:+.2f} mm", ok, why, source, kind="predicted",
             figures=(f"{p_lo:+.1f} mm", f"{p_hi:+.1f} mm"),
             tolerance="half-width within 25 % of the paper's (sampling error of a 95 % interval)")
     return lo, hi
+
+
+def _budget_row(sec: Section, key: str, label: str) -> dict:
+    """The method's 95 % accuracy predicted from its parts' figures over fresh sessions
+    (``python -m lab bench budget``: static plant, 40 calibrations x 50 held-out sessions)."""
+    from lab.bench.budget import SOURCES, predict
+
+    pred = predict(key, n_cal=40, n_test=50, seed=1)
+    alone = {src: predict(key, 20, 25, 1, frozenset({src}))["abs_error_95_mm"] for src in SOURCES}
+    top = max(alone, key=alone.get)
+    p_half = PAPER_ACCURACY[key][1]
+    ours = pred["abs_error_95_mm"]
+    ok = abs(ours - p_half) <= 0.25 * p_half
+    why = "" if ok else (f"the largest part is the {top}, {alone[top]:.2f} mm alone (figures and their status: "
+                         "simulator/parts.py); a mismatch stays one, no figure is set from it")
+    sec.row(f"distance accuracy, {label}, predicted from the parts' figures (fresh sessions)",
+            f"+-{p_half:.1f} mm", f"+-{ours:.2f} mm over {pred['trials']} held-out sessions; intervals cover "
+            f"{100 * pred['coverage95']:.0f} % ({100 * pred['coverage95_with_session_term']:.0f} % with the session "
+            "term)", ok, why, "Fig. S sensing accuracy", kind="predicted", figures=(f"{p_half:.1f} mm",),
+            tolerance="within 25 % of the paper's half-width (the goal; the 95th percentile of 2000 trials "
+            "carries about 2 % sampling error)")
+    return {"budget_err95_mm": round(ours, 3), "budget_coverage95": round(pred["coverage95"], 3),
+            "budget_coverage95_with_session_term": round(pred["coverage95_with_session_term"], 3),
+            "budget_alone_mm": {k: round(v, 3) for k, v in alone.items()}}
 
 
 def _distance(key: str, profile_name: str, feature: str, label: str, fit_kind: str, seed: int, out: Path,
@@ -83,6 +109,7 @@ def _distance(key: str, profile_name: str, feature: str, label: str, fit_kind: s
     cal = fit(cal_runs, feature, fit_kind, target="height_mm", target_unit="mm")
     err = errors_on(cal, test_runs, feature)
     lo, hi = _accuracy_rows(sec, key, label, err, "Fig. 1b-d, Fig. S sensing accuracy")
+    sec.numbers.update(_budget_row(sec, key, label))
     sec.numbers.update({"slope": r4(cal.slope), "slope_unit": f"{unit}/mm", "residual_sd": r4(cal.residual_sd),
                         "err95_lo_mm": r4(lo), "err95_hi_mm": r4(hi), "calibration_cycles": len(cal.x),
                         "held_out_cycles": len(test_runs)})

@@ -81,7 +81,8 @@ def _readme(sections: list[Section], rows: list[dict[str, Any]], seed: int) -> s
         "from the figure in `set from`: it agrees by construction and proves nothing, and no predicted row "
         "compares with a figure a fitted row was set from (the test suite checks this over the ledger). "
         "Self-checks of our code against our own analytic solution are listed apart. Accuracy figures include "
-        "only the noise and cycle-to-cycle variation the model has.",
+        "the noise and cycle-to-cycle variation the model has and, for a profile with a `budget` block, its parts' "
+        "errors drawn per session, target and cycle (their figures and sources: simulator/parts.py).",
         "",
         f"## Ledger: of {n['predicted']} predicted rows, {n['numeric_agree']} agree with a published number, "
         f"{n['numeric_disagree']} disagree, {n['qualitative']} are qualitative; {n['fitted']} rows fitted, "

@@ -21,6 +21,7 @@ from typing import Any
 
 from fluidsense.common.errors import SafetyError
 from fluidsense.simulator.controlbox.config import ControlBoxConfig
+from fluidsense.simulator.controlbox.lies import Lies
 from fluidsense.simulator.controlbox.model import (
     N_ANALOG,
     AnalogDomain,
@@ -123,6 +124,7 @@ class ControlBox:
         #: lag_s late (sim control ``rtde_lag``), as a receive thread starved on a busy PC
         #: reads them; (0, 0): none
         self.rtde_lag: tuple[float, float] = (0.0, 0.0)
+        self.lies = Lies()  # what the box says that cannot be true (sim control ``lie``)
         #: the I/O image: the inputs as read at the start of the current I/O cycle (number
         #: ``io_cycle``, at ``io_cycle / config.io_hz`` s); what Modbus and RTDE report
         self.io_cycle = 0

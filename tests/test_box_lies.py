@@ -53,7 +53,7 @@ def test_a_lying_box_is_one_fault_naming_the_field_then_reconnected_and_reset_wo
             watch.samples_past(500)
             told = box.command({"cmd": "lie", "kind": lie, "count": count})
             assert told["ok"] and told["lies"]["kind"] == lie, told
-            fault = watch.until(lambda topic, _: topic == "fault")
+            fault = watch.until(lambda topic, _: topic == "fault", within_s=60)
             assert fault["kind"] == fault_kind and field in fault["detail"], fault
             # the safe state, as the box reports its outputs: to the daemon (its link to the
             # outputs stays up: only the sampler's session ends) and to the test

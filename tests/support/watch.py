@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 
 import zmq
 from support.harness import Daemon
@@ -19,9 +20,13 @@ class Watch:
         if topic == "fault":
             self.faults.append(msg)
 
-    def until(self, want, timeout_s: float = 60.0) -> dict:
-        """Read messages until ``want(topic, msg)``; that message."""
+    def until(self, want, timeout_s: float = 60.0, within_s: float | None = None) -> dict:
+        """Read messages until ``want(topic, msg)``; that message. ``timeout_s`` bounds the
+        wait for each message, ``within_s`` the whole wait (heartbeats keep coming: a wanted
+        message that never comes would otherwise be waited for until the test's timeout)."""
+        deadline = None if within_s is None else time.monotonic() + within_s
         while True:
+            assert deadline is None or time.monotonic() < deadline, f"not within {within_s} s; faults {self.faults}"
             topic, msg = self.d.next_message(timeout_s=timeout_s)
             self._take(topic, msg)
             if want(topic, msg):

@@ -26,11 +26,11 @@ def shell_blocks(doc: Path) -> list[list[str]]:
 
 
 def run_as_written(lines: list[str], subs: dict[str, str], tmp_path: Path, timeout_s: float = 600,
-                   cwd: Path = REPO, background: list | None = None):
+                   cwd: Path = REPO, background: list | None = None, prefix: tuple[str, ...] = ()):
     """Each line as a shell runs it from ``cwd`` (``&``: in the background), with only
     ``subs`` replaced; the venv's ``fluidsense`` and ``python`` first on PATH. Returns (the
     background processes with their logs, the foreground results); ``background`` collects
-    across calls."""
+    across calls. ``prefix``: what runs the shell (e.g. nsenter into a network namespace)."""
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}", "PYTHONUNBUFFERED": "1"}
     background = [] if background is None else background
     results = []
@@ -41,9 +41,9 @@ def run_as_written(lines: list[str], subs: dict[str, str], tmp_path: Path, timeo
             command = line.split(" & ")[0].rstrip("& ").strip()  # the comment after '&' is not the shell's
             log = open(tmp_path / f"bg{len(background)}.log", "w")  # noqa: SIM115 - closed with the process
             # exec: the process is the command itself, which a signal then reaches (not a shell)
-            background.append((subprocess.Popen(["sh", "-c", "exec " + command], cwd=cwd, env=env, stdout=log,
-                                                 stderr=subprocess.STDOUT), log))
+            background.append((subprocess.Popen([*prefix, "sh", "-c", "exec " + command], cwd=cwd, env=env,
+                                                 stdout=log, stderr=subprocess.STDOUT), log))
         else:
-            results.append(subprocess.run(line, shell=True, cwd=cwd, env=env, capture_output=True, text=True,
-                                          timeout=timeout_s))
+            results.append(subprocess.run([*prefix, "sh", "-c", line], cwd=cwd, env=env, capture_output=True,
+                                          text=True, timeout=timeout_s))
     return background, results

@@ -20,7 +20,7 @@ import signal
 import subprocess
 
 import pytest
-from support.docs import run_as_written, shell_blocks
+from support.docs import problems, run_as_written, shell_blocks, wait_for_ready
 from support.harness import REPO
 
 pytestmark = [pytest.mark.timeout(1800)]
@@ -74,8 +74,6 @@ def _fresh_copy(dest):
 
 
 def test_readme_runs_as_written_from_a_fresh_copy(tmp_path, netns):
-    from test_bringup_doc import problems, wait_for_ready
-
     blocks = shell_blocks(REPO / "README.md")
     said = [_key(line) for block in blocks for line in block]
     assert all(key in said for key in SKIPPED), [k for k in SKIPPED if k not in said]  # a renamed line is seen

@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 from support.harness import REPO
@@ -47,3 +48,19 @@ def run_as_written(lines: list[str], subs: dict[str, str], tmp_path: Path, timeo
             results.append(subprocess.run([*prefix, "sh", "-c", line], cwd=cwd, env=env, capture_output=True,
                                           text=True, timeout=timeout_s))
     return background, results
+
+
+def wait_for_ready(proc, log, timeout_s: float = 60.0) -> None:
+    """Until the box's log has its ready line (it exits or the time runs out: the test fails)."""
+    path = log.name
+    deadline = time.monotonic() + timeout_s
+    while not any(line.startswith("ready") for line in open(path).read().splitlines()):
+        assert proc.poll() is None, open(path).read()
+        assert time.monotonic() < deadline, open(path).read()
+        time.sleep(0.05)  # polling a file for an event, not pacing a timing
+
+
+def problems(stdout: str) -> list[str]:
+    """What check's result section lists (empty: everything matches)."""
+    lines = stdout.split("\nresult\n", 1)[1].splitlines()
+    return [line.strip() for line in lines if line.strip() != "everything matches the config"]

@@ -377,30 +377,20 @@ class ControlBox:
     def snapshot(self) -> dict[str, Any]:
         m = self.model
         return {
-            "t": m.t,
-            "tcp_pose": list(m.tcp_pose),
-            "tcp_speed": list(m.tcp_speed),
-            "moving": m.is_moving(),
-            "digital_inputs": m.digital_inputs,
-            "digital_outputs": m.digital_outputs,
+            "t": m.t, "tcp_pose": list(m.tcp_pose), "tcp_speed": list(m.tcp_speed), "moving": m.is_moving(),
+            "digital_inputs": m.digital_inputs, "digital_outputs": m.digital_outputs,
             "analog_inputs": [{"value": m.analog_input(i).value, "domain": m.analog_input(i).domain.name}
                               for i in range(N_ANALOG)],
             "analog_outputs": [{"value": m.analog_output(i).value, "domain": m.analog_output(i).domain.name}
                                for i in range(N_ANALOG)],
-            "speed_fraction": m.speed_fraction,
-            "robot_mode": m.robot_mode.name,
-            "safety_mode": m.safety_mode.name,
-            "protective_stop": m.protective_stop,
-            "emergency_stop": m.emergency_stop,
-            "runtime_state": self.runtime_state.name,
-            "program": self.program.name if self.program else None,
+            "speed_fraction": m.speed_fraction, "robot_mode": m.robot_mode.name, "safety_mode": m.safety_mode.name,
+            "protective_stop": m.protective_stop, "emergency_stop": m.emergency_stop,
+            "runtime_state": self.runtime_state.name, "program": self.program.name if self.program else None,
             "input_int_registers": list(self.registers.ints["input"]),
             "input_double_registers": list(self.registers.doubles["input"]),
             "output_int_registers": list(self.registers.ints["output"]),
             "output_double_registers": list(self.registers.doubles["output"]),
             "runstate": {str(o): s for o, s in sorted(self.runstate.items())},
             "output_journal": [list(e) for e in self.journal],
-            "network_up": self.network_up,
-            "controller": self.config.controller,
-            "io_hz": self.config.io_hz,
+            "network_up": self.network_up, "controller": self.config.controller, "io_hz": self.config.io_hz,
         }

@@ -36,9 +36,11 @@ _INPUTS = ("getStandardAnalogInput0", "getStandardAnalogInput1")
 #: how far the box's clock may run from the host's: a controller's crystal is tens of ppm;
 #: four times a ceramic resonator's 0.5 % is still a clock at its rate (as the serial driver)
 MAX_CLOCK_ERROR = 0.02
-#: how late the host may read the packet a bound starts from (the sampler scheduled late on
-#: a loaded machine; ur_rtde's receive thread behind)
-LEAD_MARGIN_S = 0.25
+#: how old the session's first packet may be when the host reads it: ur_rtde's receive thread,
+#: starved at the start on a loaded machine, parses a backlog of packets up to about a second
+#: old. Wide, because the timestamp never sets sample time here (the sampler's slots do): the
+#: bound has only to catch a clock that is not the box's
+LEAD_MARGIN_S = 1.0
 #: what a standard analog input reads, in RTDE's units (V, mA): UR's electrical ranges
 #: (e-Series user manual, "Analog I/O": 0-10 V, 4-20 mA; 0 mA is an open current loop, a
 #: sensor fault the controller judges, not a lie), widened by 10 % of the span for the

@@ -28,7 +28,7 @@ import dataclasses
 import logging
 from collections.abc import Awaitable, Callable
 
-from fluidsense.common.errors import LinkLostError
+from fluidsense.common.errors import DeviceProtocolError, LinkLostError
 from fluidsense.common.samples import SampleBlock
 from fluidsense.drivers.base import SampleSource, ValveBank
 
@@ -124,6 +124,11 @@ class PolledCellSource(SampleSource):
             block = await self.sampler.read_block()
             for link in self.links:
                 link.check()
+        except DeviceProtocolError as exc:
+            # the device said what cannot be true: this fault (driver) names the field, the
+            # reads after it say the link is lost while it reconnects (as the serial link does)
+            await self._lose(LinkLostError(f"{self.name}: {exc}; reconnecting"))
+            raise
         except LinkLostError as exc:
             await self._lose(exc)
             raise

@@ -14,10 +14,9 @@ import json
 import shlex
 import signal
 import socket
-import time
 
 import yaml
-from support.docs import run_as_written, shell_blocks
+from support.docs import problems, run_as_written, shell_blocks, wait_for_ready
 from support.harness import REPO, SIMCELL_PORTS, free_loopback
 
 SKIPPED = {
@@ -96,19 +95,3 @@ def assert_parses(line: str) -> None:
         build_parser().parse_args(argv[1:])
     except SystemExit as exc:
         raise AssertionError(f"the CLI refuses the documented line {line!r}") from exc
-
-
-def wait_for_ready(proc, log, timeout_s: float = 60.0) -> None:
-    """Until the box's log has its ready line (it exits or the time runs out: the test fails)."""
-    path = log.name
-    deadline = time.monotonic() + timeout_s
-    while not any(line.startswith("ready") for line in open(path).read().splitlines()):
-        assert proc.poll() is None, open(path).read()
-        assert time.monotonic() < deadline, open(path).read()
-        time.sleep(0.05)  # polling a file for an event, not pacing a timing
-
-
-def problems(stdout: str) -> list[str]:
-    """What check's result section lists (empty: everything matches)."""
-    lines = stdout.split("\nresult\n", 1)[1].splitlines()
-    return [line.strip() for line in lines if line.strip() != "everything matches the config"]

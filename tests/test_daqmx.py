@@ -314,3 +314,66 @@ def test_a_real_daq_samples_at_its_rate():
     t = np.concatenate([b.t for b in blocks])
     assert sum(b.missed for b in blocks) == 0
     np.testing.assert_allclose(np.diff(t), 1.0 / cfg.driver.rate_hz)
+
+
+# ------------------------------------------------------------------ a block that cannot be true
+# (the parser's checks on blocks from the stand-in task: nidaqmx's library cannot run here)
+LIES = {
+    "channels": lambda data: [*data, list(data[0])],  # a third channel's list
+    "flat": lambda data: [v for col in data for v in col],  # one flat list for two channels
+    "samples": lambda data: [col[:-1] for col in data],  # one sample short
+    "long": lambda data: [[*col, col[-1]] for col in data],  # one sample more than asked for
+    "nan": lambda data: [[float("nan"), *col[1:]] if i == 1 else col for i, col in enumerate(data)],
+    "inf": lambda data: [[*col[:-1], float("inf")] for col in data],
+    "nested": lambda data: [[[col[0]], *col[1:]] if i == 0 else col for i, col in enumerate(data)],
+    "none": lambda data: [[None, *col[1:]] if i == 0 else col for i, col in enumerate(data)],
+}
+FIELD = {"channels": "channels:", "flat": "channels:", "samples": "samples:", "long": "samples:", "nan": "values:",
+         "inf": "values:", "nested": "values:",
+         "none": "values:"}
+
+
+@pytest.mark.parametrize("lie", [*LIES, "rate"])
+def test_a_block_that_cannot_be_true_is_one_fault_naming_the_field_then_a_new_acquisition(tmp_path, lie):
+    """A block of another shape, another channel count, a non-number or a sample clock ten
+    times fast: one DeviceProtocolError naming the field, no samples from it, and the next
+    read starts a new acquisition whose sane blocks flow again, their time after every slot
+    reported missed. (Before, a flat list for two channels was reshaped into pressures, a
+    third channel's list read as extra samples, NaN went through as a pressure.)"""
+    from fluidsense.common.errors import DeviceProtocolError
+
+    backend, rig, cfg = _backend(tmp_path)
+    row = _signals(cfg, np.array([[1e3, 2e3]]))[0]
+    field = FIELD.get(lie, "rate:")
+
+    async def body():
+        async with backend:
+            first = rig.task("ai")
+            first.acquire([row] * 10)
+            before = await backend.source.read_block()
+            if lie == "rate":
+                # 0.5 s of samples (the config's 1 kHz) read at once, right after the start: a
+                # device whose sample clock runs far faster than the task's rate
+                first.acquire([row] * 500)
+                with pytest.raises(DeviceProtocolError, match=field) as err:
+                    for _ in range(50):
+                        await backend.source.read_block()
+            else:
+                first.acquire([row] * 10)
+                rig.lie = LIES[lie]
+                with pytest.raises(DeviceProtocolError, match=field) as err:
+                    await backend.source.read_block()
+            with pytest.raises(DeviceTimeoutError):  # a new acquisition: nothing in it yet
+                await backend.source.read_block()
+            second = rig.task("ai")
+            second.acquire([row] * 10)
+            after = await backend.source.read_block()
+            assert second is not first and first.closed and second.started and not second.closed
+            return err.value, before, after
+
+    err, before, after = asyncio.run(body())
+    assert isinstance(err, DriverError) and err.field == field.rstrip(":")
+    np.testing.assert_allclose(after.values, [[1e3, 2e3]] * 10, rtol=1e-9, atol=1e-6)
+    assert after.missed >= 0
+    if lie != "rate":  # the lying block gave no samples: the new acquisition follows every slot reported missed
+        assert round(after.t[0] * 1000) == round(before.t[-1] * 1000) + 1 + after.missed

@@ -8,13 +8,11 @@ is mocked, and nothing waits on the wall clock: waits are for messages and for s
 
 from __future__ import annotations
 
-import json
-
 import pytest
 import yaml
-import zmq
 from support.harness import Daemon
 from support.liar import Liar
+from support.watch import Watch
 from support.serial import SimSerialProcess, serial_config
 
 pytestmark = pytest.mark.timeout(600)
@@ -34,41 +32,6 @@ def device(tmp_path):
     liar.close()
     code, _ = sim.stop()
     assert code == 0 and "Traceback" not in sim.final_stderr, sim.final_stderr
-
-
-class Watch:
-    """Every message the daemon publishes, read as it comes: the faults are counted."""
-
-    def __init__(self, d: Daemon):
-        self.d = d
-        self.faults: list[dict] = []
-
-    def _take(self, topic: str, msg: dict) -> None:
-        if topic == "fault":
-            self.faults.append(msg)
-
-    def until(self, want, timeout_s: float = 60.0) -> dict:
-        """Read messages until ``want(topic, msg)``; that message."""
-        while True:
-            topic, msg = self.d.next_message(timeout_s=timeout_s)
-            self._take(topic, msg)
-            if want(topic, msg):
-                return msg
-
-    def drain(self) -> None:
-        while self.d.sub.poll(0):
-            frames = self.d.sub.recv_multipart(zmq.NOBLOCK)
-            if len(frames) == 2:
-                self._take(frames[0].decode(), json.loads(frames[1]))
-
-    def samples_past(self, n: int) -> dict:
-        """Status once the loop has taken ``n`` more samples (each request waits on the daemon)."""
-        first = self.d.request({"cmd": "status"})["samples"]
-        while (status := self.d.request({"cmd": "status"}))["samples"] < first + n:
-            self.d.sub.poll(100)  # the next message, or 0.1 s: the proxy's thread needs this process too
-            self.drain()
-        self.drain()
-        return status
 
 
 def _config(tmp_path):

@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from fluidsense.common.exitcodes import EXIT_BAD_INPUT, EXIT_OK
+from fluidsense.common.exitcodes import EXIT_BAD_INPUT, EXIT_OK, EXIT_TIMEOUT
 from fluidsense.common.names import COMMANDS
 
 
@@ -38,6 +38,10 @@ def register(sub) -> None:
     p.add_argument("--timeout", type=float, default=5.0)
     p.add_argument("--client-key", help="CURVE: this client's secret key file (with --server-key)")
     p.add_argument("--server-key", help="CURVE: the daemon's public key file")
+    p.add_argument("--wait", type=float, metavar="SECONDS", nargs="?", const=120.0,
+                   help="for a request that starts a cycle (cycle, measure, grip): also wait up to SECONDS "
+                   "(default 120) for that cycle's result (topic cycle, from the publisher the config names) "
+                   "and print it")
     p.set_defaults(func=cmd_cmd)
 
 
@@ -78,6 +82,37 @@ def cmd_cmd(args: argparse.Namespace) -> int:
         from fluidsense.controller.config.curve import read_secret_key
 
         read_secret_key(args.client_key)  # refused when others can read it, like the daemon's own key
+    if args.wait is not None:
+        return _cmd_and_wait(args, endpoint, request, curve)
     reply = send_command(endpoint, request, args.timeout, curve=curve)
     print(json.dumps(reply, indent=2))
     return EXIT_OK if reply.get("ok") else EXIT_BAD_INPUT
+
+
+def _cmd_and_wait(args: argparse.Namespace, endpoint: str, request: dict, curve) -> int:
+    """The request, then its cycle's result: subscribed first (the daemon's welcome), so a
+    result that comes at once is not lost; a result from another daemon instance is not it."""
+    from fluidsense.client import Gripper
+    from fluidsense.client.types import NoReply, Refused
+    from fluidsense.daemon import app
+
+    pub = app.load(args.config).publisher.pub
+    with Gripper(endpoint, pub, timeout_s=args.timeout, event_timeout_s=args.wait, curve=curve,
+                 topics=("cycle",)) as g:
+        try:
+            reply = g.request(request)
+        except Refused as exc:
+            print(json.dumps(exc.reply, indent=2))
+            return EXIT_BAD_INPUT
+        except NoReply as exc:
+            raise TimeoutError(f"{exc}: is the daemon running?") from exc
+        print(json.dumps(reply, indent=2))
+        if "cycle_id" not in reply:
+            return EXIT_OK  # nothing started: nothing to wait for
+        try:
+            result = g.wait_for("cycle", reply["cycle_id"], args.wait, instance=reply.get("instance"))
+        except NoReply as exc:
+            print(f"fluidsense: {exc}", file=sys.stderr)
+            return EXIT_TIMEOUT
+    print(json.dumps(result.data, indent=2))
+    return EXIT_OK

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 from fluidsense.common.errors import (
     ConfigError,
+    DeviceProtocolError,
     LinkLostError,
 )
 from fluidsense.common.hardware import Hardware, RegulatedCircuit, TankCircuit
@@ -33,6 +34,7 @@ from fluidsense.common.samples import SampleBlock
 
 from ..backend import Backend
 from ..base import Regulator, SampleSource, ValveBank
+from .blocks import block_rows, check_rate
 from .calls import (
     BufferOverflowError,
     TaskThread,
@@ -61,6 +63,7 @@ class DaqSource(SampleSource):
         self._worker = TaskThread("daqmx-ai")
         self._k = 0  # sample time of the next sample, in samples
         self._k_start = 0  # the current acquisition's first sample
+        self._started_at = 0.0  # host time the current acquisition started
         self._origin: float | None = None
         self._seq = 0
         self._restart = False
@@ -73,7 +76,7 @@ class DaqSource(SampleSource):
 
     async def _setup(self) -> None:
         await self._worker.run(self._start_task)
-        self._origin = time.monotonic()
+        self._origin = self._started_at = time.monotonic()
 
     def _start_task(self) -> None:
         from nidaqmx.constants import (  # noqa: PLC0415
@@ -117,15 +120,19 @@ class DaqSource(SampleSource):
                                    timeout=self.cfg.read_timeout_s)
         except Exception as exc:
             raise translate(exc, self.name) from exc
-        # one channel reads as a flat list, several as one list per channel
-        return np.asarray(data, dtype=float).reshape(len(self.channels), -1).T, time.monotonic()
+        arrival = time.monotonic()
+        # one channel reads as a flat list, several as one list per channel (checked: blocks.py)
+        return block_rows(data, self.channels, self.cfg.block_size), arrival
 
     async def _read_block(self) -> SampleBlock:
         if self._restart:
             await self._restart_task()
         try:
             signal, arrival = await self._worker.run(self._read)
-        except (BufferOverflowError, LinkLostError) as exc:
+            check_rate(self._k + len(signal) - self._k_start, self.rate_hz, arrival - self._started_at)
+        except (BufferOverflowError, LinkLostError, DeviceProtocolError) as exc:
+            # a new acquisition at the next read: after an overflow, a lost device, or a
+            # block that cannot be true (nothing more this acquisition says is trusted)
             self.overflows += isinstance(exc, BufferOverflowError)
             self._restart = True
             raise
@@ -146,10 +153,11 @@ class DaqSource(SampleSource):
         if old is not None:
             await self._worker.run(close_task, old)
         await self._worker.run(self._start_task)
+        self._started_at = time.monotonic()
         self._restart = False
-        k = max(self._k, int(np.ceil((time.monotonic() - self._origin) * self.rate_hz)))
+        k = max(self._k, int(np.ceil((self._started_at - self._origin) * self.rate_hz)))
         self._missed_pending = k - self._k
-        self._k = k
+        self._k = self._k_start = k
         log.warning("%s: acquisition restarted at sample %d (%d slots missed)", self.name, k, self._missed_pending)
 
 

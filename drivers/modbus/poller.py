@@ -1,7 +1,16 @@
 """Analog inputs over Modbus TCP, read in the sampler process: one request per slot
-reads every wired input (a contiguous block of holding registers)."""
+reads every wired input (a contiguous block of holding registers).
+
+The reply is the box's word: one with more or fewer registers than were asked for is
+no reply to this request (another master's, or a broken server) and nothing after it
+is trusted: DeviceProtocolError naming ``registers`` (the sampler ends, the daemon
+faults ``driver`` and connects again). Every 16-bit value is a possible raw count (the
+map spans the whole 0-65535 range onto the input's range: common/wiring.py AnalogScale),
+so no single value is impossible."""
 
 from __future__ import annotations
+
+from fluidsense.common.errors import DeviceProtocolError
 
 from ..sampler.poller import Poller
 
@@ -28,6 +37,9 @@ class ModbusAnalogPoller(Poller):
         if reply.isError():
             raise ConnectionError(f"Modbus read of registers {self.first}+{self.count}: {reply}")
         regs = reply.registers
+        if len(regs) != self.count:
+            raise DeviceProtocolError(f"registers: {len(regs)} registers in the reply to a read of {self.count} "
+                                      f"from {self.first}", "registers")
         return tuple(k * regs[reg - self.first] + c for reg, k, c in self.inputs)
 
     def close(self) -> None:

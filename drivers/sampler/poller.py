@@ -19,6 +19,11 @@ Contract (see docs/sampler.md, "Writing a poller"):
   Raising :class:`NoNewSample` says the source has nothing new since the last read (a
   box that refreshes slower than the slots come, a late packet): the slot is missed,
   never filled with the old value, and it does not count towards link loss.
+- ``read()`` raises ``fluidsense.common.errors.DeviceProtocolError`` (with ``field``)
+  when the device said what cannot be true (a NaN, a value no input can measure, a
+  timestamp that runs backwards or ahead of the host's clock, a reply of the wrong
+  length): the process ends, the daemon makes it one ``driver`` fault naming the field
+  and connects again (nothing more that session says is trusted).
 - ``read()`` runs with the garbage collector disabled: avoid creating reference cycles
   in it (plain numbers, tuples and lists are fine).
 - ``close()`` releases everything; it is called once, also after a failed run.

@@ -12,7 +12,8 @@ Order of start-up, and why:
 
 The process ends on a ``stop`` message, on SIGTERM (SIGINT is ignored: a Ctrl-C in
 the daemon's terminal reaches the whole process group and the daemon stops us itself),
-when its parent is gone (re-parented), or when the poller's link is lost.
+when its parent is gone (re-parented), when the poller's link is lost, or when the poller
+says the device sent what cannot be true (DeviceProtocolError).
 """
 
 from __future__ import annotations
@@ -176,6 +177,9 @@ def run(args: dict[str, Any], poller: Any, sender: Sender, ctl: zmq.Socket) -> i
     if result.reason == "link_lost":
         sender.final("link_lost", {**fields, "error": result.detail})
         return wire.EXIT_LINK_LOST
+    if result.reason == "implausible":
+        sender.final("implausible", {**fields, "error": result.detail, "field": result.field})
+        return wire.EXIT_IMPLAUSIBLE
     log.info("stopping (%s) after %d slots: %s", keeper.reason, result.slots, result.totals.as_dict())
     if keeper.reason != "parent gone":
         sender.final("stopped", {**fields, "reason": keeper.reason})

@@ -37,7 +37,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from fluidsense.common.errors import ConfigError
+from fluidsense.common.errors import ConfigError, DeviceProtocolError
 
 from .poller import NoNewSample, Poller
 
@@ -129,11 +129,12 @@ class Block:
 class LoopResult:
     """Why the loop ended, with the totals over every slot it went through."""
 
-    reason: str  # "stopped" or "link_lost"
+    reason: str  # "stopped", "link_lost" or "implausible"
     totals: Counts
     slots: int
     detail: str = ""
     blocks: int = 0
+    field: str = ""  # "implausible": the field the device lied in
 
 
 @dataclass
@@ -176,6 +177,7 @@ class SlotLoop:
         self.totals = Counts()
         self._consecutive_failures = 0
         self._lost: str | None = None
+        self._lie: DeviceProtocolError | None = None
         self._seq = 0
         self._acc = _Accumulator(0)
 
@@ -192,7 +194,7 @@ class SlotLoop:
         # hot names are locals and the common case calls nothing but the clock.
         wait, now, read = self.clock.wait_until_ns, self.clock.now_ns, self.poller.read
         k = 0
-        while not self._lost and not should_stop():
+        while not self._lost and self._lie is None and not should_stop():
             deadline = self.deadline_ns(k)
             next_deadline = self.deadline_ns(k + 1)
             wait(deadline)
@@ -205,6 +207,12 @@ class SlotLoop:
                 row = [float(x) for x in raw]
             except NoNewSample:
                 self._acc.counts.missed += 1
+            except DeviceProtocolError as exc:
+                # the device said what cannot be true: nothing more it says can be trusted,
+                # and the slot is failed, not a sample; the daemon reconnects
+                self._acc.counts.failed += 1
+                self._lie = exc
+                log.error("slot %d: the device said what cannot be true: %s", k, exc)
             except Exception as exc:  # noqa: BLE001 - any read failure is a failed slot
                 self._failed(k, t, exc)
             else:
@@ -219,6 +227,8 @@ class SlotLoop:
         self._flush()
         if self._lost:
             return LoopResult("link_lost", self.totals, self.next_slot, self._lost, self._seq)
+        if self._lie is not None:
+            return LoopResult("implausible", self.totals, self.next_slot, str(self._lie), self._seq, self._lie.field)
         return LoopResult("stopped", self.totals, self.next_slot, "", self._seq)
 
     def _realign(self, t: int, k: int) -> int:

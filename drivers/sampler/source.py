@@ -6,7 +6,9 @@ temporary directory. A block's ``missed`` is every slot since the previous deliv
 block that produced no sample here: missed and failed slots and samples dropped on
 the way (``stats`` keeps them apart). ``read_block()`` raises LinkLostError when the
 poller's link is lost, when the process exits or stops on its own, or when it stays
-silent longer than ``silence_timeout_s`` (it sends heartbeats when it has no block).
+silent longer than ``silence_timeout_s`` (it sends heartbeats when it has no block);
+it raises DeviceProtocolError once, naming the field, when the poller found the device
+saying what cannot be true (the process has ended), and LinkLostError after it.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import zmq
 import zmq.asyncio
 from fluidsense.common.errors import (
     ConfigError,
+    DeviceProtocolError,
     DeviceTimeoutError,
     DriverError,
     LinkLostError,
@@ -66,7 +69,7 @@ class SampledSource(SampleSource):
         self.virtual = False
         #: what the process reported in its hello: pid, t0, the real-time settings
         self.hello: dict[str, Any] | None = None
-        #: the process's last word (``stopped`` / ``link_lost`` / ``fatal``), once it came
+        #: the process's last word (``stopped`` / ``link_lost`` / ``implausible`` / ``fatal``), once it came
         self.final: dict[str, Any] | None = None
         #: counts from every block received: on_time/late count delivered samples
         self.stats = {"on_time": 0, "late": 0, "missed": 0, "failed": 0, "dropped": 0, "slots": 0, "blocks": 0,
@@ -157,7 +160,7 @@ class SampledSource(SampleSource):
                 block = self._to_block(header, frames)
                 if block is not None:
                     return block
-            elif kind in ("link_lost", "fatal", "stopped"):
+            elif kind in ("link_lost", "implausible", "fatal", "stopped"):
                 self.final = header
                 self._lose_from_message(header)
             elif kind != "heartbeat":
@@ -167,6 +170,13 @@ class SampledSource(SampleSource):
         kind = header["type"]
         if kind == "link_lost":
             self._lose(f"sampler: poller link lost ({header['error']})", DriverError(header["error"]))
+        elif kind == "implausible":
+            # one fault that names the field; every later read says the link is lost
+            lie = DeviceProtocolError(header["error"], header.get("field", ""))
+            self._lost = LinkLostError(f"sampler: the device said what cannot be true ({lie.field}); reconnecting")
+            self._lost.__cause__ = lie
+            log.error("sampler: %s", lie)
+            raise lie
         elif kind == "fatal":
             cause = ConfigError(header["error"]) if header.get("stage") in ("construct", "read") \
                 else DriverError(header["error"])
@@ -288,6 +298,6 @@ class SampledSource(SampleSource):
             header, frames = wire.decode(await self._pull.recv_multipart())
             if header["type"] == "block":
                 self._to_block(header, frames)
-            elif header["type"] in ("stopped", "link_lost", "fatal"):
+            elif header["type"] in ("stopped", "link_lost", "implausible", "fatal"):
                 self.final = header
                 return

@@ -4,7 +4,7 @@ Frame 1 is a small UTF-8 JSON header with ``v`` (protocol version) and ``type``;
 ``block`` messages add three frames of raw float64 in the byte order the header names
 (``dtype``): the read times ``t_s`` (n), the values (n x channels, row-major) and the
 lateness (n). Sampler -> daemon (PUSH/PULL): ``hello``, ``block``, ``heartbeat``,
-``link_lost``, ``fatal``, ``stopped``. Daemon -> sampler (PUSH/PULL): ``stop``.
+``link_lost``, ``implausible``, ``fatal``, ``stopped``. Daemon -> sampler (PUSH/PULL): ``stop``.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ EXIT_CRASHED = 1  # an uncaught exception (Python's own code)
 EXIT_CONFIG = 2  # bad poller spec or channel count
 EXIT_OPEN = 3  # poller.open() failed
 EXIT_LINK_LOST = 4
+EXIT_IMPLAUSIBLE = 5  # the poller's device said what cannot be true
 
 
 def encode(kind: str, fields: dict[str, Any] | None = None, arrays: Sequence[Any] = ()) -> list[Any]:

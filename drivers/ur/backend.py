@@ -15,14 +15,15 @@ from .link import WorkerConnection
 from .watchdog import box_script, send_script
 
 
-def rtde_inputs(wiring: Wiring, channels: tuple[str, ...]) -> list[list[float]]:
-    """Per channel [analog input, k, c] with Pa = k * reading + c; RTDE reads V or mA."""
+def rtde_inputs(wiring: Wiring, channels: tuple[str, ...]) -> list[list]:
+    """Per channel [analog input, k, c, domain] with Pa = k * reading + c; RTDE reads V or
+    mA; the domain bounds what a reading can be (poller.py)."""
     out = []
     for name in channels:
         s = wiring.sensors[name]
         gain, offset = s.transfer.affine()
         unit = 1.0 if s.transfer.domain == "voltage" else 1e-3
-        out.append([s.analog_input, unit / gain, -offset / gain])
+        out.append([s.analog_input, unit / gain, -offset / gain, s.transfer.domain])
     return out
 
 

@@ -21,6 +21,7 @@ from typing import Any
 
 from fluidsense.common.errors import SafetyError
 from fluidsense.simulator.controlbox.config import ControlBoxConfig
+from fluidsense.simulator.controlbox.lies import Lies
 from fluidsense.simulator.controlbox.model import (
     N_ANALOG,
     AnalogDomain,
@@ -123,6 +124,7 @@ class ControlBox:
         #: lag_s late (sim control ``rtde_lag``), as a receive thread starved on a busy PC
         #: reads them; (0, 0): none
         self.rtde_lag: tuple[float, float] = (0.0, 0.0)
+        self.lies = Lies()  # what the box says that cannot be true (sim control ``lie``)
         #: the I/O image: the inputs as read at the start of the current I/O cycle (number
         #: ``io_cycle``, at ``io_cycle / config.io_hz`` s); what Modbus and RTDE report
         self.io_cycle = 0
@@ -375,30 +377,20 @@ class ControlBox:
     def snapshot(self) -> dict[str, Any]:
         m = self.model
         return {
-            "t": m.t,
-            "tcp_pose": list(m.tcp_pose),
-            "tcp_speed": list(m.tcp_speed),
-            "moving": m.is_moving(),
-            "digital_inputs": m.digital_inputs,
-            "digital_outputs": m.digital_outputs,
+            "t": m.t, "tcp_pose": list(m.tcp_pose), "tcp_speed": list(m.tcp_speed), "moving": m.is_moving(),
+            "digital_inputs": m.digital_inputs, "digital_outputs": m.digital_outputs,
             "analog_inputs": [{"value": m.analog_input(i).value, "domain": m.analog_input(i).domain.name}
                               for i in range(N_ANALOG)],
             "analog_outputs": [{"value": m.analog_output(i).value, "domain": m.analog_output(i).domain.name}
                                for i in range(N_ANALOG)],
-            "speed_fraction": m.speed_fraction,
-            "robot_mode": m.robot_mode.name,
-            "safety_mode": m.safety_mode.name,
-            "protective_stop": m.protective_stop,
-            "emergency_stop": m.emergency_stop,
-            "runtime_state": self.runtime_state.name,
-            "program": self.program.name if self.program else None,
+            "speed_fraction": m.speed_fraction, "robot_mode": m.robot_mode.name, "safety_mode": m.safety_mode.name,
+            "protective_stop": m.protective_stop, "emergency_stop": m.emergency_stop,
+            "runtime_state": self.runtime_state.name, "program": self.program.name if self.program else None,
             "input_int_registers": list(self.registers.ints["input"]),
             "input_double_registers": list(self.registers.doubles["input"]),
             "output_int_registers": list(self.registers.ints["output"]),
             "output_double_registers": list(self.registers.doubles["output"]),
             "runstate": {str(o): s for o, s in sorted(self.runstate.items())},
             "output_journal": [list(e) for e in self.journal],
-            "network_up": self.network_up,
-            "controller": self.config.controller,
-            "io_hz": self.config.io_hz,
+            "network_up": self.network_up, "controller": self.config.controller, "io_hz": self.config.io_hz,
         }

@@ -39,12 +39,20 @@ import logging
 from fluidsense.simulator.controlbox.box import ControlBox
 from fluidsense.simulator.controlbox.model import AnalogDomain, AnalogSignal
 from pymodbus.constants import ExcCodes
+from pymodbus.pdu import ModbusPDU
+from pymodbus.pdu.register_message import (
+    ReadHoldingRegistersRequest,
+    ReadHoldingRegistersResponse,
+    ReadInputRegistersRequest,
+    ReadInputRegistersResponse,
+)
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 log = logging.getLogger(__name__)
 
 RAW_MAX = 0xFFFF
+ANALOG_INPUTS = (4, 6)
 _WRITABLE = [(1, 3), (5, 1), (7, 1), (16, 4), (31, 3), (128, 128)]  # (first address, count)
 _READ_ONLY = [(0, 1), (4, 1), (6, 1), (8, 8), (20, 10), (30, 1), (256, 16), (400, 6)]
 
@@ -185,10 +193,24 @@ class ModbusServer:
         self.map = UrModbus(box)
         self.host, self.port = host, port
         self._server: ModbusTcpServer | None = None
+        self._reads: dict[int, int] = {}  # transaction id -> address of a read in progress
 
     async def start(self) -> None:
-        self._server = ModbusTcpServer(self.map.device(), address=(self.host, self.port))
+        self._server = ModbusTcpServer(self.map.device(), address=(self.host, self.port), trace_pdu=self._lie)
         await self._server.serve_forever(background=True)
+
+    def _lie(self, sending: bool, pdu: ModbusPDU) -> ModbusPDU:
+        """A reply to a read of the analog inputs as the box's lie (sim control ``lie``) has
+        it. The reply does not say what was read: its request's address is kept by
+        transaction id (each client numbers its own; two clients' equal ids at the same
+        moment could mix, which a test's lie can live with)."""
+        if not sending:
+            if isinstance(pdu, ReadHoldingRegistersRequest | ReadInputRegistersRequest):
+                self._reads[pdu.transaction_id] = pdu.address
+        elif isinstance(pdu, ReadHoldingRegistersResponse | ReadInputRegistersResponse):
+            if self._reads.pop(pdu.transaction_id, None) in ANALOG_INPUTS:
+                pdu.registers = self.map.box.lies.modbus(self.map.box.model.t, pdu.registers)
+        return pdu
 
     async def close(self) -> None:
         if self._server is not None:

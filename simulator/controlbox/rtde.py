@@ -85,7 +85,7 @@ class RtdeSession:
             self._dropping = True
             return
         self._dropping = False
-        values = [g(self.box) for g in self._getters]
+        values = self.box.lies.rtde(self.output.names, [g(self.box) for g in self._getters], t)
         package = bytes([self.output.id]) + self.output.pack(values)
         max_hz, lag_s = self.box.rtde_lag
         if lag_s > 0 and self._period >= 1.0 / max_hz:

@@ -12,7 +12,8 @@ request's ``id`` echoed when it has one. This is not part of the UR control box.
 A box backed by the simulated plant (``fluidsense simcell``) also answers ``scene``
 (place an object), ``world`` (lay out slots and objects for an arm), ``truth`` (what a
 bench instrument would read) and ``inject`` / ``clear_faults`` (fault injection). Every
-box answers ``network`` (pull the cable) and ``rtde_lag`` (slow RTDE streams arrive late). The
+box answers ``network`` (pull the cable), ``rtde_lag`` (slow RTDE streams arrive late) and
+``lie`` (say on the wire what cannot be true: lies.py). The
 same commands are served over TCP (one JSON object per line each way) when the cell
 config names a ``sim_control_port``: that is how a daemon's simulated task lays out its
 objects and scores itself.
@@ -30,6 +31,7 @@ from fluidsense.common.models import StrictModel
 from fluidsense.common.scenes import Scene
 from fluidsense.common.world import WorldSpec
 from fluidsense.simulator.controlbox.box import ControlBox
+from fluidsense.simulator.controlbox.lies import KINDS
 from fluidsense.simulator.controlbox.model import DIGITAL_MASK, AnalogDomain, RobotMode
 from pydantic import Field, TypeAdapter, ValidationError
 
@@ -114,9 +116,20 @@ class RtdeLagCommand(StrictModel):
     lag_s: float = Field(ge=0, le=10)
 
 
+class LieCommand(StrictModel):
+    """The box says what cannot be true in ``count`` packages or replies (lies.py names
+    each ``kind``): a hostile box for the driver's checks."""
+
+    cmd: Literal["lie"]
+    id: Any = None
+    kind: Literal[KINDS]  # type: ignore[valid-type]
+    count: int = Field(gt=0, le=1_000_000)
+
+
 _PLANT = (SceneCommand, WorldCommand, TruthCommand, InjectCommand, ClearFaultsCommand)
 SimRequest = TypeAdapter(Annotated[StateCommand | SetCommand | SceneCommand | WorldCommand | TruthCommand
-                                | InjectCommand | ClearFaultsCommand | NetworkCommand | RtdeLagCommand,
+                                | InjectCommand | ClearFaultsCommand | NetworkCommand | RtdeLagCommand
+                                | LieCommand,
                                 Field(discriminator="cmd")])
 
 
@@ -142,7 +155,10 @@ def handle(box: ControlBox, line: str) -> dict[str, Any]:
         elif isinstance(command, RtdeLagCommand):
             box.rtde_lag = (command.max_hz, command.lag_s)
             log.info("sim control: RTDE streams at %g Hz or slower %g s late", command.max_hz, command.lag_s)
+        elif isinstance(command, LieCommand):
+            box.lies.tell(command.kind, box.model.t, command.count)
         reply["state"] = box.snapshot()
+        reply["lies"] = box.lies.state()
     except (FluidsenseError, ValueError) as exc:
         reply.update(ok=False, error=str(exc))
     return reply

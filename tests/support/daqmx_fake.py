@@ -13,7 +13,8 @@ The acquisition is driven by the test: ``acquire(rows)`` puts samples (V or A pe
 channel) in the device's buffer; a read wanting more than the buffer holds fails as
 DAQmx does when its timeout passes (SAMPLES_NOT_YET_AVAILABLE), and more unread samples
 than the buffer holds stop the acquisition (SAMPLES_NO_LONGER_AVAILABLE), as DAQmx does
-with "do not overwrite unread samples".
+with "do not overwrite unread samples". ``rig.lie`` changes the next block a read returns
+(a device or library that says what cannot be true).
 
 The watchdog task takes its expiration states as nidaqmx's own named tuples with its
 enums (``DOExpirationState`` with a ``Level``, ``AOExpirationState`` with a
@@ -129,7 +130,9 @@ class FakeTask:
                                    DAQmxErrors.SAMPLES_NOT_YET_AVAILABLE.value, 0)
             rows = [self._buffer.popleft() for _ in range(n)]
         per_channel = [list(col) for col in zip(*rows)]
-        return per_channel if len(per_channel) > 1 else per_channel[0]
+        data = per_channel if len(per_channel) > 1 else per_channel[0]
+        lie, self.rig.lie = self.rig.lie, None
+        return data if lie is None else lie(data)
 
     def acquire(self, rows: list[tuple[float, ...]]) -> None:
         with self.rig.lock:
@@ -212,6 +215,8 @@ class FakeRig:
         self.watchdogs: list[FakeWatchdog] = []
         self.fail_on: dict[str, Exception] = {}  # the next call of that name raises this
         self.line_levels: list[bool] | None = None  # what a DO read reports (default: as written)
+        #: the next analog read's block as a lying device (or library) returns it: data -> data
+        self.lie: Any = None
         self.lock = threading.Lock()
 
     def __call__(self, name: str = "") -> FakeTask:

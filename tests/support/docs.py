@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 from support.harness import REPO
@@ -26,11 +27,11 @@ def shell_blocks(doc: Path) -> list[list[str]]:
 
 
 def run_as_written(lines: list[str], subs: dict[str, str], tmp_path: Path, timeout_s: float = 600,
-                   cwd: Path = REPO, background: list | None = None):
+                   cwd: Path = REPO, background: list | None = None, prefix: tuple[str, ...] = ()):
     """Each line as a shell runs it from ``cwd`` (``&``: in the background), with only
     ``subs`` replaced; the venv's ``fluidsense`` and ``python`` first on PATH. Returns (the
     background processes with their logs, the foreground results); ``background`` collects
-    across calls."""
+    across calls. ``prefix``: what runs the shell (e.g. nsenter into a network namespace)."""
     env = {**os.environ, "PATH": f"{Path(sys.executable).parent}:{os.environ['PATH']}", "PYTHONUNBUFFERED": "1"}
     background = [] if background is None else background
     results = []
@@ -41,9 +42,25 @@ def run_as_written(lines: list[str], subs: dict[str, str], tmp_path: Path, timeo
             command = line.split(" & ")[0].rstrip("& ").strip()  # the comment after '&' is not the shell's
             log = open(tmp_path / f"bg{len(background)}.log", "w")  # noqa: SIM115 - closed with the process
             # exec: the process is the command itself, which a signal then reaches (not a shell)
-            background.append((subprocess.Popen(["sh", "-c", "exec " + command], cwd=cwd, env=env, stdout=log,
-                                                 stderr=subprocess.STDOUT), log))
+            background.append((subprocess.Popen([*prefix, "sh", "-c", "exec " + command], cwd=cwd, env=env,
+                                                 stdout=log, stderr=subprocess.STDOUT), log))
         else:
-            results.append(subprocess.run(line, shell=True, cwd=cwd, env=env, capture_output=True, text=True,
-                                          timeout=timeout_s))
+            results.append(subprocess.run([*prefix, "sh", "-c", line], cwd=cwd, env=env, capture_output=True,
+                                          text=True, timeout=timeout_s))
     return background, results
+
+
+def wait_for_ready(proc, log, timeout_s: float = 60.0) -> None:
+    """Until the box's log has its ready line (it exits or the time runs out: the test fails)."""
+    path = log.name
+    deadline = time.monotonic() + timeout_s
+    while not any(line.startswith("ready") for line in open(path).read().splitlines()):
+        assert proc.poll() is None, open(path).read()
+        assert time.monotonic() < deadline, open(path).read()
+        time.sleep(0.05)  # polling a file for an event, not pacing a timing
+
+
+def problems(stdout: str) -> list[str]:
+    """What check's result section lists (empty: everything matches)."""
+    lines = stdout.split("\nresult\n", 1)[1].splitlines()
+    return [line.strip() for line in lines if line.strip() != "everything matches the config"]

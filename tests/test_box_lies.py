@@ -1,0 +1,96 @@
+"""A control box that lies on the wire: RTDE analog inputs that read NaN, infinity or a
+value no input can measure, a timestamp that jumps 1000 s ahead, runs back, runs ten times
+fast or stands still, a Modbus reply with one register too many or too few. Each lie is one
+``driver`` fault that names the field, the valves go to their safe state (read back from the
+box), the link is connected again, ``reset`` works once the box is sane, and the sample
+stream moves on. A timestamp that stands still is a silent robot, not a lie: a ``link_lost``
+fault, with the same recovery.
+
+The box is the emulator (``fluidsense simcell``) with its real RTDE and pymodbus servers,
+the daemon the real one with ur_rtde and pymodbus clients; the lie is the box's own (sim
+control ``lie``, simulator/controlbox/lies.py), told in a counted number of packages or
+replies. Nothing is mocked, and nothing waits on the wall clock: waits are for messages,
+for samples and for the box's state."""
+
+from __future__ import annotations
+
+import pytest
+from support.harness import Daemon, free_simcell
+from support.watch import Watch
+
+pytestmark = pytest.mark.timeout(300)
+
+#: room for a shared 2-core machine: the emulated box, the daemon, its sampler and the
+#: ur_rtde worker share it with other work; what is tested is the lie's fault, not the
+#: timing supervisors
+SUPERVISION = {"overrun_s": 5.0, "no_data_s": 5.0}
+QUICK = {"reconnect": {"first_s": 0.2, "max_s": 1.0, "connect_timeout_s": 15.0}}
+SAFE = 0b01  # the sorting gripper's safe outputs: supply isolated (0 high), gripper vented (1 low)
+
+CASES = [
+    ("ur", "analog_nan", "driver", "standard_analog_input0:", 20),
+    ("ur", "analog_inf", "driver", "standard_analog_input0:", 20),
+    ("ur", "analog_range", "driver", "standard_analog_input0:", 20),
+    ("ur", "timestamp_forward", "driver", "timestamp:", 20),
+    ("ur", "timestamp_back", "driver", "timestamp:", 20),
+    ("ur", "timestamp_fast", "driver", "timestamp:", 200),
+    ("ur", "timestamp_stall", "link_lost", "stale", 1500),
+    ("modbus", "modbus_extra", "driver", "registers:", 20),
+    ("modbus", "modbus_short", "driver", "registers:", 20),
+]
+
+
+@pytest.mark.parametrize("kind, lie, fault_kind, field, count", CASES, ids=[c[1] for c in CASES])
+def test_a_lying_box_is_one_fault_naming_the_field_then_reconnected_and_reset_works(
+        tmp_path, kind, lie, fault_kind, field, count):
+    driver = {**QUICK, "arm": None} if kind == "modbus" else QUICK
+    with free_simcell(tmp_path, kind, profile="sorting-gripper-quick.yaml", driver=driver,
+                      supervision=SUPERVISION) as (box, cell):
+        d = Daemon(cell)
+        watch = Watch(d)
+        try:
+            d.wait_welcome(timeout_s=120)
+            watch.samples_past(500)
+            told = box.command({"cmd": "lie", "kind": lie, "count": count})
+            assert told["ok"] and told["lies"]["kind"] == lie, told
+            fault = watch.until(lambda topic, _: topic == "fault", within_s=60)
+            assert fault["kind"] == fault_kind and field in fault["detail"], fault
+            # the safe state, as the box reports its outputs: to the daemon (its link to the
+            # outputs stays up: only the sampler's session ends) and to the test
+            assert fault["vented"] is True, fault
+            box.wait_for(lambda s: s["digital_outputs"] & 0b11 == SAFE, 30, "the safe outputs")
+            # the lie over, then samples again: a reconnection (it wrote and read back the safe positions)
+            box.wait_for(lambda _: box.command({"cmd": "state"})["lies"]["kind"] is None, 60, "the lie's end")
+            watch.samples_past(100)
+            assert d.request({"cmd": "reset"})["ok"]
+            status = watch.samples_past(1500)  # 3 s of samples after the reset: the stream moves
+            assert watch.faults[1:] == [], watch.faults  # the lie made one fault, and nothing it left behind
+            assert status["fault"] is None and status["state"] == "idle", status
+            assert box.state()["digital_outputs"] & 0b11 == SAFE
+        finally:
+            assert d.close() == 0
+
+
+def test_the_timestamp_guard_takes_late_and_slightly_slow_or_fast_clocks_and_refuses_what_cannot_be():
+    """The RTDE timestamp's bounds on their own, host times given: a box whose first packet
+    is read 0.8 s late, whose packets then stop for 2 s (a stalled reader: the newest packet
+    does not change, which the poller counts as missed, not checked) and whose clock runs
+    1 % fast is sane; a step back, a jump ahead or a clock ten times fast is not, each
+    naming ``timestamp``."""
+    from fluidsense.common.errors import DeviceProtocolError
+    from fluidsense.drivers.ur.poller import LEAD_MARGIN_S, TimestampGuard
+
+    sane = TimestampGuard()
+    sane.check(1234.0 - 0.8, 0.0)
+    for k in [*range(1, 2000), *range(3000, 5000)]:  # 10 s at 500 Hz, no new packet for 2 s
+        sane.check(1234.0 + k * 0.002 * 1.01, k * 0.002)
+    cases = {"back": [(10.0, 0.0), (10.002, 0.002), (9.5, 0.004)],
+             "ahead": [(10.0, 0.0), (10.002, 0.002), (10.002 + 2 * LEAD_MARGIN_S, 0.004)],
+             "fast": [(10.0 + k * 0.02, k * 0.002) for k in range(100)],
+             "nan": [(10.0, 0.0), (float("nan"), 0.002)]}
+    for name, steps in cases.items():
+        guard = TimestampGuard()
+        with pytest.raises(DeviceProtocolError, match="^timestamp: ") as err:
+            for stamp, host in steps:
+                guard.check(stamp, host)
+        assert err.value.field == "timestamp", name

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 
@@ -93,3 +94,25 @@ def test_cmd_and_monitor_exit_as_documented(tmp_path):
                                   "0.3"], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert unheard_run.returncode == unheard, unheard_run.stderr
     assert "nothing heard" in unheard_run.stderr
+
+
+def test_cmd_wait_prints_the_started_cycle_or_says_it_did_not_come(tmp_path):
+    """``cmd --wait``: the reply, then the cycle's result; a result that does not come
+    within SECONDS is the documented exit, with what was waited for (a real-time cycle
+    lasts far longer than the 0.5 s given here)."""
+    from support.harness import Daemon, sim_config
+
+    doc = _documented_exits()
+    (late,) = {code for (cmd, case), code in doc.items() if cmd == "cmd" and "--wait [SECONDS]" in case}
+    cell = sim_config(tmp_path, clock="realtime")
+    daemon = Daemon(cell)
+    try:
+        daemon.wait_welcome()
+        run_ = subprocess.run([sys.executable, "-m", "fluidsense", "cmd", '{"cmd": "cycle"}', "--config", str(cell),
+                               "--wait", "0.5"], cwd=REPO, capture_output=True, text=True, timeout=60)
+        assert run_.returncode == late, run_.stdout + run_.stderr
+        started = json.loads(run_.stdout)
+        assert started["ok"] and "no cycle of cycle" in run_.stderr, run_.stderr
+        assert daemon.request({"cmd": "status"})["cycle_id"] == started["cycle_id"]
+    finally:
+        assert daemon.close() == 0

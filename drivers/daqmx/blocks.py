@@ -23,9 +23,8 @@ from typing import Any
 import numpy as np
 from fluidsense.common.errors import DeviceProtocolError
 
-#: a DAQ's timebase is a crystal (tens of ppm); four times a ceramic resonator's 0.5 % is
-#: still a clock at its rate (the serial driver's bound)
-MAX_CLOCK_ERROR = 0.02
+from ..clockcheck import MAX_CLOCK_ERROR, lead_s
+
 #: how late the host may take the acquisition's start (the task started on the driver's
 #: thread before the host time was read; a loaded machine)
 LEAD_MARGIN_S = 0.25
@@ -64,8 +63,7 @@ def _length(values: Any) -> int:
 
 def check_rate(samples: int, rate_hz: float, since_start_s: float) -> None:
     """``samples`` read of the acquisition that started ``since_start_s`` ago (host clock)."""
-    lead = samples / rate_hz - since_start_s * (1 + MAX_CLOCK_ERROR)
-    if lead > LEAD_MARGIN_S:
+    if lead_s(samples / rate_hz, since_start_s, LEAD_MARGIN_S) > 0:
         raise DeviceProtocolError(f"rate: {samples} samples in {since_start_s:.3f} s: the sample clock runs at "
                                   f"~{samples / max(since_start_s, 1e-3):.0f} Hz, driver.rate_hz is {rate_hz:g} "
                                   f"(allowed {MAX_CLOCK_ERROR:.0%} off)", "rate")

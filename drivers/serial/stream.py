@@ -25,14 +25,12 @@ import numpy as np
 from fluidsense.common.errors import DeviceProtocolError, DriverError
 from fluidsense.common.samples import SampleBlock
 
+from ..clockcheck import MAX_CLOCK_ERROR, lead_s
 from . import protocol as p
 from .clock import Timeline
 from .config import SerialDriverConfig
 
 LATE_S = 50e-6  # a sample converted this long after its tick is late (as the sampler process counts it)
-#: how far the device's clock may run from the host's: a crystal is tens of ppm, a ceramic
-#: resonator up to 0.5 % (clock.py); four times that is still a timer at its rate
-MAX_CLOCK_ERROR = 0.02
 #: how late the host may read the frame a bound starts from (the reader thread scheduled
 #: late on a loaded machine); the session's first tick may also follow START's acknowledgement
 #: by every retry of START
@@ -72,14 +70,14 @@ class SessionGuard:
                                        f"(at most {top}): driver.adc.bits, or not this firmware", "counts")
         step, dt = tick - self._tick, arrival - self._arrival
         lead = LEAD_MARGIN_S if self._first is not None else self.first_lead_s
-        if (step - 1) / self.rate_hz > dt * (1 + MAX_CLOCK_ERROR) + lead:
+        if lead_s((step - 1) / self.rate_hz, dt, lead) > 0:
             return DeviceProtocolError(f"tick: tick {tick} after {self._tick}: {step - 1} samples skipped "
                                        f"({(step - 1) / self.rate_hz:.6g} s at {self.rate_hz:g} Hz) within "
                                        f"{dt:.3f} s", "tick")
         if self._first is None:
             self._first = (tick, arrival)
         ticks, since = tick - self._first[0], arrival - self._first[1]
-        if ticks / self.rate_hz > since * (1 + MAX_CLOCK_ERROR) + LEAD_MARGIN_S:
+        if lead_s(ticks / self.rate_hz, since, LEAD_MARGIN_S) > 0:
             return DeviceProtocolError(f"rate: {ticks} ticks in {since:.3f} s: the device's timer runs at "
                                        f"~{ticks / max(since, 1e-3):.0f} Hz, driver.rate_hz is {self.rate_hz:g} "
                                        f"(allowed {MAX_CLOCK_ERROR:.0%} off)", "rate")

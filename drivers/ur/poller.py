@@ -30,12 +30,10 @@ import time
 from fluidsense.common.errors import DeviceProtocolError
 
 from ..child import keep_until_exit
+from ..clockcheck import MAX_CLOCK_ERROR, lead_s
 from ..sampler.poller import NoNewSample, Poller
 
 _INPUTS = ("getStandardAnalogInput0", "getStandardAnalogInput1")
-#: how far the box's clock may run from the host's: a controller's crystal is tens of ppm;
-#: four times a ceramic resonator's 0.5 % is still a clock at its rate (as the serial driver)
-MAX_CLOCK_ERROR = 0.02
 #: how old the session's first packet may be when the host reads it: ur_rtde's receive thread,
 #: starved at the start on a loaded machine, parses a backlog of packets up to about a second
 #: old. Wide, because the timestamp never sets sample time here (the sampler's slots do): the
@@ -63,8 +61,7 @@ class TimestampGuard:
                                       f"back {self._last - stamp:.6g} s", "timestamp")
         if self._first is None:
             self._first = (stamp, host_s)
-        ahead = (stamp - self._first[0]) - (host_s - self._first[1]) * (1 + MAX_CLOCK_ERROR)
-        if ahead > LEAD_MARGIN_S:
+        if lead_s(stamp - self._first[0], host_s - self._first[1], LEAD_MARGIN_S) > 0:
             box_s, since = stamp - self._first[0], host_s - self._first[1]
             raise DeviceProtocolError(f"timestamp: {box_s:.6g} s of the box's time in {since:.3f} s of the host's "
                                       f"(the box's stream runs ~{box_s / max(since, 1e-3):.3g} times its rate, "

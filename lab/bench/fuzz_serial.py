@@ -37,12 +37,13 @@ from typing import Any
 import numpy as np
 from fluidsense.common.errors import DeviceProtocolError, DriverError
 from fluidsense.common.samples import SampleBlock
+from fluidsense.drivers.clockcheck import MAX_CLOCK_ERROR
 from fluidsense.drivers.serial import protocol as p
 from fluidsense.drivers.serial.backend import count_scale
 from fluidsense.drivers.serial.clock import Timeline
 from fluidsense.drivers.serial.config import SerialDriverConfig
 from fluidsense.drivers.serial.link import SerialLink
-from fluidsense.drivers.serial.stream import LEAD_MARGIN_S, MAX_CLOCK_ERROR, DeviceResetError
+from fluidsense.drivers.serial.stream import LEAD_MARGIN_S, DeviceResetError
 
 NAME = "fuzz-serial"
 HELP = "a serial device's frames with a valid CRC and hostile contents against the driver's link"

@@ -19,6 +19,15 @@ _TICK = struct.Struct("<I")  # a sample's tick at offset 4; an ACK's at offset 8
 RATE_FACTOR = 10
 
 
+def _frames(buffer: bytearray, data: bytes) -> list[bytes]:
+    """``data`` appended to ``buffer``; the whole frames in it (COBS, delimiter stripped)
+    taken out, the unfinished rest left in ``buffer``."""
+    buffer += data
+    *frames, rest = bytes(buffer).split(b"\x00")
+    buffer[:] = rest
+    return frames
+
+
 class Liar(Proxy):
     """``lie("counts", frames=n)``: the next n sample frames (whatever their session) carry
     one count more than the inputs wired. ``lie("tick")``: from now on, the current
@@ -49,10 +58,7 @@ class Liar(Proxy):
     def _filter_out(self, data: bytes) -> bytes:
         out = bytearray()
         with self._lock:
-            self._out += data
-            *frames, rest = bytes(self._out).split(b"\x00")
-            self._out = bytearray(rest)
-            for raw in frames:
+            for raw in _frames(self._out, data):
                 decoded = p.cobs_decode(raw) if raw else None
                 if decoded and decoded[0] == p.SET_OUTPUTS and self.swallowing > 0:
                     self.swallowing -= 1
@@ -68,10 +74,7 @@ class Liar(Proxy):
     def _filter(self, data: bytes) -> bytes:
         out = bytearray()
         with self._lock:
-            self._raw += data
-            *frames, rest = bytes(self._raw).split(b"\x00")
-            self._raw = bytearray(rest)
-            for raw in frames:
+            for raw in _frames(self._raw, data):
                 out += self._rewrite(raw) if raw else b"\x00"
         return bytes(out)
 

@@ -18,6 +18,7 @@ import os
 import select
 import signal
 import socket
+import termios
 import tty
 
 import numpy as np
@@ -121,10 +122,15 @@ class _Port:
 
     def __init__(self, path: str):
         self.fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
-        tty.setraw(self.fd)
+        tty.setraw(self.fd, termios.TCSANOW)  # TCSAFLUSH, the default, would drop what the device sent
         self.splitter = p.Splitter()
         self.pending: list[bytes] = []
         self.seq = 0
+        # The device announces itself once its USART is up; a command written before that
+        # (the simulated MCU may not have run its set-up when its pty appears) is lost, as
+        # on a real board: this host has no retries, so it waits for the announcement.
+        info = self.next()
+        assert isinstance(info, p.Info) and (info.session, info.reset_cause) == (0, "power-on"), info
 
     def command(self, kind: int, args: bytes = b"") -> p.Ack:
         """One command and its ACK (frames before the ACK are dropped)."""

@@ -19,6 +19,8 @@ What is drawn when (docs/physics.md, "Error budget"):
 
 from __future__ import annotations
 
+import math
+
 from fluidsense.common.models import Real, StrictModel
 from pydantic import Field
 
@@ -35,3 +37,20 @@ class PartsBudget(StrictModel):
         0.0, ge=0, le=0.5, description="flow sensor's repeatability, fraction of reading, per cycle")
     placement_mm: Real = Field(
         0.0, ge=0, le=50, description="hand placement of a target (caliper), per placement")
+
+    def session_rel_sd(self, setpoint_kpa: float | None, flow_driven: bool) -> float:
+        """The sd, as a fraction of the feature, that a rig set up again adds to every reading.
+
+        The per-session parts act on the drive: the regulator's setpoint error on a cycle
+        driven by a regulated pressure (``setpoint_kpa``, gauge), the flow controller's
+        accuracy of rate on one driven by a set flow. To first order every feature (a
+        settled pressure, a delivered volume, a time to contact) scales with its drive, so
+        the drive's relative error is the feature's; on the static plant the elasticity is
+        0.85-1.15 for the three distance methods (tests/test_budget.py). Rectangular
+        half-widths, sd = half-width / sqrt(3) (GUM 4.3.7)."""
+        rel = 0.0
+        if setpoint_kpa:
+            rel = math.hypot(rel, self.regulator_setpoint_kpa / abs(setpoint_kpa) / math.sqrt(3))
+        if flow_driven:
+            rel = math.hypot(rel, self.flow_controller_of_rate / math.sqrt(3))
+        return rel

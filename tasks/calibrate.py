@@ -108,7 +108,8 @@ async def calibrate(ctrl: Controller, scene: Any, target: str, values: Sequence[
     cal = Calibration.fit_points(
         [x for x, _ in points], [y for _, y in points], fit, profile=ctrl.profile.name, method=seq.method,
         feature=feature, feature_unit=FEATURES[feature][1], scene=scene.model_dump(), target=target,
-        target_unit=unit, window=window, seed=seed, cycles=cycles, drop_first=drop_first, free_y=free_y)
+        target_unit=unit, window=window, seed=seed, cycles=cycles, drop_first=drop_first, free_y=free_y,
+        session_rel_sd=ctrl.profile.session_rel_sd)
     return CalibrationRun(cal, skipped)
 
 

@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
 
 import numpy as np
 import pytest
+from fluidsense.cli.options import profile_path
 from fluidsense.common.errors import ConfigError
 from fluidsense.common.scenes import PlateScene
+from fluidsense.controller.config import load_profile
 from fluidsense.controller.sensing.calibration import Calibration, CalibrationError
 from support.harness import REPO, profile_controller
 
@@ -73,12 +76,16 @@ def test_outside_what_the_curve_predicts_is_an_error():
 
 
 def test_file_round_trip_and_bad_files(tmp_path):
-    cal = synthetic()
+    cal = dataclasses.replace(synthetic(), session_rel_sd=0.005)
     path = tmp_path / "cal.json"
     cal.save(path)
     again = Calibration.load(path)
     assert again == cal
-    assert json.loads(path.read_text())["format"] == "fluidsense-calibration/1"
+    data = json.loads(path.read_text())
+    assert data["format"] == "fluidsense-calibration/1"
+    del data["session_rel_sd"]  # a file written before the session term: read as none
+    (tmp_path / "old.json").write_text(json.dumps(data))
+    assert Calibration.load(tmp_path / "old.json").session_rel_sd == 0.0
     (tmp_path / "bad.json").write_text("{\"format\": \"other\"}")
     with pytest.raises(ConfigError, match="not a calibration file"):
         Calibration.load(tmp_path / "bad.json")
@@ -109,6 +116,8 @@ def test_tank_method_distance_accuracy_on_held_out_heights():
 
     cal, errors, covered = profile_controller("pneunet-bending", body)
     assert cal.slope == pytest.approx(-0.04, rel=0.2)
+    # the profile's parts budget goes into the file: its intervals hold for later set-ups
+    assert cal.session_rel_sd == load_profile(profile_path("pneunet-bending")).session_rel_sd > 0
     assert np.all(np.abs(errors) < 2.5)
     assert covered >= len(errors) - 2
 

@@ -225,6 +225,14 @@ class Profile(StrictModel):
                 + 4.0 * regulator_sd + 6.0 * max(s.noise_sd_kpa for s in sensors))
 
     @property
+    def session_rel_sd(self) -> float:
+        """What a rig set up again adds to every reading, as a fraction of the feature: the
+        budget's per-session parts on this method's drive (a regulated P0, or the flow
+        controller's programme). A calibration carries it to its intervals."""
+        flow = self.sequence.method == "flow_control"
+        return self.budget.session_rel_sd(None if flow else self.sequence.p0_kpa, flow_driven=flow)
+
+    @property
     def hardware(self) -> Hardware:
         return Hardware(circuit=self.circuit, actuator=self.actuator, sensor=self.sensor,
                         tank_sensor=self.tank_sensor, flow_sensor=self.flow_sensor, budget=self.budget)

@@ -99,6 +99,9 @@ class Calibration:
     residual_sd: float = 0.0
     r2: float = 0.0
     free_y: list[float] = field(default_factory=list)  # the feature with nothing there, one per cycle
+    # sd of a reading from a rig set up again, as a fraction of the feature (the profile's
+    # parts budget: PartsBudget.session_rel_sd); 0 for a curve used in its own session
+    session_rel_sd: float = 0.0
     format: str = FORMAT
 
     # ------------------------------------------------------------------ fit
@@ -162,7 +165,11 @@ class Calibration:
         if slope == 0:
             raise CalibrationError(f"the calibration is flat at {self.target} = {est:.3g}: no resolution there")
         fs = fit_stats(self.x, self.y, self.coeffs)
-        half = t_quantile(coverage, fs.dof) * prediction_sd(fs, est, n_measurements) / abs(slope)
+        # a later session differs from the calibration's by two set-ups' draws (the
+        # calibration's own is a bias every later reading inherits), which no number of
+        # cycles averages away
+        sd = math.hypot(prediction_sd(fs, est, n_measurements), math.sqrt(2) * self.session_rel_sd * measured)
+        half = t_quantile(coverage, fs.dof) * sd / abs(slope)
         return Inversion(est, (est - half, est + half), self.target_unit, self.feature, measured,
                          extrapolated=not lo <= est <= hi, half_width=half)
 
@@ -286,6 +293,8 @@ class CalibrationFile(StrictModel):
     r2: Real = 0.0
     free_y: list[Real] = Field(default_factory=list, max_length=MAX_POINTS,
                                description="the feature with nothing there (one per cycle): 'no object' readings")
+    session_rel_sd: Real = Field(0.0, ge=0, le=1, description="sd of a reading from a rig set up again, a "
+                                 "fraction of the feature; absent in files written before it: 0")
 
     @model_validator(mode="after")
     def _consistent(self) -> CalibrationFile:

@@ -16,6 +16,7 @@ not predicted here.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 
@@ -116,12 +117,12 @@ def predict(method: str, n_cal: int = 20, n_test: int = 50, seed: int = 1,
 
     plant = Plant(method, on, override)
     rng = np.random.default_rng([seed, 26])
-    # what an interval would need to carry the budget: the feature's spread over session
-    # draws alone (per-cycle parts off), at mid range; a test differs from its calibration
-    # by two such draws (the calibration's and its own)
+    # the feature's spread over session draws alone (per-cycle parts off), at mid range:
+    # what the calibration's session term (Profile.session_rel_sd, first order) stands for
     quiet = Plant(method, on & {SOURCES[1], SOURCES[2]}, override)
-    session_sd = float(np.std([quiet.cycle(rng, quiet.session(rng), 20.0) for _ in range(200)]))
-    err, cover, cover_s = [], [], []
+    session = [quiet.cycle(rng, quiet.session(rng), 20.0) for _ in range(200)]
+    session_rel_sd = plant.prof.session_rel_sd if on & {SOURCES[1], SOURCES[2]} else 0.0
+    err, cover, cover_own = [], [], []
     for _ in range(n_cal):
         sess = plant.session(rng)
         x, y = [], []
@@ -131,18 +132,22 @@ def predict(method: str, n_cal: int = 20, n_test: int = 50, seed: int = 1,
                 x.append(h)
                 y.append(plant.cycle(rng, sess, h_true))
         cal = Calibration.fit_points(x, y, "linear", date="budget", profile=plant.prof.name, method=method,
-                                     feature="y", feature_unit="", scene={}, target="height_mm", target_unit="mm")
+                                     feature="y", feature_unit="", scene={}, target="height_mm", target_unit="mm",
+                                     session_rel_sd=session_rel_sd)
+        own = dataclasses.replace(cal, session_rel_sd=0.0)  # the interval from its own session alone
         for _t in range(n_test):
             h = float(rng.uniform(0.5, 39.5))
-            inv = cal.invert(plant.cycle(rng, plant.session(rng), plant.placed(rng, h)))
+            y_test = plant.cycle(rng, plant.session(rng), plant.placed(rng, h))
+            inv = cal.invert(y_test)
             err.append(inv.estimate - h)
             cover.append(inv.interval95[0] <= h <= inv.interval95[1])
-            half = math.hypot(inv.half_width, 1.96 * math.sqrt(2) * session_sd / abs(cal.slope))
-            cover_s.append(abs(inv.estimate - h) <= half)
+            lo, hi = own.invert(y_test).interval95
+            cover_own.append(lo <= h <= hi)
     e = np.array(err)
     return {"abs_error_95_mm": float(np.percentile(np.abs(e), 95)), "mean_error_mm": float(e.mean()),
-            "coverage95": float(np.mean(cover)), "coverage95_with_session_term": float(np.mean(cover_s)),
-            "session_sd": session_sd, "trials": len(e)}
+            "coverage95": float(np.mean(cover)), "coverage95_own_session_only": float(np.mean(cover_own)),
+            "session_sd": float(np.std(session)), "session_rel_sd_numeric": float(np.std(session) / np.mean(session)),
+            "session_rel_sd": session_rel_sd, "trials": len(e)}
 
 
 def table(n_cal: int, n_test: int, seed: int, override: dict | None = None,
@@ -182,8 +187,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"{r['method']} ({r['profile']}): 95 % |error| {r['abs_error_95_mm']:.2f} mm over {r['trials']} "
               f"held-out sessions (paper +-{r['paper_half_mm']} mm, x{r['ratio_to_paper']:.2f}, "
               f"{'within' if r['within_25pct'] else 'outside'} 25 %); mean {r['mean_error_mm']:+.2f} mm; "
-              f"95 % intervals cover {100 * r['coverage95']:.1f} % ({100 * r['coverage95_with_session_term']:.1f} % "
-              f"with the session term added)")
+              f"95 % intervals cover {100 * r['coverage95']:.1f} % ({100 * r['coverage95_own_session_only']:.1f} % "
+              f"without the session term; its sd {100 * r['session_rel_sd']:.2f} % of the feature, "
+              f"{100 * r['session_rel_sd_numeric']:.2f} % on the plant)")
         for src, v in r["alone_mm"].items():
             if v > 0:
                 print(f"    {src}: alone {v:.2f} mm")

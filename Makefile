@@ -37,8 +37,8 @@ test: $(STAMP) firmware-host
 		log=$$(mktemp /tmp/fluidsense-image-check.XXXXXX); export FLUIDSENSE_IMAGE_CHECK_LOG=$$log; \
 		{ $(IMAGE_CHECK) > $$log 2>&1; echo "exit $$?" >> $$log; } & \
 	else echo "make test: $(IMAGE_MISSING)"; fi; \
-	echo "$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder"; \
-	$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder; rc=$$?; \
+	echo "$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder --durations=30 --durations-min=5"; \
+	$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder --durations=30 --durations-min=5; rc=$$?; \
 	wait; if [ -n "$$log" ]; then grep -h "^image-check: image size" $$log; \
 		grep -qx "exit 0" $$log && rm -f $$log || echo "make test: make image-check failed: $$log"; fi; \
 	exit $$rc

@@ -14,13 +14,15 @@ import contextlib
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
 
 import numpy as np
 import pytest
-from fluidsense.common.errors import ConfigError, DriverError, SafetyError
+import yaml
+from fluidsense.common.errors import ConfigError, DeviceProtocolError, DriverError, SafetyError
 from fluidsense.common.wiring import Linear, Mpx, Ratiometric, RegulatorWiring
 from fluidsense.controller.config import load_cell_config
 from fluidsense.controller.service import Controller
@@ -447,3 +449,43 @@ def test_hardware_cell_samples_and_vents():
             assert backend.valves.in_safe_state
 
     asyncio.run(asyncio.wait_for(body(), 60))
+
+
+@pytest.mark.parametrize(("domain", "error", "said"), [
+    (0, ConfigError, "driver.wiring.sensors.p_act: analog input 0 of 127.0.0.1 is set to current, the sensor "
+                     "outputs voltage"),
+    (7, DeviceProtocolError, "register 5 (analog input 0's domain) reads 7: the box can only say 0 (current) or 1"),
+])
+def test_an_analog_input_domain_the_wiring_does_not_expect_is_refused_with_what_it_read(domain, error, said):
+    """At set-up the driver reads each wired input's domain register: a box configured for
+    the other domain is a setting to change (ConfigError, the wiring field); a value that is
+    no domain at all is a box that cannot be believed (DeviceProtocolError, the register),
+    not advice to rewire. A real pymodbus server holding just those registers."""
+    from fluidsense.drivers.modbus.backend import ModbusConnection
+    from fluidsense.drivers.modbus.config import ModbusDriverConfig
+    from pymodbus.server import ModbusTcpServer
+    from pymodbus.simulator import DataType, SimData, SimDevice
+
+    cell = yaml.safe_load((REPO / "config" / "cell-modbus-sim.yaml").read_text())["driver"]
+
+    async def body():
+        with socket.socket() as probe:  # a free port (the server binds it again at once)
+            probe.bind(("127.0.0.1", 0))
+            port = probe.getsockname()[1]
+        regs = [0] * 32
+        regs[5], regs[7] = domain, 1  # input 0: under test; input 1: voltage, as wired
+        server = ModbusTcpServer(SimDevice(id=0, simdata=[SimData(0, count=32, values=regs,
+                                                                   datatype=DataType.REGISTERS)]),
+                                 address=("127.0.0.1", port))
+        await server.serve_forever(background=True)
+        try:
+            cfg = ModbusDriverConfig.model_validate({**cell, "host": "127.0.0.1", "port": port})
+            link = ModbusConnection(cfg)
+            with pytest.raises(error) as caught:
+                await link.open()
+            assert said in str(caught.value)
+            assert link.client is None  # the connection was closed on the way out
+        finally:
+            await server.shutdown()
+
+    asyncio.run(asyncio.wait_for(body(), 30))

@@ -6,7 +6,7 @@ from __future__ import annotations
 import asyncio
 import logging
 
-from fluidsense.common.errors import ConfigError, DriverError, LinkLostError
+from fluidsense.common.errors import ConfigError, DeviceProtocolError, DriverError, LinkLostError
 from fluidsense.common.hardware import Hardware, RegulatedCircuit, TankCircuit
 from fluidsense.common.wiring import AnalogScale, RegulatorWiring, Wiring
 from fluidsense.drivers.ur.box import BoxWatchdogConfig
@@ -27,6 +27,7 @@ from .config import ModbusDriverConfig, RegisterMap
 log = logging.getLogger(__name__)
 
 _DOMAIN_CODE = {"current": 0, "voltage": 1}  # UR's analog domain registers
+_DOMAIN_NAME = {code: name for name, code in _DOMAIN_CODE.items()}
 
 
 class ModbusConnection(Connection):
@@ -48,7 +49,11 @@ class ModbusConnection(Connection):
             self.client.close()
             raise LinkLostError(f"{self.name}: cannot connect")
         self._lost = None
-        await self._check_domains()
+        try:
+            await self._check_domains()
+        except BaseException:
+            await self.close()
+            raise
         log.info("%s: connected", self.name)
 
     async def close(self) -> None:
@@ -109,10 +114,15 @@ class ModbusConnection(Connection):
         if regs.analog_input_domains is None:
             return
         for name, s in self.cfg.wiring.sensors.items():
-            (domain,) = await self.read(regs.analog_input_domains[s.analog_input])
+            address = regs.analog_input_domains[s.analog_input]
+            (domain,) = await self.read(address)
+            if domain not in _DOMAIN_NAME:  # read as a domain, a lying box would get the wrong advice
+                raise DeviceProtocolError(f"{self.name}: register {address} (analog input {s.analog_input}'s "
+                                          f"domain) reads {domain}: the box can only say 0 (current) or 1 "
+                                          "(voltage)", field=f"register {address}")
             if domain != _DOMAIN_CODE[s.transfer.domain]:
                 raise ConfigError(f"driver.wiring.sensors.{name}: analog input {s.analog_input} of {self.cfg.host} "
-                                  f"is set to {'voltage' if domain else 'current'}, the sensor outputs "
+                                  f"is set to {_DOMAIN_NAME[domain]}, the sensor outputs "
                                   f"{s.transfer.domain} (change the robot's I/O setup or the wiring)")
 
 

@@ -179,6 +179,18 @@ def test_the_free_reading_is_no_object_and_beyond_the_range_is_out_of_range():
         assert edge.status == "out_of_range" and edge.value is None and edge.bound == pytest.approx(bound), h
 
 
+def test_no_object_moves_with_the_session_term():
+    """A later set-up moves the free level as it moves every reading: a reading 0.5 kPa off
+    a free level of 23.6 kPa (free cycles' sd 0.03) is an object for a curve used in its own
+    session, within the free noise for one whose set-ups differ by 1 % (sd)."""
+    cal = _with_free(synthetic())
+    moved = dataclasses.replace(cal, session_rel_sd=0.01)
+    level = float(np.mean(cal.free_y))
+    assert cal.free_reading(level - 0.5, 1) is None
+    assert moved.free_reading(level - 0.5, 1) is not None
+    assert moved.free_reading(level - 1.5, 1) is None  # 3 x sqrt(2) x 1 % x 23.6 = 1.0 kPa
+
+
 def test_lack_of_fit_does_not_average_away():
     """A curved truth fitted by a line: the interval of a 50-cycle mean keeps the lack of
     fit, so it covers the truth at every calibrated height; pure error alone would not."""

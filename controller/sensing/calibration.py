@@ -183,7 +183,7 @@ class Calibration:
         if feature_value is None or not math.isfinite(feature_value):
             return Estimate(status="no_object", detail=f"no {self.feature}: no contact detected", **base)
         y = feature_value * scale
-        free = self._free_reading(y, n_measurements)
+        free = self.free_reading(y, n_measurements)
         if free is not None:
             return Estimate(status="no_object", detail=free, **base)
         lo, hi = min(self.x), max(self.x)
@@ -210,7 +210,7 @@ class Calibration:
         return Estimate(status="out_of_range", bound=b, lo=b if above else None, hi=None if above else b,
                         detail=detail, **base)
 
-    def _free_reading(self, y: float, n_measurements: int) -> str | None:
+    def free_reading(self, y: float, n_measurements: int) -> str | None:
         """Why ``y`` is what the actuator reads with nothing there, or None. A reading
         counts as free when it is within NO_OBJECT_Z sd of the free level or beyond it
         (on the side away from the calibrated range)."""
@@ -219,8 +219,11 @@ class Calibration:
         free = np.asarray(self.free_y, dtype=float)
         fs = fit_stats(self.x, self.y, self.coeffs)
         sd1 = float(np.std(free, ddof=1)) if len(free) > 2 else fs.pure_sd
-        sd = sd1 * math.sqrt(1.0 / max(n_measurements, 1) + 1.0 / len(free))
         level = float(np.mean(free))
+        # a later set-up moves the free level as it moves every reading (invert): without
+        # it, an empty flow-controlled actuator read as an object in 14 % of fresh sessions
+        sd = math.hypot(sd1 * math.sqrt(1.0 / max(n_measurements, 1) + 1.0 / len(free)),
+                        math.sqrt(2) * self.session_rel_sd * level)
         toward = np.sign(float(np.mean(self.predict([min(self.x), max(self.x)]))) - level)
         if (y - level) * toward < NO_OBJECT_Z * sd:
             return (f"{self.feature} {y:.4g} {self.feature_unit} is within the noise of the free reading "

@@ -30,6 +30,7 @@ METHODS = {"tank": "pneunet-bending", "pressure_flow": "pneunet-bending-pressure
            "flow_control": "pneunet-bending-flow-control"}
 PAPER_HALF_MM = {"tank": 1.7, "pressure_flow": 4.7, "flow_control": 3.4}  # Fig. S sensing accuracy a-c
 HEIGHTS = [0, 5, 10, 15, 20, 25, 30, 35, 40]
+NOTHING_MM = 200.0  # a plate this far is out of the actuator's reach: the empty reading
 SOURCES = ("regulator repeatability (per cycle)", "regulator setpoint (per session)",
            "flow controller accuracy of rate (per session)", "flow controller repeatability (per cycle)",
            "flow sensor repeatability of reading (per cycle)", "placement (per target)",
@@ -122,7 +123,11 @@ def predict(method: str, n_cal: int = 20, n_test: int = 50, seed: int = 1,
     quiet = Plant(method, on & {SOURCES[1], SOURCES[2]}, override)
     session = [quiet.cycle(rng, quiet.session(rng), 20.0) for _ in range(200)]
     session_rel_sd = plant.prof.session_rel_sd if on & {SOURCES[1], SOURCES[2]} else 0.0
-    err, cover, cover_own = [], [], []
+    # "no object": the empty actuator's readings (7 per calibration, as calibrate takes
+    # them; one per held-out session) and a plate at the far end of the range, drawn from a
+    # stream of their own so that every other figure here stays as it was without them
+    free_rng = np.random.default_rng([seed, 27])
+    err, cover, cover_own, empty_object, empty_object_own, end_nothing = [], [], [], [], [], []
     for _ in range(n_cal):
         sess = plant.session(rng)
         x, y = [], []
@@ -131,13 +136,19 @@ def predict(method: str, n_cal: int = 20, n_test: int = 50, seed: int = 1,
             for _k in range(7):
                 x.append(h)
                 y.append(plant.cycle(rng, sess, h_true))
+        free = [plant.cycle(free_rng, sess, NOTHING_MM) for _ in range(7)]
         cal = Calibration.fit_points(x, y, "linear", date="budget", profile=plant.prof.name, method=method,
                                      feature="y", feature_unit="", scene={}, target="height_mm", target_unit="mm",
-                                     session_rel_sd=session_rel_sd)
+                                     session_rel_sd=session_rel_sd, free_y=free)
         own = dataclasses.replace(cal, session_rel_sd=0.0)  # the interval from its own session alone
         for _t in range(n_test):
             h = float(rng.uniform(0.5, 39.5))
-            y_test = plant.cycle(rng, plant.session(rng), plant.placed(rng, h))
+            test_session = plant.session(rng)
+            y_test = plant.cycle(rng, test_session, plant.placed(rng, h))
+            y_empty = plant.cycle(free_rng, test_session, NOTHING_MM)
+            empty_object.append(cal.free_reading(y_empty, 1) is None)
+            empty_object_own.append(own.free_reading(y_empty, 1) is None)
+            end_nothing.append(cal.free_reading(plant.cycle(free_rng, test_session, 39.5), 1) is not None)
             inv = cal.invert(y_test)
             err.append(inv.estimate - h)
             cover.append(inv.interval95[0] <= h <= inv.interval95[1])
@@ -147,7 +158,10 @@ def predict(method: str, n_cal: int = 20, n_test: int = 50, seed: int = 1,
     return {"abs_error_95_mm": float(np.percentile(np.abs(e), 95)), "mean_error_mm": float(e.mean()),
             "coverage95": float(np.mean(cover)), "coverage95_own_session_only": float(np.mean(cover_own)),
             "session_sd": float(np.std(session)), "session_rel_sd_numeric": float(np.std(session) / np.mean(session)),
-            "session_rel_sd": session_rel_sd, "trials": len(e)}
+            "session_rel_sd": session_rel_sd, "trials": len(e),
+            "empty_read_as_object": float(np.mean(empty_object)),
+            "empty_read_as_object_own_session_only": float(np.mean(empty_object_own)),
+            "plate_at_39_5_read_as_nothing": float(np.mean(end_nothing))}
 
 
 def table(n_cal: int, n_test: int, seed: int, override: dict | None = None,
@@ -189,7 +203,11 @@ def run(args: argparse.Namespace) -> int:
               f"{'within' if r['within_25pct'] else 'outside'} 25 %); mean {r['mean_error_mm']:+.2f} mm; "
               f"95 % intervals cover {100 * r['coverage95']:.1f} % ({100 * r['coverage95_own_session_only']:.1f} % "
               f"without the session term; its sd {100 * r['session_rel_sd']:.2f} % of the feature, "
-              f"{100 * r['session_rel_sd_numeric']:.2f} % on the plant)")
+              f"{100 * r['session_rel_sd_numeric']:.2f} % on the plant); an empty actuator read as an object in "
+              f"{100 * r['empty_read_as_object']:.2f} % of fresh sessions "
+              f"({100 * r['empty_read_as_object_own_session_only']:.2f} % without the session term), "
+              f"a plate at 39.5 mm as nothing in "
+              f"{100 * r['plate_at_39_5_read_as_nothing']:.2f} %")
         for src, v in r["alone_mm"].items():
             if v > 0:
                 print(f"    {src}: alone {v:.2f} mm")

@@ -221,7 +221,7 @@ class Calibration:
         sd1 = float(np.std(free, ddof=1)) if len(free) > 2 else fs.pure_sd
         level = float(np.mean(free))
         # a later set-up moves the free level as it moves every reading (invert): without
-        # it, an empty flow-controlled actuator read as an object in 14 % of fresh sessions
+        # it, an empty flow-controlled actuator read as an object in 12 % of fresh sessions
         sd = math.hypot(sd1 * math.sqrt(1.0 / max(n_measurements, 1) + 1.0 / len(free)),
                         math.sqrt(2) * self.session_rel_sd * level)
         toward = np.sign(float(np.mean(self.predict([min(self.x), max(self.x)]))) - level)

@@ -13,23 +13,16 @@ from __future__ import annotations
 import json
 import shlex
 import signal
-import socket
 
 import yaml
 from support.docs import problems, run_as_written, shell_blocks, wait_for_ready
-from support.harness import REPO, SIMCELL_PORTS, free_loopback
+from support.harness import REPO, SIMCELL_PORTS, free_loopback, free_tcp_port
 
 SKIPPED = {
     "fluidsense monitor --config my-cell.yaml": "runs until Ctrl-C",
     "fluidsense check --config my-cell.yaml --actuate": "asks a person before it moves anything",
     "fluidsense calibrate --config my-cell.yaml --out my-gripper.json": "minutes of real time",
 }
-
-
-def free_tcp() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def test_bringup_runs_as_written_from_the_integrators_folder(tmp_path):
@@ -42,7 +35,7 @@ def test_bringup_runs_as_written_from_the_integrators_folder(tmp_path):
     home = tmp_path / "cell"
     home.mkdir()
     host = free_loopback(SIMCELL_PORTS)
-    subs = {"--out my-cell.yaml": f"--out my-cell.yaml --host {host}", "--live 8765": f"--live {free_tcp()}"}
+    subs = {"--out my-cell.yaml": f"--out my-cell.yaml --host {host}", "--live 8765": f"--live {free_tcp_port()}"}
     background: list = []
     ran = []
     try:
@@ -56,7 +49,7 @@ def test_bringup_runs_as_written_from_the_integrators_folder(tmp_path):
                 cell = home / "my-cell.yaml"
                 data = yaml.safe_load(cell.read_text())
                 assert data["driver"]["host"] == host and "sim_control_port" in data["driver"]
-                data["publisher"].update(pub=f"tcp://127.0.0.1:{free_tcp()}", cmd=f"tcp://127.0.0.1:{free_tcp()}")
+                data["publisher"].update(pub=f"tcp://127.0.0.1:{free_tcp_port()}", cmd=f"tcp://127.0.0.1:{free_tcp_port()}")
                 cell.write_text(yaml.safe_dump(data))
             for r in results:
                 ran.append((line, r))

@@ -14,7 +14,6 @@ import contextlib
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -30,7 +29,7 @@ from fluidsense.drivers.config import build_backend
 from fluidsense.simulator.controlbox.model import AnalogDomain
 from fluidsense.simulator.controlbox.plant import PlantModel
 from support.configs import DELETE, cell_config, task_config, whole
-from support.harness import CONFIG, REPO, Daemon, free_simcell
+from support.harness import CONFIG, REPO, Daemon, free_simcell, free_tcp_port
 
 KINDS = ["ur", "modbus"]
 
@@ -469,9 +468,7 @@ def test_an_analog_input_domain_the_wiring_does_not_expect_is_refused_with_what_
     cell = yaml.safe_load((REPO / "config" / "cell-modbus-sim.yaml").read_text())["driver"]
 
     async def body():
-        with socket.socket() as probe:  # a free port (the server binds it again at once)
-            probe.bind(("127.0.0.1", 0))
-            port = probe.getsockname()[1]
+        port = free_tcp_port()
         regs = [0] * 32
         regs[5], regs[7] = domain, 1  # input 0: under test; input 1: voltage, as wired
         server = ModbusTcpServer(SimDevice(id=0, simdata=[SimData(0, count=32, values=regs,

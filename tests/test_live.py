@@ -13,20 +13,12 @@ import pytest
 from fluidsense.controller.telemetry.live import parse_listen
 from fluidsense.controller.telemetry.live_bridge import LIVE_TOPICS
 from fluidsense.drivers.recording.schema import event_schema
-from support.harness import Daemon, sim_config
+from support.harness import Daemon, free_tcp_port, sim_config
 from websockets.sync.client import connect
 
 SUBPROTOCOL = "foxglove.sdk.v1"
 LEGACY = "foxglove.websocket.v1"  # the same protocol's name before the SDK: Lichtblick, older Foxglove
 MESSAGE_DATA = 0x01
-
-
-def free_port() -> int:
-    """A port nobody listens on now (the kernel's choice); a clash with another test in the
-    moment before the daemon binds it fails that daemon's start loudly, never silently."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class Viewer:
@@ -59,7 +51,7 @@ class Viewer:
 
 
 def live_daemon(tmp_path, **live) -> tuple[Daemon, int]:
-    port = free_port()
+    port = free_tcp_port()
     return Daemon(sim_config(tmp_path, clock="realtime", live={"enabled": True, "port": port, **live})), port
 
 

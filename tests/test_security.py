@@ -6,7 +6,6 @@ import asyncio
 import json
 import os
 import signal
-import socket
 import stat
 import subprocess
 import sys
@@ -25,7 +24,7 @@ from fluidsense.controller.requests.server import (
     too_deep,
 )
 from hypothesis import HealthCheck, given, settings
-from support.harness import REPO, Daemon, ipc_endpoints, sim_config
+from support.harness import REPO, Daemon, free_tcp_port, ipc_endpoints, sim_config
 
 from lab.bench.fuzz import Client, answerable, message_strategy
 from fluidsense.common.names import welcome_instance
@@ -203,12 +202,6 @@ def test_depth_is_counted_outside_strings(raw, deep):
 
 
 # ---------------------------------------------------------------- CURVE
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("0.0.0.0", 0))
-        return s.getsockname()[1]
-
-
 def _keys(path, umask: int | None = None, client: str = "client") -> subprocess.CompletedProcess:
     def set_umask():
         if umask is not None:
@@ -230,7 +223,7 @@ def keys(tmp_path):
 
 
 def _curve_config(tmp_path, curve: dict) -> tuple:
-    port = _free_port()
+    port = free_tcp_port("0.0.0.0")
     path = sim_config(tmp_path, endpoints=(f"ipc://{tmp_path}/pub", f"tcp://0.0.0.0:{port}"), check=False,
                       publisher={"cmd_curve": curve})  # check=False: some set-ups are refused on purpose
     return path, port
@@ -252,7 +245,7 @@ def test_keys_writes_secret_keys_0600_whatever_the_umask_and_never_overwrites(tm
 
 
 def test_a_command_socket_off_loopback_needs_curve_keys(tmp_path):
-    path = sim_config(tmp_path, endpoints=(f"ipc://{tmp_path}/pub", f"tcp://0.0.0.0:{_free_port()}"), check=False)
+    path = sim_config(tmp_path, endpoints=(f"ipc://{tmp_path}/pub", f"tcp://0.0.0.0:{free_tcp_port('0.0.0.0')}"), check=False)
     with pytest.raises(ConfigError, match=r"publisher: .*not loopback.*cmd_curve"):
         load_cell_config(path)
 

@@ -17,7 +17,6 @@ import asyncio
 import os
 import select
 import signal
-import socket
 import termios
 import tty
 
@@ -27,7 +26,7 @@ from fluidsense.common.errors import DriverError, LinkLostError
 from fluidsense.controller.config import load_cell_config
 from fluidsense.drivers.config import build_backend
 from fluidsense.drivers.serial import protocol as p
-from support.harness import Daemon, profile_controller
+from support.harness import Daemon, free_tcp_port, profile_controller
 from support.serial import (
     BOARD_NAMES,
     BOARDS,
@@ -342,19 +341,13 @@ def test_a_stalled_main_loop_is_reset_by_the_hardware_watchdog(tmp_path, simseri
         assert d.close() == 0
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.mark.parametrize("board", BOARDS)
 def test_sorting_cycles_through_the_serial_driver_read_sensible_pressures(tmp_path, simserial, board):
     """Free air, then 40 and 100 mm cylinders, through daemon -> pty -> firmware -> plant:
     each P_eq within 0.4 kPa of the same cycle on the in-process simulated cell (10-bit
     ADC: 0.084 kPa per count for p_act, plus the regulator's cycle-to-cycle spread), bigger
     objects higher, and not one sample missed."""
-    config = serial_config(tmp_path, control_port=_free_port())
+    config = serial_config(tmp_path, control_port=free_tcp_port())
     simserial(config, "--board", board)
     d = Daemon(config)
     scenes = [{"kind": "none"}, {"kind": "cylinder", "diameter_mm": 40}, {"kind": "cylinder", "diameter_mm": 100}]

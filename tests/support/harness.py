@@ -7,6 +7,7 @@ import asyncio
 import contextlib
 import json
 import os
+import socket
 import subprocess
 import sys
 import uuid
@@ -56,6 +57,14 @@ def simcell_config(tmp_path: Path, kind: str, host: str, profile: str | None = N
 
     return cell_config(tmp_path, f"cell-{kind}-sim", profile=profile, driver={**(driver or {}), "host": host},
                        **sections)
+
+
+def free_tcp_port(host: str = "127.0.0.1") -> int:
+    """A port nobody listens on now (the kernel's choice); a clash with another test in the
+    moment before its user binds it fails that start loudly, never silently."""
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
 
 
 @contextlib.contextmanager

@@ -151,6 +151,12 @@ class Calibration:
         a, b = grid[k], grid[k + 1]
         return float(min(real, key=lambda r: max(a - r, r - b, 0.0)))
 
+    def _between_setups_sd(self, y: float) -> float:
+        """sd of a reading ``y`` (calibration units) from a later set-up against the
+        calibration's: two set-ups' draws (the calibration's own is a bias every later
+        reading inherits), which no number of averaged cycles removes."""
+        return math.sqrt(2) * self.session_rel_sd * y
+
     def invert(self, measured: float, n_measurements: int = 1, coverage: float = 0.95) -> Inversion:
         """Target for a measured feature (the mean of ``n_measurements`` cycles, edge
         units), with its interval (``coverage``, 95 % by default)."""
@@ -165,10 +171,7 @@ class Calibration:
         if slope == 0:
             raise CalibrationError(f"the calibration is flat at {self.target} = {est:.3g}: no resolution there")
         fs = fit_stats(self.x, self.y, self.coeffs)
-        # a later session differs from the calibration's by two set-ups' draws (the
-        # calibration's own is a bias every later reading inherits), which no number of
-        # cycles averages away
-        sd = math.hypot(prediction_sd(fs, est, n_measurements), math.sqrt(2) * self.session_rel_sd * measured)
+        sd = math.hypot(prediction_sd(fs, est, n_measurements), self._between_setups_sd(measured))
         half = t_quantile(coverage, fs.dof) * sd / abs(slope)
         return Inversion(est, (est - half, est + half), self.target_unit, self.feature, measured,
                          extrapolated=not lo <= est <= hi, half_width=half)
@@ -217,13 +220,12 @@ class Calibration:
         if not self.free_y:
             return None
         free = np.asarray(self.free_y, dtype=float)
-        fs = fit_stats(self.x, self.y, self.coeffs)
-        sd1 = float(np.std(free, ddof=1)) if len(free) > 2 else fs.pure_sd
+        sd1 = float(np.std(free, ddof=1)) if len(free) > 2 else fit_stats(self.x, self.y, self.coeffs).pure_sd
         level = float(np.mean(free))
         # a later set-up moves the free level as it moves every reading (invert): without
         # it, an empty flow-controlled actuator read as an object in 12 % of fresh sessions
         sd = math.hypot(sd1 * math.sqrt(1.0 / max(n_measurements, 1) + 1.0 / len(free)),
-                        math.sqrt(2) * self.session_rel_sd * level)
+                        self._between_setups_sd(level))
         toward = np.sign(float(np.mean(self.predict([min(self.x), max(self.x)]))) - level)
         if (y - level) * toward < NO_OBJECT_Z * sd:
             return (f"{self.feature} {y:.4g} {self.feature_unit} is within the noise of the free reading "

@@ -443,11 +443,27 @@ def test_sigterm_closes_every_port_and_exits_0(start_box, clients):
     eventually(lambda: not r.isConnected(), what="client sees the box gone")
 
 
+def _take_dashboard_port() -> socket.socket:
+    """A listening socket on some free host's dashboard port. SO_REUSEADDR because an earlier
+    box on that host may have left connections in TIME_WAIT there (a plain bind fails on them,
+    the emulator's does not); a retry because another worker may take the host in between."""
+    for _ in range(20):
+        host = free_host()
+        taken = socket.socket()
+        taken.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            taken.bind((host, 29999))
+            taken.listen()
+        except OSError:
+            taken.close()
+            continue
+        return taken
+    raise AssertionError("no host whose dashboard port this test could take")
+
+
 def test_a_port_in_use_stops_the_emulator_before_ready():
-    host = free_host()
-    with socket.socket() as taken:
-        taken.bind((host, 29999))
-        taken.listen()
+    with _take_dashboard_port() as taken:
+        host = taken.getsockname()[0]
         box = EmulatorProcess(host, modbus_port=MODBUS_PORT)
         with pytest.raises(LinkLostError, match="exited"):
             box.start(timeout_s=30)

@@ -94,6 +94,30 @@ def test_a_noisy_sensor_on_a_steady_hold_is_not_a_leak_and_a_real_leak_still_is(
     assert found.kind == "leak" and found.t <= 2.0
 
 
+def test_the_leak_checks_running_slopes_are_the_least_squares_fit_after_an_hours_hold():
+    """The leak check keeps running sums instead of fitting its windows afresh on every
+    block; after an hour of held blocks (sums that would have cancelled to nothing without
+    starting again) each half-second window's slope and standard error are still those of
+    a direct least-squares fit."""
+    from scipy.stats import linregress
+
+    from fluidsense.controller.safety.supervisor import _HeldMeans
+
+    rng = np.random.default_rng(7)
+    held = _HeldMeans()
+    t0 = 36_000.0  # ten hours into the daemon's life
+    for i in range(360_000):
+        t = t0 + 0.01 * i
+        held.append(t, 35e3 - 120.0 * (t - t0) / 3600 + rng.normal(0.0, 280.0))
+    newest = held.newest()
+    for k in range(3):
+        a, b = held.index(newest - 1.5 + 0.5 * k), held.index(newest - 1.0 + 0.5 * k + 1e-9)
+        slope, se = held.slope(a, b)
+        fit = linregress(held.t[a:b], held.p[a:b])
+        assert 45 <= b - a <= 52
+        assert slope == pytest.approx(fit.slope, abs=1e-6 * fit.stderr) and se == pytest.approx(fit.stderr, rel=1e-6)
+
+
 def test_a_stalled_loop_is_an_overrun_vented_at_once_and_latched_once_and_the_controller_still_stops():
     """Real time (an overrun only exists there): a sink blocks the event loop for 0.5 s.
     The first block after it latches one overrun fault with the vent commanded in the same

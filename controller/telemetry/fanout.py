@@ -54,6 +54,9 @@ class Telemetry:
         """``rate_hz`` and ``clock_origin``: the source's, asked when needed (a replayed
         recording knows its rate only once it is open)."""
         self.pub, self.cfg = publisher, cfg
+        #: pressure batches are built: for any publisher but the null one (a test's stand-in
+        #: need not say); ``python -m lab bench sim --batches`` turns it on to cost them
+        self.batches = getattr(publisher, "publishes", True)
         self._now, self._rate_hz, self._origin, self._on_failure = now, rate_hz, clock_origin, on_failure
         self.sinks: list[Sink] = []
         #: sinks dropped after a failure, for status: sink, state ("failed"), reason, t_s
@@ -82,7 +85,8 @@ class Telemetry:
                 self._drop(sink, exc)
 
     def on_block(self, block: SampleBlock) -> None:
-        self._batch_pressure(block)
+        if self.batches:
+            self._batch_pressure(block)
         for sink in list(self.sinks):
             try:
                 sink.on_block(block)
@@ -116,8 +120,8 @@ class Telemetry:
         period = self.cfg.heartbeat_s
         self._next_heartbeat = (np.floor(self._now() / period) + 1) * period
         proc = np.array(proc_s) * 1e6 if proc_s else np.zeros(1)
-        self.emit("heartbeat", {**fields, "block_proc_us": {
-            "p50": float(np.percentile(proc, 50)), "p99": float(np.percentile(proc, 99)), "max": float(proc.max())},
+        p50, p99 = np.percentile(proc, [50, 99]).tolist()
+        self.emit("heartbeat", {**fields, "block_proc_us": {"p50": p50, "p99": p99, "max": float(proc.max())},
             "pub_dropped": self.pub.dropped, "uptime_s": time.monotonic() - self._started})
         proc_s.clear()
 

@@ -18,14 +18,17 @@ DESCRIPTION = ("Run full gripper cycles (50 s of sample time each, 1 kHz) in vir
 def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cycles", type=int, default=10, help="cycles per measurement (default 10)")
     p.add_argument("--config", "-c", help="cell config with driver: sim (default: config/cell-sim.yaml)")
+    p.add_argument("--batches", action="store_true",
+                   help="build the 100 ms pressure batches as a daemon with a publisher does (sent nowhere)")
     p.add_argument("--json", action="store_true")
 
 
-async def _controller_cycles(cfg, n: int) -> list[float]:
+async def _controller_cycles(cfg, n: int, batches: bool = False) -> list[float]:
     from fluidsense.daemon import app
 
     walls = []
     async with app.controller(cfg) as ctrl:
+        ctrl.telemetry.batches = batches
         for _ in range(n):
             t0 = time.perf_counter()
             await ctrl.run_cycle()
@@ -70,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     seq = cfg.profile.sequence
     period = seq.charge_s + seq.isolate_s + seq.actuate_s + seq.vent_s
     cell, _ = asyncio.run(_cell_cycles(cfg, args.cycles))
-    full = asyncio.run(_controller_cycles(cfg, args.cycles))
+    full = asyncio.run(_controller_cycles(cfg, args.cycles, args.batches))
 
     def summary(walls: list[float]) -> dict:
         w = np.array(walls)
@@ -78,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
                 "speedup_p50": period / float(np.median(w)), "speedup_min": period / float(w.max())}
 
     out = {"cycle_s": period, "rate_hz": cfg.driver.rate_hz, "block_size": cfg.driver.block_size,
+           "pressure_batches": args.batches,
            "cell_only": summary(cell), "with_controller": summary(full)}
     if args.json:
         print(json.dumps(out, indent=2))

@@ -232,7 +232,7 @@ class NullPublisher:
 
     endpoint = None
     #: nobody can hear a pressure batch: the telemetry does not build them (in virtual
-    #: time, studies and calibrations, that was about a twentieth of a block's cost)
+    #: time, studies and calibrations, that was about a tenth of a block's cost)
     publishes = False
 
     def __init__(self) -> None:

@@ -40,9 +40,13 @@ class _HeldMeans:
     _REBASE = 256  # dropped means kept in the lists before the sums start again
 
     def __init__(self) -> None:
-        self.clear()
+        self._reset()
 
     def clear(self) -> None:
+        if self.t:  # called on every block that is not a hold: nothing to drop between holds
+            self._reset()
+
+    def _reset(self) -> None:
         self.t: list[float] = []
         self.p: list[float] = []
         self.lo = 0

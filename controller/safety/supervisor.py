@@ -185,13 +185,12 @@ class Supervisor:
         return None
 
     def _check_stuck(self, ch: str, t: np.ndarray, v: list[float]) -> Fault | None:
+        """A block whose last reading repeats the one before (``check`` takes the usual
+        block, whose last reading is new, without this call): since when unchanged."""
         value, since = self._last.get(ch, (math.nan, float(t[0])))
-        if len(v) > 1 and v[-1] != v[-2]:
-            since = float(t[-1])  # a live sensor's usual block: its last reading is new
-        else:
-            changed = [i for i, (a, b) in enumerate(zip([value, *v[:-1]], v)) if a != b]
-            if changed:
-                since = float(t[changed[-1]])
+        changed = [i for i, (a, b) in enumerate(zip([value, *v[:-1]], v)) if a != b]
+        if changed:
+            since = float(t[changed[-1]])
         self._last[ch] = (v[-1], since)
         if float(t[-1]) - since >= self.cfg.stuck_s:
             return Fault(FaultKind.SENSOR_STUCK, ch, since + self.cfg.stuck_s,

@@ -84,12 +84,21 @@ class SequenceConfig(StrictModel):
     onset_kpa: Real = Field(0.15, gt=0, le=100, description="dP level taken as the first rise (t_c at onset): "
                              "about five times the noise of a smoothed dP")
     smoothing_samples: Integer = Field(21, ge=3, le=1001, description="local quadratic regression span")
-    align_rise_kpa: tuple[Real, Real] | None = Field(
-        None, description="[lo, hi]: before dP is taken, shift each cycle in time so that its rise through "
-        "lo..hi kPa (away from atmosphere, offset removed) lines up with the reference's. Removes the valve "
-        "command's latency, which a polled driver (UR box, Modbus) does not know to better than a few ms and "
-        "which on the first rise is worth tenths of a kPa of dP. Contact below hi is then not seen by dP. "
-        "None: time since the commanded opening, as a hardware-timed cell knows it")
+    align_rise_kpa: tuple[Real, Real] | Literal["auto"] | None = Field(
+        "auto", description="before dP is taken, shift each cycle in time so that its rise through two levels "
+        "(away from atmosphere, offset removed) lines up with the free-air reference's. Removes the valve's "
+        "timing from dP: a polled driver (UR box, Modbus) switches it a few ms after the sample the command was "
+        "decided on, by as many ms as the PC was busy, and on the first rise a ms is worth tenths of a kPa. "
+        "'auto' (default): 2 % and 8 % of the reference's level in the first window (at least 5 and 10 times its "
+        "noise there); [lo, hi]: those levels in kPa. Contact below the upper level is not seen by dP, and no "
+        "contact time is earlier than the reference reaches it. None: time since the commanded opening, as a "
+        "hardware-timed cell whose valve switches on the sample clock knows it")
+    eq_sd_kpa: Real | None = Field(
+        None, ge=0, le=100, description="cycle-to-cycle sd of the free-air equilibrium (first window), as "
+        "measured on the rig. None: the circuit's repeatability carried to the equilibrium (regulator: "
+        "circuit.regulator_repeatability_kpa x P_eq/P0, the paper's 0.08 kPa giving its cycling test's "
+        "0.04 kPa; flow: circuit.flow_repeatability x the absolute pressure). A grasp's object needs its "
+        "equilibrium dP beyond 4 sd of the difference of two cycles (4 x sqrt(2) x this)")
 
     @model_validator(mode="after")
     def _consistent(self) -> SequenceConfig:
@@ -109,7 +118,7 @@ class SequenceConfig(StrictModel):
             raise ValueError("method pressure_flow needs a flow_window to integrate over")
         if self.method == "tank" and self.isolate_s == 0:
             raise ValueError("method tank needs isolate_s > 0 (the tank must be isolated before opening)")
-        if self.align_rise_kpa is not None and not 0 < self.align_rise_kpa[0] < self.align_rise_kpa[1] <= 100:
+        if isinstance(self.align_rise_kpa, tuple) and not 0 < self.align_rise_kpa[0] < self.align_rise_kpa[1] <= 100:
             raise ValueError(f"align_rise_kpa must be [lo, hi] with 0 < lo < hi <= 100, got {list(self.align_rise_kpa)}")
         if self.isolate_actuator_at_s is not None and self.isolate_actuator_at_s >= self.actuate_s:
             raise ValueError("isolate_actuator_at_s must come before the end of actuate_s")

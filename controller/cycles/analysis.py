@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from fluidsense.common.hardware import Circuit
 from fluidsense.common.samples import SampleBlock
 from fluidsense.common.units import KPA
 from fluidsense.controller.config import SequenceConfig
@@ -54,6 +55,100 @@ class Reference:
     cycle_id: int
 
 
+#: 'auto' alignment levels, as fractions of the reference's level in the first window: low
+#: enough to be over before a gripper's fingers reach anything they can hold (the sorting
+#: gripper's 100 mm cylinder is met at 60 % of the level, the quick PneuNet's at 20 %), high
+#: enough to be many times the noise
+AUTO_RISE = (0.02, 0.08)
+#: ... and at least this many times the reference's noise in the first window
+AUTO_RISE_NOISE = (5.0, 10.0)
+#: the levels must stay on the first, steep part of the rise: past this fraction of the
+#: level the curve bends over, and a small shift is no longer a small dP
+AUTO_RISE_MAX = 0.3
+#: a grasp's object needs its equilibrium dP beyond this many sd of the difference of two
+#: free-air cycles (one in about 30,000 empty grips for a normal cycle-to-cycle error)
+OBJECT_SIGMAS = 4.0
+
+
+@dataclass(frozen=True)
+class Alignment:
+    """How a cycle is lined up with its reference: the rise's levels (Pa, oriented: the
+    rise upwards) and when the reference passes the upper one (``t_min``, s after its
+    opening): dP says nothing about contact before it."""
+
+    lo: float
+    hi: float
+    t_min: float
+
+
+def alignment(cfg: SequenceConfig, reference: Reference, sign: float) -> Alignment | None:
+    """The rise's levels for ``reference`` (``cfg.align_rise_kpa``), or None where the
+    cycles keep their commanded timing (``align_rise_kpa: null``, or an 'auto' reference whose
+    rise is too small to align on)."""
+    spec = cfg.align_rise_kpa
+    if spec is None:
+        return None
+    ref = sign * reference.p
+    if spec == "auto":
+        first = cfg.windows[0]
+        sel = (reference.t_rel >= first.start_s) & (reference.t_rel < first.end_s)
+        if sel.sum() < 2:
+            return None
+        level, noise = float(np.mean(ref[sel])), float(np.std(ref[sel]))
+        lo = max(AUTO_RISE[0] * level, AUTO_RISE_NOISE[0] * noise)
+        hi = max(AUTO_RISE[1] * level, AUTO_RISE_NOISE[1] * noise)
+        if not 0 < lo < hi <= AUTO_RISE_MAX * level:
+            return None
+    else:
+        lo, hi = (v * KPA for v in spec)
+    t_min = F.crossing_time(reference.t_rel, ref, hi)
+    return None if t_min is None else Alignment(lo, hi, t_min)
+
+
+def eq_sd(cfg: SequenceConfig, circuit: Circuit | None, level: float, p0: float) -> float:
+    """Pa: the free-air equilibrium's sd from one cycle to the next (``cfg.eq_sd_kpa``, or the
+    circuit's repeatability carried to ``level``, the free-air equilibrium at charge ``p0``,
+    both gauge)."""
+    if cfg.eq_sd_kpa is not None:
+        return cfg.eq_sd_kpa * KPA
+    if circuit is None:
+        return 0.0
+    if hasattr(circuit, "regulator_repeatability_kpa"):
+        # tank: dP_eq/dP0 of eq. 1, about P_eq/P0 (the sorting gripper's 0.53 against the
+        # 0.51 that its compliance gives); a regulated actuator sits at P0 (gain 1)
+        gain = min(1.0, abs(level / p0)) if p0 else 1.0
+        return circuit.regulator_repeatability_kpa * KPA * gain
+    # flow: a fixed amount of gas, off by the controller's repeatability, at most that part
+    # of the absolute pressure
+    return getattr(circuit, "flow_repeatability", 0.0) * (abs(level) + circuit.p_atm)
+
+
+def object_bound(cfg: SequenceConfig, circuit: Circuit | None = None, level: float = 0.0, p0: float = 0.0) -> float:
+    """Pa: the equilibrium dP that tells an object from the free-air level's own spread."""
+    return OBJECT_SIGMAS * math.sqrt(2.0) * eq_sd(cfg, circuit, level, p0)
+
+
+def judge_object(res: CycleResult) -> tuple[bool | None, str | None]:
+    """Object or not from the evidence that must agree: the equilibrium dP clear of its
+    spread (``res.object_bound``), and the contact time. (None, why) where they disagree or
+    cannot be had."""
+    sign = -1.0 if res.p0 < 0 else 1.0
+    if not res.has_reference:
+        return None, "no free-air reference at this P0"
+    if res.dp_eq is None or res.object_bound is None:
+        return None, "no equilibrium dP (the first window is outside the reference)"
+    bound, eq = res.object_bound, sign * res.dp_eq
+    if eq < -bound:
+        return None, (f"the equilibrium is {-eq / KPA:.3f} kPa below the free-air reference, beyond its spread "
+                      f"({bound / KPA:.3f} kPa): the reference does not fit this cycle (take a new one)")
+    if eq > bound:
+        return True, None
+    if res.t_c_threshold is not None:
+        return None, (f"contact at {res.t_c_threshold:.3f} s but the equilibrium dP ({res.dp_eq / KPA:+.3f} kPa) "
+                      f"is within the free-air spread ({bound / KPA:.3f} kPa): the features disagree")
+    return False, None
+
+
 @dataclass
 class WindowResult:
     name: str
@@ -89,6 +184,10 @@ class CycleResult:
     t_c2: float | None = None
     t_c_onset: float | None = None  # the first rise of dP out of its noise
     rise_shift: float | None = None  # s this cycle rose later than the reference (sequence.align_rise_kpa)
+    t_c_min: float | None = None  # no contact time before this (the reference passes the alignment's upper level)
+    object_bound: float | None = None  # |dP_eq| beyond this is an object (object_bound)
+    object: bool | None = None  # judge_object: the equilibrium and the contact time agree
+    object_note: str | None = None  # why object is None (or what else a reader must know)
     v_eq: float | None = None  # standard m^3 into the actuator over the flow window
     flow_offset: float | None = None
     samples: int = 0
@@ -118,7 +217,8 @@ class CycleResult:
             "is_reference": self.is_reference, "has_reference": self.has_reference,
             "dp_eq_kpa": _kpa(self.dp_eq), "dp_max_kpa": _kpa(self.dp_max), "t_dp_max_s": self.t_dp_max,
             "t_c_slope_s": self.t_c_slope, "t_c_threshold_s": self.t_c_threshold, "t_c2_s": self.t_c2,
-            "t_c_onset_s": self.t_c_onset, "rise_shift_s": self.rise_shift,
+            "t_c_onset_s": self.t_c_onset, "rise_shift_s": self.rise_shift, "t_c_min_s": self.t_c_min,
+            "object": self.object, "object_note": self.object_note, "object_bound_kpa": _kpa(self.object_bound),
             "v_eq_ml": None if self.v_eq is None else self.v_eq * 1e6,
             "samples": self.samples, "missed": self.missed,
         }
@@ -131,8 +231,9 @@ def _kpa(v: float | None) -> float | None:
 def analyse(cycle_id: int, p0: float, t_start: float, t_open: float | None, t_end: float | None,
             t: np.ndarray, values: np.ndarray, channels: tuple[str, ...], cfg: SequenceConfig,
             reference: Reference | None, aborted: str | None = None, label: str | None = None,
-            missed: int = 0) -> CycleResult:
-    """Features of one cycle from its recorded samples (SI units)."""
+            missed: int = 0, circuit: Circuit | None = None) -> CycleResult:
+    """Features of one cycle from its recorded samples (SI units); ``circuit``: the
+    profile's, whose repeatability sets the object's bound (eq_sd)."""
     res = CycleResult(cycle_id, p0, t_start, t_open, t_end, aborted=aborted, label=label,
                       samples=len(t), missed=missed)
     if t_open is None or aborted is not None:
@@ -157,9 +258,10 @@ def analyse(cycle_id: int, p0: float, t_start: float, t_open: float | None, t_en
     # contact pushes the pressure away from atmosphere: for vacuum, flip so contact is +
     sign = -1.0 if p0 < 0 else 1.0
     t_al = t_rel  # time since opening, as the reference's opening was timed
-    if cfg.align_rise_kpa is not None:
-        lo, hi = (v * KPA for v in cfg.align_rise_kpa)
-        res.rise_shift = F.rise_shift(t_rel, sign * p_rel, reference.t_rel, sign * reference.p, lo, hi)
+    align = alignment(cfg, reference, sign)
+    if align is not None:
+        res.t_c_min = align.t_min
+        res.rise_shift = F.rise_shift(t_rel, sign * p_rel, reference.t_rel, sign * reference.p, align.lo, align.hi)
         if res.rise_shift is not None:
             t_al = t_rel - res.rise_shift
     dp = F.delta_p(t_al, p_rel, reference.t_rel, reference.p)
@@ -169,6 +271,20 @@ def analyse(cycle_id: int, p0: float, t_start: float, t_open: float | None, t_en
     in_first = (t_rel >= first.start_s) & (t_rel < first.end_s) & np.isfinite(dp)
     if in_first.any():
         res.dp_eq = float(np.mean(dp[in_first]))
+    ref_first = (reference.t_rel >= first.start_s) & (reference.t_rel < first.end_s)
+    if ref_first.any():
+        res.object_bound = object_bound(cfg, circuit, float(np.mean(reference.p[ref_first])), p0)
+    if align is not None:
+        if res.rise_shift is None:
+            # the rise could not be lined up (it never reached the levels, or samples are
+            # missing across them): dP on the way up is the valve's timing, not contact
+            res.object, res.object_note = judge_object(res)
+            res.object_note = "; ".join(filter(None, [res.object_note, "the rise could not be aligned with the "
+                                                      "reference's: no contact time"]))
+            return res
+        # before the reference has risen through the levels nothing can be told from dP:
+        # a contact there is the alignment's residue, not a finger meeting something
+        oriented = np.where(t_al >= align.t_min, oriented, np.nan)
     peak = F.dp_max(t_al, oriented)
     if peak is not None:
         res.dp_max, res.t_dp_max = sign * peak[0], peak[1]
@@ -178,6 +294,7 @@ def analyse(cycle_id: int, p0: float, t_start: float, t_open: float | None, t_en
     res.t_c_slope = F.contact_time_slope(t_al, oriented, min_rise=threshold)
     if res.t_c_slope is not None:
         res.t_c2 = F.second_contact_time(t_al, oriented, res.t_c_slope, min_rise=threshold)
+    res.object, res.object_note = judge_object(res)
     return res
 
 

@@ -125,18 +125,39 @@ def crossing_time(t: np.ndarray, y: np.ndarray, level: float) -> float | None:
     return float(t0 + (level - y0) * (t1 - t0) / (y1 - y0))
 
 
+def _bracketed_crossing(t: np.ndarray, y: np.ndarray, level: float, max_gap: float) -> float | None:
+    """crossing_time, or None where the two samples around the crossing are more than
+    ``max_gap`` apart: across a gap (a busy PC's missed slots) the interpolated time is a
+    guess, and on a steep rise a ms of guess is tenths of a kPa of dP."""
+    above = np.isfinite(y) & (y >= level)
+    if not above.any():
+        return None
+    k = int(np.argmax(above))
+    if k == 0 or t[k] - t[k - 1] > max_gap:
+        return None
+    return crossing_time(t[k - 1:k + 1], y[k - 1:k + 1], level)
+
+
 def rise_shift(t_rel: np.ndarray, p: np.ndarray, ref_t_rel: np.ndarray, ref_p: np.ndarray, lo: float, hi: float,
-               levels: int = 5) -> float | None:
+               levels: int = 5, min_levels: int = 3) -> float | None:
     """How much later than the reference's this cycle rose through ``lo..hi`` (both oriented
     so that the rise is upwards, offsets removed): the mean over ``levels`` levels of the
-    difference of crossing times. None when either curve does not reach ``hi``."""
+    difference of crossing times. A level whose crossing falls in a gap of either curve
+    (samples more than 2.5 periods apart) is left out. None when either curve does not
+    reach ``hi``, or fewer than ``min_levels`` levels are left."""
+    if len(t_rel) < 2 or len(ref_t_rel) < 2:
+        return None
+    gap = 2.5 * float(np.median(np.diff(t_rel[: min(len(t_rel), 1000)])))
+    ref_gap = 2.5 * float(np.median(np.diff(ref_t_rel[: min(len(ref_t_rel), 1000)])))
     shifts = []
     for level in np.linspace(lo, hi, levels):
-        t_meas, t_ref = crossing_time(t_rel, p, level), crossing_time(ref_t_rel, ref_p, level)
-        if t_meas is None or t_ref is None:
+        if crossing_time(t_rel, p, level) is None or crossing_time(ref_t_rel, ref_p, level) is None:
             return None
-        shifts.append(t_meas - t_ref)
-    return float(np.mean(shifts))
+        t_meas, t_ref = _bracketed_crossing(t_rel, p, level, gap), _bracketed_crossing(ref_t_rel, ref_p, level,
+                                                                                       ref_gap)
+        if t_meas is not None and t_ref is not None:
+            shifts.append(t_meas - t_ref)
+    return float(np.mean(shifts)) if len(shifts) >= min_levels else None
 
 
 def contact_time_threshold(t_rel: np.ndarray, dp: np.ndarray, threshold: float) -> float | None:

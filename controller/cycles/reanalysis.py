@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from fluidsense.common.hardware import Circuit
 from fluidsense.common.errors import EndOfRecording, RecordingError
 from fluidsense.common.files import one_line
 from fluidsense.controller.config import CellConfig, SequenceConfig, validate
@@ -158,8 +159,8 @@ def check_event(rec: Record) -> None:
 class CycleReplay:
     """Rebuilds cycles from a recording's records in file order (no I/O)."""
 
-    def __init__(self, seq: SequenceConfig):
-        self.seq = seq
+    def __init__(self, seq: SequenceConfig, circuit: Circuit | None = None):
+        self.seq, self.circuit = seq, circuit
         self.references: dict[float, Reference] = {}
         self.cycles: list[ReplayedCycle] = []
         self._open: _Cycle | None = None
@@ -232,7 +233,8 @@ class CycleReplay:
             aborted = cur.live.get("aborted")
         try:
             return analyse(cur.cycle_id, cur.p0_pa, cur.t_start, cur.t_open, t_end, t, values, cur.recorder.channels,
-                           self.seq, ref, aborted=aborted, label=cur.label, missed=cur.recorder.missed)
+                           self.seq, ref, aborted=aborted, label=cur.label, missed=cur.recorder.missed,
+                           circuit=self.circuit)
         except ValueError as exc:
             return CycleResult(cur.cycle_id, cur.p0_pa, cur.t_start, cur.t_open, cur.t_result or self.t_last,
                                aborted=f"analysis failed: {exc}", missed=cur.recorder.missed)
@@ -279,7 +281,7 @@ async def replay_file(path: str | Path) -> ReplayReport:
 async def _replay(source: ReplaySource, path: str | Path) -> ReplayReport:
     """The replay proper, on a set-up source."""
     cfg = validate(CellConfig, source.config, path, prefix="(recorded config) ")
-    pipeline = CycleReplay(cfg.profile.sequence)
+    pipeline = CycleReplay(cfg.profile.sequence, cfg.profile.circuit)
     report = ReplayReport(str(path), closed=False, dropped_bytes=0)
     while True:
         try:

@@ -238,7 +238,7 @@ class CycleRunner:
         try:
             return analyse(seq.cycle_id, seq.p0_pa, seq.t_start, seq.t_open, (seq.t_end or now) if final else None,
                            t, values, trace.channels, self.profile.sequence, ref, aborted=seq.aborted,
-                           label=self._opts.get("label"), missed=trace.missed)
+                           label=self._opts.get("label"), missed=trace.missed, circuit=self.profile.circuit)
         except ValueError as exc:  # too few samples for a window: report, do not crash
             return CycleResult(seq.cycle_id, seq.p0_pa, seq.t_start, seq.t_open, now,
                                aborted=f"analysis failed: {exc}", missed=trace.missed)

@@ -32,7 +32,7 @@ from pydantic import Field
 
 from ..config import Profile
 from ..config.gripper import GripperConfig
-from ..cycles.analysis import CycleResult
+from ..cycles.analysis import CycleResult, alignment, object_bound
 from ..cycles.sequencer import State
 from ..telemetry.fanout import Sink
 from . import estimates as E
@@ -76,6 +76,7 @@ class GripHandler(Sink):
                  running_task: Callable[[], str | None] = lambda: None):
         """``running_task``: the file of the task that runs, if one does (none may start a grip)."""
         self.cell, self.cfg, self.plan, self._running_task = cell, cfg, profile.sequence, running_task
+        self._circuit = profile.circuit
         self.calibrations = [E.load_calibration(p, profile.name, f"gripper.calibrations.{i}")
                              for i, p in enumerate(cfg.calibrations)]
         self.op: str | None = None  # "grip" or "measure" while one runs
@@ -165,7 +166,7 @@ class GripHandler(Sink):
         self._deadline = float("inf") if timeout_s is None else cell.now() + timeout_s
         self._sign = -1.0 if cycle.p0_pa < 0 else 1.0
         reference = None if store_reference else cell.reference(cycle.p0_pa)
-        align = None if plan.align_rise_kpa is None else tuple(v * KPA for v in plan.align_rise_kpa)
+        align = None if reference is None else alignment(plan, reference, self._sign)
         self._contact = ContactWatch(reference, plan.contact_threshold_kpa * KPA, self._sign, plan.offset_s,
                                      max(w.end_s for w in plan.windows), align)
         self._slip = None
@@ -195,10 +196,12 @@ class GripHandler(Sink):
         contact = False if self._storing_reference else None if not res.has_reference else \
             res.t_c_threshold is not None
         ests = E.of_result(self.calibrations, res)
-        if contact is False:
-            ests = [E.no_object(e) for e in ests]
-        obj = True if contact else False if contact is False or any(
+        # object: the cycle's judgement (analysis.judge_object: the equilibrium dP and the
+        # contact time must agree); without a reference, what the calibrations say of the level
+        obj = False if self._storing_reference else res.object if res.has_reference else False if any(
             e["status"] == "no_object" for e in ests) else None
+        if obj is False:
+            ests = [E.no_object(e) for e in ests]
         ok = [e["status"] == "ok" for e in ests]
         note = None
         if self._storing_reference:
@@ -206,6 +209,8 @@ class GripHandler(Sink):
         elif not res.has_reference:
             note = "no free-air reference at this P0: contact and object cannot be told (measure with " \
                    "store_reference and nothing in the gripper)"
+        elif res.object_note:
+            note = res.object_note
         if not self.calibrations:
             note = (note + "; " if note else "") + "no calibration loaded: features in kPa only"
         published = res.to_dict()
@@ -264,7 +269,9 @@ class GripHandler(Sink):
             ref = self._contact.reference
             first = self.plan.windows[0]
             sel = (ref.t_rel >= first.start_s) & (ref.t_rel < first.end_s)
-            obj = bool(self._sign * (level - float(ref.p[sel].mean())) > self.plan.contact_threshold_kpa * KPA)
+            free = float(ref.p[sel].mean())
+            bound = object_bound(self.plan, self._circuit, free, self.cell.cycle.p0_pa)
+            obj = bool(self._sign * (level - free) > bound)
             if not obj:
                 ests = [E.no_object(e) for e in ests]
         if self.last_grasp is not None:

@@ -5,8 +5,9 @@ ContactWatch: the first contact during actuation, live. The actuator pressure (o
 removed, as the cycle's analysis does) is compared with the free-air reference at the
 same time after opening; contact is a block whose mean dP is beyond the profile's contact
 threshold, at the first sample of that block beyond it. With ``align`` (the profile's
-``align_rise_kpa``) the samples wait until the rise has passed its upper level, and are
-then compared on the reference's timing, as the cycle's analysis does. The cycle's own
+``align_rise_kpa``, resolved for the reference: analysis.alignment) the samples wait until
+the rise has passed its upper level, and are then compared on the reference's timing, as
+the cycle's analysis does, and never before the reference has passed that level. The cycle's own
 analysis gives the precise t_c afterwards (in ``grasp``); this one is for reacting while
 it happens.
 
@@ -24,21 +25,22 @@ from collections import deque
 
 import numpy as np
 from fluidsense.controller.cycles import features as F
-from fluidsense.controller.cycles.analysis import Reference
+from fluidsense.controller.cycles.analysis import Alignment, Reference
 
 
 class ContactWatch:
     def __init__(self, reference: Reference | None, threshold_pa: float, sign: float, offset_s: float,
-                 until_s: float, align_pa: tuple[float, float] | None = None):
+                 until_s: float, align: Alignment | None = None):
         """``sign``: +1 when contact pushes the pressure up (inflation), -1 for vacuum;
         ``until_s``: stop looking this long after opening (the last measurement window);
-        ``align_pa``: the rise's levels (Pa, oriented) to line up with the reference's."""
+        ``align``: the rise's levels (Pa, oriented) to line up with the reference's."""
         self.reference, self.threshold, self.sign = reference, threshold_pa, sign
-        self.offset_s, self.until_s, self.align = offset_s, until_s, align_pa
+        self.offset_s, self.until_s, self.align = offset_s, until_s, align
+        self.t_min = align.t_min if align is not None else float("-inf")
         self._before: deque[tuple[np.ndarray, np.ndarray]] = deque()
         self._rising: list[tuple[np.ndarray, np.ndarray]] = []  # after opening, until the shift is known
         self.offset: float | None = None
-        self.shift: float | None = None if align_pa else 0.0
+        self.shift: float | None = None if align is not None else 0.0
         self.t_c: float | None = None
         self.done = reference is None
 
@@ -71,7 +73,8 @@ class ContactWatch:
             if t_rel is None:
                 return None
         t_al = t_rel - self.shift
-        keep = (t_rel >= 0) & (t_rel <= self.until_s) & (t_al >= ref.t_rel[0]) & (t_al <= ref.t_rel[-1])
+        keep = (t_rel >= 0) & (t_rel <= self.until_s) & (t_al >= max(ref.t_rel[0], self.t_min)) \
+            & (t_al <= ref.t_rel[-1])
         if not keep.any():
             return None
         dp = self.sign * (p[keep] - self.offset - np.interp(t_al[keep], ref.t_rel, ref.p))
@@ -88,12 +91,17 @@ class ContactWatch:
         t_all = np.concatenate([b[0] for b in self._rising])
         p_all = np.concatenate([b[1] for b in self._rising])
         after = t_all >= 0
-        if not (self.sign * (p_all[after] - self.offset) >= self.align[1]).any():
+        if not (self.sign * (p_all[after] - self.offset) >= self.align.hi).any():
             return None, p
         ref = self.reference
         shift = F.rise_shift(t_all[after], self.sign * (p_all[after] - self.offset), ref.t_rel, self.sign * ref.p,
-                             *self.align)
-        self.shift = 0.0 if shift is None else shift
+                             self.align.lo, self.align.hi)
+        if shift is None:
+            # not lined up (samples missing across the levels): dP on the rise would be the
+            # valve's timing, so nothing is reported live; the grasp says why
+            self.done = True
+            return None, p
+        self.shift = shift
         self._rising.clear()
         return t_all, p_all
 

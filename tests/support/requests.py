@@ -20,7 +20,7 @@ from fluidsense.common.samples import SampleBlock
 from fluidsense.common.units import KPA
 from fluidsense.controller.config import load_profile
 from fluidsense.controller.config.gripper import GripperConfig
-from fluidsense.controller.cycles.analysis import CycleResult, Reference, WindowResult
+from fluidsense.controller.cycles.analysis import CycleResult, Reference, WindowResult, judge_object, object_bound
 from fluidsense.controller.cycles.sequencer import State
 from fluidsense.controller.requests.dispatch import Dispatcher
 from fluidsense.controller.requests.ports import CellPort, GripPort, JobPort
@@ -162,11 +162,21 @@ class FakeCell:
 
     def result(self, p_eq_kpa: float | None = None, *, aborted: str | None = None, has_reference: bool = False,
                t_c_s: float | None = None, offset_kpa: float = 0.0) -> CycleResult:
-        """The cycle's result as the controller's analysis gives it (SI inside)."""
-        windows = [] if p_eq_kpa is None else [WindowResult("eq", 4.0, 5.0, p_eq_kpa * KPA, 50.0, 1000)]
-        return CycleResult(self.cycle.cycle_id, self.cycle.p0_pa, 0.0, self.cycle.t_open, self.t, aborted=aborted,
-                           offset=offset_kpa * KPA, windows=windows, has_reference=has_reference,
-                           t_c_threshold=t_c_s, dp_eq=None if not has_reference else 1.0 * KPA)
+        """The cycle's result as the controller's analysis gives it (SI inside): with a
+        reference, dP_eq against the reference's level in the window, and the object judged
+        from it and the contact time as analysis.judge_object judges it."""
+        window = WindowResult("eq", 4.0, 5.0, p_eq_kpa * KPA, 50.0, 1000) if p_eq_kpa is not None else None
+        res = CycleResult(self.cycle.cycle_id, self.cycle.p0_pa, 0.0, self.cycle.t_open, self.t, aborted=aborted,
+                          offset=offset_kpa * KPA, windows=[window] if window else [], has_reference=has_reference,
+                          t_c_threshold=t_c_s)
+        ref = self.references.get(self.cycle.p0_pa)
+        if has_reference and window is not None and ref is not None:
+            sel = (ref.t_rel >= window.start_s) & (ref.t_rel < window.end_s)
+            free = float(ref.p[sel].mean())
+            res.dp_eq = window.mean - free
+            res.object_bound = object_bound(self.profile.sequence, self.profile.circuit, free, self.cycle.p0_pa)
+            res.object, res.object_note = judge_object(res)
+        return res
 
     def feed(self, handler: Any, seconds: float, p_pa: Any) -> None:
         """``seconds`` of samples to ``handler.on_block``, block by block: ``p_pa`` is the

@@ -31,6 +31,7 @@ from .cycles.runner import CycleRunner, reference_key
 from .safety.latch import SafetyLatch, vented_word
 from .safety.outputs import OutputWatch
 from .safety.supervisor import Supervisor
+from .safety.ventpath import vent_path
 from .sampling.clock import SampleClock
 from .sampling.loop import SampleLoop
 from .telemetry.fanout import Sink, Telemetry
@@ -58,6 +59,13 @@ class Controller:
                                   lambda f, event: self.outputs.tripped(), self.cycles.after_fault,
                                   lambda f, event: self.clock.fail(FaultError(f"{f.kind}: {f.detail}"))]
         self._task: asyncio.Task[None] | None = None
+        #: what vents the gripper on a dead link (static: from the config)
+        self.vent_path = vent_path(cfg)
+        #: the sample loop's scheduling as the daemon asked for it (``use_realtime``); a
+        #: library caller (a test, a bench) keeps its own
+        self.realtime: dict[str, Any] = {
+            "sched_fifo": "not_needed" if backend.source.virtual else "not_requested", "priority": None,
+            "detail": "virtual time" if backend.source.virtual else "not asked for by this process"}
 
     # ------------------------------------------------------------------ lifecycle
     async def start(self, connect_in_background: bool = False) -> None:
@@ -118,6 +126,13 @@ class Controller:
     @property
     def running(self) -> bool:
         return self._task is not None and not self._task.done()
+
+    def use_realtime(self, result: dict[str, Any], priority: int | None) -> None:
+        """What ``set_fifo`` answered for the sample loop's thread (the daemon asks before
+        it starts): ``granted``, ``refused`` (with why) or ``not_requested``, in ``status``
+        and the heartbeat."""
+        word = "granted" if result["applied"] else "refused" if result["requested"] else "not_requested"
+        self.realtime = {"sched_fifo": word, "priority": priority, "detail": result["detail"]}
 
     # ------------------------------------------------------------------ the interface
     @property
@@ -232,6 +247,7 @@ class Controller:
             + self.telemetry.failed_sinks,
             # a source that keeps link counts (the serial driver: frames lost and corrupt, resets, clock drift)
             "source_link": getattr(self.backend.source, "link_stats", lambda: None)(),
+            "vent_path": self.vent_path, "realtime": self.realtime,
         }
 
     def heartbeat(self) -> dict[str, Any]:
@@ -240,7 +256,8 @@ class Controller:
         return {"state": seq.state.value, "cycle_id": seq.cycle_id,
                 "fault": None if self.fault is None else self.fault.kind, "samples": loop.samples,
                 "blocks": loop.blocks, "missed": loop.missed, "late": loop.late,
-                "rate_hz": self.backend.source.rate_hz, "virtual": self.virtual}
+                "rate_hz": self.backend.source.rate_hz, "virtual": self.virtual,
+                "realtime": self.realtime["sched_fifo"], "vent_path": self.vent_path["by"]}
 
     # ------------------------------------------------------------------ the loop's side
     def _check_running(self) -> None:

@@ -44,7 +44,7 @@ def load(path: str | Path | None, overrides: dict[str, Any] | None = None) -> Ce
     return load_cell_config(path or default_config_path(), overrides)
 
 
-def _loop_priority(cfg: CellConfig) -> None:
+def _loop_priority(cfg: CellConfig) -> dict[str, Any]:
     """The sample loop's thread at real-time priority when permitted (``loop.rt_priority``):
     on a busy robot PC a loop at normal priority falls behind its samples. Processes
     started from here (sampler, ur_rtde worker, publisher outlet) get the normal policy
@@ -56,6 +56,7 @@ def _loop_priority(cfg: CellConfig) -> None:
         log.info("sample loop: %s", result["detail"])
     elif result["requested"]:
         log.warning("sample loop at normal priority: %s", result["detail"])
+    return result
 
 
 def bind_publisher(cfg: CellConfig, hwm: int | None = None) -> Publisher:
@@ -92,9 +93,10 @@ async def controller(cfg: CellConfig, publish: bool = False, record: bool = Fals
     ctrl: Controller | None = None
     try:
         backend = build_backend(cfg.driver, cfg.profile.hardware)
-        if own_process and not backend.source.virtual:
-            _loop_priority(cfg)
+        realtime = _loop_priority(cfg) if own_process and not backend.source.virtual else None
         ctrl = Controller(cfg, backend, pub)
+        if realtime is not None:  # status and the heartbeat say it, not only the log
+            ctrl.use_realtime(realtime, cfg.loop.rt_priority)
         await ctrl.start(connect_in_background)
         try:
             if record and cfg.recording.enabled:

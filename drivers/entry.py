@@ -105,7 +105,7 @@ class DriverEntry(StrictModel):
     def dead_link_vent(self) -> DeadLinkVent:
         """What vents the gripper when the link dies (docs/safety.md). A device without a
         watchdog of its own keeps its outputs: the default."""
-        return DeadLinkVent("none", f"nothing: {self.where()} keeps its outputs as last set")
+        return DeadLinkVent("none", f"{self.where()} keeps its outputs as last set")
 
     def needs_operator(self) -> bool:
         """Only an operator can place objects in front of the gripper (a real cell whose

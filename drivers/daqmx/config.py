@@ -136,7 +136,7 @@ class NiDaqDriverConfig(DriverEntry):
 
     def dead_link_vent(self) -> DeadLinkVent:
         if not self.watchdog.enabled:
-            return DeadLinkVent("none", f"nothing: {self.device} has its watchdog timer off (watchdog.enabled: "
+            return DeadLinkVent("none", f"{self.device} has its watchdog timer off (watchdog.enabled: "
                                 "false): its lines keep their last level when the PC or the daemon dies",
                                 fix="a device with a watchdog timer, and driver.watchdog.enabled: true")
         return DeadLinkVent("device_watchdog", f"the DAQ's watchdog timer: the valve lines at their safe levels "

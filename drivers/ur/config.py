@@ -43,8 +43,8 @@ class UrBoxEntry(DriverEntry):
                 fix = ("put the watchdog thread into the box's program (`fluidsense watchdog --config` prints it) and "
                        "set driver.watchdog: {program: integrator}, so that the daemon beats its register; or delete "
                        "`watchdog: null` and let fluidsense's own watchdog program be the box's program")
-            return DeadLinkVent("none", "nothing: driver.watchdog is null, the control box keeps its outputs as "
-                                "last set", reconnect_max_s=backoff, fix=fix)
+            return DeadLinkVent("none", "driver.watchdog is null: the control box keeps its outputs as last set",
+                                reconnect_max_s=backoff, fix=fix)
         if arm:
             what = (f"the control box: ur_rtde's control script runs under its RTDE watchdog ({dog.timeout_s:g} s), "
                     "and the run-state actions set the valve outputs safe when it stops")

@@ -205,7 +205,8 @@ class GripHandler(Sink):
             note = "free-air reference stored at this P0: nothing in the gripper, as asked"
         elif not res.has_reference:
             note = "no free-air reference at this P0: contact and object cannot be told (measure with " \
-                   "store_reference and nothing in the gripper)"
+                   "store_reference and nothing in the gripper; status.reference_store says why a kept one " \
+                   "was refused)"
         if not self.calibrations:
             note = (note + "; " if note else "") + "no calibration loaded: features in kPa only"
         published = res.to_dict()

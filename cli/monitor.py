@@ -33,7 +33,8 @@ def format_message(topic: str, msg: dict[str, Any]) -> str | None:
     if topic == "heartbeat":
         p = msg.get("block_proc_us", {})
         return (f"[{t:10.3f}] heartbeat: {msg['state']}, {msg['samples']} samples, {msg['missed']} missed, "
-                f"block p99 {p.get('p99', 0):.0f} us, fault {msg.get('fault')}")
+                f"block p99 {p.get('p99', 0):.0f} us, fault {msg.get('fault')}, real-time priority "
+                f"{msg.get('realtime')}, dead-link vent {msg.get('vent_path')}")
     if topic == "fault":
         vented = {True: "vented", False: "NOT VENTED", "unknown": "vent not confirmed"}.get(msg.get("vented"), "vent not confirmed")
         return f"[{t:10.3f}] FAULT {msg['kind']}: {msg['detail']} ({vented})"

@@ -164,6 +164,19 @@ def _valves(status: dict[str, Any]) -> str:
     return f"valves (device): {words}" + (f"  [{age:.1f} s ago]" if isinstance(age, (int, float)) else "")
 
 
+def _scheduling(hb: dict[str, Any]) -> str:
+    """The loop's real-time priority and the dead-link vent, where the heartbeat carries them:
+    a refused priority or no vent path is what an operator must not miss."""
+    out = ""
+    rt = hb.get("realtime")
+    if rt is not None and rt != "not_needed":
+        out += f", real-time priority {'REFUSED' if rt == 'refused' else rt}"
+    vent = hb.get("vent_path")
+    if vent == "none":
+        out += ", NO VENT on a dead link (fluidsense check)"
+    return out
+
+
 def render(view: View, sub_endpoint: str, cmd_endpoint: str | None) -> list[str]:
     """The screen as lines."""
     if not view.heard:
@@ -182,7 +195,8 @@ def render(view: View, sub_endpoint: str, cmd_endpoint: str | None) -> list[str]
     if hb:
         lines.append(f"loop: {hb.get('samples', 0)} samples, {hb.get('missed', 0)} missed, {hb.get('late', 0)} late"
                      f", block p99 {hb.get('block_proc_us', {}).get('p99', 0):.0f} us"
-                     + (f", {view.missed_messages} messages lost" if view.missed_messages else ""))
+                     + (f", {view.missed_messages} messages lost" if view.missed_messages else "")
+                     + _scheduling(hb))
     lines.append("")
     for j, ch in enumerate(view.channels):
         vals = [row[j] for _, row in view.trace if row[j] is not None]

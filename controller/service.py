@@ -17,24 +17,32 @@ Per block: clock -> cycle trace -> supervisor (-> latch) -> cycle runner -> outp
 from __future__ import annotations
 
 import asyncio
+import logging
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 from typing import Any
 
 from fluidsense.common.errors import CommandError, FaultError, LinkLostError, SequenceError
 from fluidsense.common.faults import Fault, FaultKind
 from fluidsense.common.samples import SampleBlock
+from fluidsense.common.units import KPA
 from fluidsense.drivers.backend import Backend
 
 from .cell import ArmAccess, SceneAccess
 from .config import CellConfig
 from .cycles.analysis import CycleResult, Reference
+from .cycles.kept import ReferenceKeeper, identity
 from .cycles.runner import CycleRunner, reference_key
 from .safety.latch import SafetyLatch, vented_word
 from .safety.outputs import OutputWatch
 from .safety.supervisor import Supervisor
+from .safety.ventpath import vent_path
 from .sampling.clock import SampleClock
 from .sampling.loop import SampleLoop
 from .telemetry.fanout import Sink, Telemetry
 from .telemetry.publisher import NullPublisher, Publisher
+
+log = logging.getLogger(__name__)
 
 
 class Controller:
@@ -58,6 +66,18 @@ class Controller:
                                   lambda f, event: self.outputs.tripped(), self.cycles.after_fault,
                                   lambda f, event: self.clock.fail(FaultError(f"{f.kind}: {f.detail}"))]
         self._task: asyncio.Task[None] | None = None
+        #: the free-air references with their age; on disk once the daemon asks (``keep_references``)
+        self.keeper = ReferenceKeeper(None, identity(cfg))
+        self.cycles.on_reference.append(self._reference_stored)
+        self._keeping: asyncio.Future[None] | None = None
+        self._keep_pool: ThreadPoolExecutor | None = None
+        #: what vents the gripper on a dead link (static: from the config)
+        self.vent_path = vent_path(cfg)
+        #: the sample loop's scheduling as the daemon asked for it (``use_realtime``); a
+        #: library caller (a test, a bench) keeps its own
+        self.realtime: dict[str, Any] = {
+            "sched_fifo": "not_needed" if backend.source.virtual else "not_requested", "priority": None,
+            "detail": "virtual time" if backend.source.virtual else "not asked for by this process"}
 
     # ------------------------------------------------------------------ lifecycle
     async def start(self, connect_in_background: bool = False) -> None:
@@ -96,6 +116,10 @@ class Controller:
                 pass
             self._task = None
         await self.outputs.stop()
+        if self._keep_pool is not None:  # a reference being written is finished, not cut off
+            if self._keeping is not None:
+                await asyncio.wait([self._keeping])
+            self._keep_pool.shutdown(wait=True)
         self.clock.fail(CommandError("controller stopped"))
         self.cycles.fail(CommandError("controller stopped"))
         await self.backend.stop(self.now)
@@ -118,6 +142,44 @@ class Controller:
     @property
     def running(self) -> bool:
         return self._task is not None and not self._task.done()
+
+    def keep_references(self, path: Path | None) -> None:
+        """Keep free-air references in ``path`` (None: not at all) and take back the ones
+        there that still belong to this cell (controller/cycles/kept.py). Before ``start``."""
+        self.keeper = ReferenceKeeper(path, self.keeper.ident)
+        for key, kept in self.keeper.load().items():
+            self.cycles.references[reference_key(kept.p0_kpa * KPA)] = kept.reference
+        if path is not None:
+            # one writer thread: files are written in the order the references came
+            self._keep_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fluidsense-references")
+
+    def _reference_stored(self, p0_pa: float, key: float, ref: Reference) -> None:
+        data = self.keeper.add(p0_pa, key, ref)
+        if data is None or self._keep_pool is None:
+            return
+        # written off the sample loop (a forced write takes milliseconds); said on the log topic once on disk
+        fut = asyncio.get_running_loop().run_in_executor(self._keep_pool, self.keeper.write, data)
+        self._keeping = fut
+        fut.add_done_callback(lambda f, p0=p0_pa / KPA: self._reference_kept(f, p0))
+
+    def _reference_kept(self, fut: asyncio.Future[None], p0_kpa: float) -> None:
+        exc = None if fut.cancelled() else fut.exception()
+        if exc is None and not fut.cancelled():
+            self.keeper.error = None
+            self.telemetry.emit("log", {"level": "INFO", "message": f"free-air reference at {p0_kpa:g} kPa kept in "
+                                        f"{self.keeper.path}"})
+            return
+        self.keeper.error = f"{self.keeper.path}: not written: {exc or 'cancelled'}"
+        log.error("free-air reference at %g kPa: %s (it holds until the daemon stops)", p0_kpa, self.keeper.error)
+        self.telemetry.emit("log", {"level": "ERROR", "message": f"free-air reference at {p0_kpa:g} kPa not kept: "
+                                    f"{self.keeper.error}"})
+
+    def use_realtime(self, result: dict[str, Any], priority: int | None) -> None:
+        """What ``set_fifo`` answered for the sample loop's thread (the daemon asks before
+        it starts): ``granted``, ``refused`` (with why) or ``not_requested``, in ``status``
+        and the heartbeat."""
+        word = "granted" if result["applied"] else "refused" if result["requested"] else "not_requested"
+        self.realtime = {"sched_fifo": word, "priority": priority, "detail": result["detail"]}
 
     # ------------------------------------------------------------------ the interface
     @property
@@ -232,6 +294,7 @@ class Controller:
             + self.telemetry.failed_sinks,
             # a source that keeps link counts (the serial driver: frames lost and corrupt, resets, clock drift)
             "source_link": getattr(self.backend.source, "link_stats", lambda: None)(),
+            "vent_path": self.vent_path, "realtime": self.realtime, "reference_store": self.keeper.status(),
         }
 
     def heartbeat(self) -> dict[str, Any]:
@@ -240,7 +303,8 @@ class Controller:
         return {"state": seq.state.value, "cycle_id": seq.cycle_id,
                 "fault": None if self.fault is None else self.fault.kind, "samples": loop.samples,
                 "blocks": loop.blocks, "missed": loop.missed, "late": loop.late,
-                "rate_hz": self.backend.source.rate_hz, "virtual": self.virtual}
+                "rate_hz": self.backend.source.rate_hz, "virtual": self.virtual,
+                "realtime": self.realtime["sched_fifo"], "vent_path": self.vent_path["by"]}
 
     # ------------------------------------------------------------------ the loop's side
     def _check_running(self) -> None:

@@ -20,6 +20,7 @@ from fluidsense.common.errors import (
 from fluidsense.common.exitcodes import EXIT_FAILURE, EXIT_OK
 from fluidsense.config import SHIPPED
 from fluidsense.controller.config import CellConfig, load_cell_config
+from fluidsense.controller.cycles.kept import default_path as default_references_path
 from fluidsense.controller.requests.server import CommandServer
 from fluidsense.controller.requests.wiring import wire
 from fluidsense.controller.safety.latch import vented_word
@@ -44,7 +45,7 @@ def load(path: str | Path | None, overrides: dict[str, Any] | None = None) -> Ce
     return load_cell_config(path or default_config_path(), overrides)
 
 
-def _loop_priority(cfg: CellConfig) -> None:
+def _loop_priority(cfg: CellConfig) -> dict[str, Any]:
     """The sample loop's thread at real-time priority when permitted (``loop.rt_priority``):
     on a busy robot PC a loop at normal priority falls behind its samples. Processes
     started from here (sampler, ur_rtde worker, publisher outlet) get the normal policy
@@ -56,6 +57,7 @@ def _loop_priority(cfg: CellConfig) -> None:
         log.info("sample loop: %s", result["detail"])
     elif result["requested"]:
         log.warning("sample loop at normal priority: %s", result["detail"])
+    return result
 
 
 def bind_publisher(cfg: CellConfig, hwm: int | None = None) -> Publisher:
@@ -77,7 +79,8 @@ def bind_command_server(cfg: CellConfig, instance: str | None = None) -> Command
 @contextlib.asynccontextmanager
 async def controller(cfg: CellConfig, publish: bool = False, record: bool = False,
                      pub_hwm: int | None = None, publisher: Publisher | None = None,
-                     connect_in_background: bool = False, own_process: bool = False) -> AsyncIterator[Controller]:
+                     connect_in_background: bool = False, own_process: bool = False,
+                     keep_references: bool = False) -> AsyncIterator[Controller]:
     """A started controller on the configured backend; vents and closes on exit. With
     ``record`` (the daemon) it records as ``cfg.recording`` says, from sample time 0.
     ``publisher``: already bound (the daemon binds every socket before it touches a
@@ -87,14 +90,19 @@ async def controller(cfg: CellConfig, publish: bool = False, record: bool = Fals
     (the daemon): devices that are not there yet are retried by the loop (status
     ``connecting``) instead of failing the start. ``own_process`` (the daemon, a CLI job):
     this process exists for the controller, whose loop then asks for real-time priority
-    (``loop.rt_priority``); a library caller (a test, a bench) keeps its own scheduling."""
+    (``loop.rt_priority``); a library caller (a test, a bench) keeps its own scheduling.
+    ``keep_references`` (the daemon): free-air references kept on disk as ``references``
+    says, and those there that still belong to the cell taken back."""
     pub = publisher or (bind_publisher(cfg, pub_hwm) if publish else None)
     ctrl: Controller | None = None
     try:
         backend = build_backend(cfg.driver, cfg.profile.hardware)
-        if own_process and not backend.source.virtual:
-            _loop_priority(cfg)
+        realtime = _loop_priority(cfg) if own_process and not backend.source.virtual else None
         ctrl = Controller(cfg, backend, pub)
+        if keep_references:
+            ctrl.keep_references(default_references_path(cfg))
+        if realtime is not None:  # status and the heartbeat say it, not only the log
+            ctrl.use_realtime(realtime, cfg.loop.rt_priority)
         await ctrl.start(connect_in_background)
         try:
             if record and cfg.recording.enabled:
@@ -220,7 +228,7 @@ async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: N
     bad_setting: ConfigError | None = None
     try:
         async with controller(cfg, publisher=pub, record=True, connect_in_background=True,
-                              own_process=own_process) as ctrl, \
+                              own_process=own_process, keep_references=True) as ctrl, \
                 wire(ctrl, tasks=_task_runner(ctrl, tasks_dir), socket_stats=lambda: server.stats,
                      shutdown=stop.set) as requests:
             if live is not None:  # no await since start(): the view's times are the recording's

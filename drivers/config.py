@@ -19,7 +19,7 @@ from pydantic import Field
 
 from .backend import Backend
 from .daqmx.config import NiDaqDriverConfig
-from .entry import BLOCK_SIZE, DriverEntry
+from .entry import BLOCK_SIZE, DeadLinkVent, DriverEntry
 from .modbus.config import ModbusDriverConfig
 from .recording.config import ReplayDriverConfig
 from .serial.config import SerialDriverConfig
@@ -53,6 +53,10 @@ class SimDriverConfig(DriverEntry):
 
     def samples_seed(self) -> int:
         return self.seed
+
+    def dead_link_vent(self) -> DeadLinkVent:
+        return DeadLinkVent("no_link", "the simulated cell runs inside the daemon: it has no link to lose, and it "
+                            "stops with the daemon")
 
     def for_job(self, seed: int) -> SimDriverConfig:
         return self.model_copy(update={"clock": "virtual", "seed": seed})

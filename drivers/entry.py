@@ -17,7 +17,8 @@ nidaqmx, the simulated plant) is imported when the backend is built.
 from __future__ import annotations
 
 import importlib
-from typing import TYPE_CHECKING, ClassVar
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, ClassVar, Literal
 
 from fluidsense.common.errors import DeviceTimeoutError
 from fluidsense.common.hardware import Hardware
@@ -33,6 +34,26 @@ if TYPE_CHECKING:
 BLOCK_SIZE = ("samples per delivered block. The block period block_size / rate_hz must be at least 5 ms (the sample "
               "loop yields to commands and signals only between blocks) and at most supervision.no_data_s / 5 "
               "(else waiting for a block is a no_data fault); the cell config checks both")
+
+
+@dataclass(frozen=True)
+class DeadLinkVent:
+    """What puts the valves in their safe state when the link to the device dies, or the
+    daemon with it (docs/safety.md, "Vent without the PC"): ``box_watchdog`` (a UR control
+    box's own program or ur_rtde's RTDE watchdog), ``device_watchdog`` (the serial
+    firmware's, a DAQ's timer), ``none`` (the outputs stay as last set until the daemon
+    reconnects), ``no_link`` (the cell runs inside the daemon: nothing to lose)."""
+
+    by: Literal["box_watchdog", "device_watchdog", "none", "no_link"]
+    #: what vents and how it is set up, for an operator
+    what: str
+    #: the vent comes this long after the service's last heartbeat (None: none comes)
+    timeout_s: float | None = None
+    #: the reconnection back-off's longest wait (s): after the link returns, the daemon's
+    #: next attempt (which writes the safe state first) may be this far away
+    reconnect_max_s: float | None = None
+    #: how to get a vent path where there is none, or None
+    fix: str | None = None
 
 
 class DriverEntry(StrictModel):
@@ -80,6 +101,11 @@ class DriverEntry(StrictModel):
         """The UR control box the driver reaches (its vent watchdog, its emulation by
         ``fluidsense simcell``); None for a cell without one."""
         return None
+
+    def dead_link_vent(self) -> DeadLinkVent:
+        """What vents the gripper when the link dies (docs/safety.md). A device without a
+        watchdog of its own keeps its outputs: the default."""
+        return DeadLinkVent("none", f"{self.where()} keeps its outputs as last set")
 
     def needs_operator(self) -> bool:
         """Only an operator can place objects in front of the gripper (a real cell whose

@@ -22,6 +22,7 @@ from fluidsense.drivers.config import build_backend
 from fluidsense.drivers.ur.watchdog import (
     runstate_program,
     safe_levels,
+    watchdog_lines,
     watchdog_program,
 )
 from fluidsense.simulator.controlbox.box import ControlBox, IdleProgram, RuntimeState
@@ -256,3 +257,55 @@ def test_fluidsense_watchdog_prints_what_the_driver_installs(tmp_path):
     refused = subprocess.run([sys.executable, "-m", "fluidsense", "watchdog", "--config", str(CONFIG / "cell-sim.yaml")],
                              capture_output=True, text=True, timeout=60, cwd=REPO)
     assert refused.returncode == 2 and "driver.kind" in refused.stderr and "Traceback" not in refused.stderr
+
+
+def test_fluidsense_watchdog_prints_the_thread_for_the_integrators_program_and_it_vents(tmp_path):
+    """watchdog: null without an arm (the shipped gripper config): the box's one program is
+    the integrator's. ``fluidsense watchdog`` prints the same watchdog as a thread to paste
+    into it; run by the emulated box (virtual time), it vents after the timeout."""
+    import subprocess
+    import sys
+
+    from support.harness import REPO
+
+    cell = CONFIG / "cell-gripper-modbus-sim.yaml"
+    out = subprocess.run([sys.executable, "-m", "fluidsense", "watchdog", "--config", str(cell)],
+                         capture_output=True, text=True, timeout=60, cwd=REPO)
+    assert out.returncode == 0, out.stderr
+    assert not out.stdout.startswith("def ")  # statements for the integrator's def, not a program of its own
+    assert "program: integrator" in out.stderr and "register 200" in out.stderr
+    cfg = load_cell_config(cell)
+    levels = safe_levels(cfg.driver.wiring.valves, cfg.profile.hardware.circuit.safe_valves)
+    program = WatchdogProgram.from_source(out.stdout)
+    assert program.vent == levels == LEVELS and program.register == REGISTER and program.timeout_s == TIMEOUT_S
+    # the thread is the driver's own program's, line for line
+    assert watchdog_lines(levels, REGISTER, TIMEOUT_S, "watch")[:-1] == \
+        [line for line in out.stdout.splitlines() if not line.lstrip().startswith("#")][:-1]
+    b = Box()
+    assert b.box.run_program(program)
+    b.box.set_digital_outputs(0b11, INFLATED, "modbus")
+    b.run(1.0, beat_every_s=0.1)
+    assert b.outputs == INFLATED
+    b.run_until(b.last_beat + TIMEOUT_S + 0.01)
+    assert b.outputs == 0b01  # vented, tank isolated
+    # --install would replace the integrator's program: refused
+    refused = subprocess.run([sys.executable, "-m", "fluidsense", "watchdog", "--config", str(cell), "--install"],
+                             capture_output=True, text=True, timeout=60, cwd=REPO)
+    assert refused.returncode == 2 and "--install would replace it" in refused.stderr
+
+
+def test_program_integrator_beats_the_register_and_sends_nothing_to_the_box(tmp_path):
+    from fluidsense.drivers.modbus.backend import ModbusHeartbeat
+    from support.configs import cell_config
+
+    cell = cell_config(tmp_path, "cell-gripper-modbus-sim", driver={"watchdog": {"program": "integrator"}})
+    cfg = load_cell_config(cell)
+    backend = build_backend(cfg.driver, cfg.profile.hardware)
+    assert isinstance(backend.watchdog, ModbusHeartbeat) and backend.watchdog.register == REGISTER
+    assert len(backend.source.on_connect) == 1  # the safe positions; no script sent
+    ours = build_backend(load_cell_config(cell_config(tmp_path, "cell-gripper-modbus-sim",
+                                                      driver={"watchdog": {}})).driver, cfg.profile.hardware)
+    assert len(ours.source.on_connect) == 2  # the safe positions, then fluidsense's watchdog program
+    assert cfg.driver.dead_link_vent().by == "box_watchdog"
+    with pytest.raises(Exception, match="program: integrator is for cells without an arm"):
+        cell_config(tmp_path, "cell-modbus-sim", driver={"watchdog": {"program": "integrator"}})

@@ -122,6 +122,10 @@ def test_real_time_heartbeat_and_sigterm_vents_then_exits(tmp_path, daemon_facto
     _, beat = d.next_message("heartbeat", timeout_s=10)
     check("heartbeat", beat)
     assert beat["virtual"] is False and beat["rate_hz"] == 1000
+    # the daemon asked for SCHED_FIFO (loop.rt_priority 20): granted or refused, and status says which and why
+    rt = d.request({"cmd": "status"})["realtime"]
+    assert beat["realtime"] == rt["sched_fifo"] in ("granted", "refused") and rt["priority"] == 20
+    assert rt["detail"].startswith("SCHED_FIFO priority 20 " + ("refused" if rt["sched_fifo"] == "refused" else "("))
     assert d.request({"cmd": "cycle"})["ok"]
     while True:  # wait, in real time, for the actuation valve to open: the actuator inflates
         _, st = d.next_message("state", timeout_s=10)

@@ -16,6 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from fluidsense.common.errors import ConfigError, LinkLostError
+from fluidsense.controller.safety.ventpath import vent_path, vent_path_line
 from fluidsense.drivers.config import build_backend
 from fluidsense.drivers.ur.dashboard import SAFETY_OK, generation
 
@@ -52,6 +53,7 @@ async def run_check(cfg, path: str, opts: CheckOptions, say: Callable[[str], Non
     if not driver.live:
         raise ConfigError(f"{path}: driver.kind: check looks at a live cell; a recording has nothing to connect to")
     out = Findings(say)
+    _vent_path(cfg, out)
     await _look_at_robot(driver, opts, out)
     backend = build_backend(driver, cfg.profile.hardware, read_only=not opts.actuate)
     out.section(f"connecting to {driver.where()}" + ("" if opts.actuate else " (read-only)"))
@@ -72,7 +74,20 @@ async def run_check(cfg, path: str, opts: CheckOptions, say: Callable[[str], Non
         out.info("everything matches the config")
     for p in out.problems:
         out.info(p.line())
+    for w in out.warnings:
+        out.info(f"WARNING {w}")
     return out.problems
+
+
+def _vent_path(cfg, out: Findings) -> None:
+    """From the config alone: said before anything connects, so a cell that cannot be
+    reached hears it too."""
+    path = vent_path(cfg)
+    out.section("vent path on a dead link (the link or the daemon dies)")
+    if path["by"] == "none":
+        out.warning(vent_path_line(path))
+    else:
+        out.info(vent_path_line(path))
 
 
 async def _look_at_robot(driver, opts: CheckOptions, out: Findings) -> None:

@@ -23,6 +23,7 @@ class Findings:
     def __init__(self, say: Callable[[str], None]) -> None:
         self.say = say
         self.problems: list[Problem] = []
+        self.warnings: list[str] = []
 
     def section(self, title: str) -> None:
         self.say(title)
@@ -34,6 +35,12 @@ class Findings:
         p = Problem(subject, found, todo)
         self.problems.append(p)
         self.say(f"  PROBLEM {p.line()}")
+
+    def warning(self, text: str) -> None:
+        """Said and repeated in the summary, but not a problem: the cell is as configured
+        (a deliberate choice such as a cell without a vent path on a dead link)."""
+        self.warnings.append(text)
+        self.say(f"  WARNING {text}")
 
     @property
     def ok(self) -> bool:

@@ -141,6 +141,15 @@ class PublisherConfig(StrictModel):
         return self
 
 
+class ReferenceKeeping(StrictModel):
+    """The daemon keeps its free-air references on disk and takes them back at start when
+    they still belong to the cell (controller/cycles/kept.py, docs/recording.md)."""
+
+    keep: bool = Field(True, description="keep them (false: a restarted daemon starts without any)")
+    file: str | None = Field(None, min_length=1, max_length=4096, description="the file, relative to the daemon's "
+                             "working directory; default: references.json in recording.dir")
+
+
 class LiveConfig(StrictModel):
     """The live view (docs/recording.md, "Live view"): the Foxglove WebSocket protocol served by a
     process of its own, with the recording's channels, schemas and timestamps. Loopback by
@@ -173,6 +182,7 @@ class CellConfig(StrictModel):
     publisher: PublisherConfig = PublisherConfig()
     supervision: Supervision = Supervision()
     recording: RecordingConfig = RecordingConfig()
+    references: ReferenceKeeping = ReferenceKeeping()
     live: LiveConfig = LiveConfig()
     loop: LoopConfig = LoopConfig()
     gripper: GripperConfig = GripperConfig()

@@ -69,6 +69,8 @@ class CycleRunner:
         self._now, self._emit, self._record, self._trip = now, emit, record, trip
         self.sequencer = Sequencer(profile.sequence, backend.valves.safe_positions, settled=self._settled)
         self.references: dict[float, Reference] = {}
+        #: called with (p0_pa, key, reference) when a cycle stores a free-air reference
+        self.on_reference: list[Callable[[float, float, Reference], None]] = []
         self.results: deque[CycleResult] = deque(maxlen=100)
         self._trace: CycleTrace | None = None
         self._result: asyncio.Future[CycleResult] | None = None
@@ -250,8 +252,11 @@ class CycleRunner:
         if self._measured is not None and not self._measured.done():
             self._measured.set_result(result)
         if self._opts.get("store_reference") and result.ok:
-            self.references[reference_key(self.sequencer.p0_pa)] = make_reference(result)
+            key, ref = reference_key(self.sequencer.p0_pa), make_reference(result)
+            self.references[key] = ref
             result.is_reference = True
+            for stored in self.on_reference:
+                stored(self.sequencer.p0_pa, key, ref)
         self.results.append(replace(result, trace=None))
         self._emit("cycle", result.to_dict())
         fut, self._result = self._result, None

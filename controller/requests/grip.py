@@ -208,7 +208,8 @@ class GripHandler(Sink):
             note = "free-air reference stored at this P0: nothing in the gripper, as asked"
         elif not res.has_reference:
             note = "no free-air reference at this P0: contact and object cannot be told (measure with " \
-                   "store_reference and nothing in the gripper)"
+                   "store_reference and nothing in the gripper; status.reference_store says why a kept one " \
+                   "was refused)"
         elif res.object_note:
             note = res.object_note
         if not self.calibrations:

@@ -15,7 +15,7 @@ from fluidsense.common.wiring import (
 )
 from pydantic import Field, model_validator
 
-from ..entry import BLOCK_SIZE, DriverEntry
+from ..entry import BLOCK_SIZE, DeadLinkVent, DriverEntry
 
 Terminal = Literal["default", "rse", "nrse", "differential", "pseudo_differential"]
 
@@ -133,6 +133,14 @@ class NiDaqDriverConfig(DriverEntry):
             raise ValueError(f"buffer_s {self.buffer_s:g} s holds {self.buffer_s * self.rate_hz:.0f} samples: at "
                              f"least four blocks ({4 * self.block_size}) so that one late read does not overflow it")
         return self
+
+    def dead_link_vent(self) -> DeadLinkVent:
+        if not self.watchdog.enabled:
+            return DeadLinkVent("none", f"{self.device} has its watchdog timer off (watchdog.enabled: "
+                                "false): its lines keep their last level when the PC or the daemon dies",
+                                fix="a device with a watchdog timer, and driver.watchdog.enabled: true")
+        return DeadLinkVent("device_watchdog", f"the DAQ's watchdog timer: the valve lines at their safe levels "
+                            f"{self.watchdog.timeout_s:g} s after the last reset", self.watchdog.timeout_s)
 
     def physical(self, kind: str, n: int, port: int | None = None) -> str:
         """The physical channel's name: ``Dev1/ai0``, ``Dev1/port0/line3``, ``Dev1/ao0``."""

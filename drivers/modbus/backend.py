@@ -209,7 +209,8 @@ def build(cfg: ModbusDriverConfig, hw: Hardware, read_only: bool = False) -> Bac
             watchdog = WorkerKick(worker, cfg.watchdog)
     elif cfg.watchdog is not None:  # the box runs fluidsense's watchdog program
         watchdog = ModbusHeartbeat(link, cfg.watchdog)
-    script = None if cfg.watchdog is None or read_only else \
+    # program: integrator: the watchdog thread is in the integrator's program; nothing is sent
+    script = None if cfg.watchdog is None or read_only or cfg.watchdog.program == "integrator" else \
         box_script(cfg.wiring.valves, hw.circuit.safe_valves, cfg.watchdog, arm=cfg.arm is not None)
     poller = {"host": cfg.host, "port": cfg.port, "device_id": cfg.device_id, "timeout_s": cfg.timeout_s,
               "inputs": modbus_inputs(cfg, hw.channels)}

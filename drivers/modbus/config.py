@@ -4,14 +4,14 @@ from __future__ import annotations
 
 from typing import Annotated, ClassVar, Literal
 
-from fluidsense.common.models import Host, Integer, Port, Real, StrictModel
+from fluidsense.common.models import FieldError, Host, Integer, Port, Real, StrictModel
 from fluidsense.common.wiring import AnalogScale, Wiring
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from ..entry import BLOCK_SIZE
 from ..reconnect import Reconnect
 from ..sampler.config import SamplerOptions
-from ..ur.box import BoxWatchdogConfig, UrArmConfig, check_controller_rate
+from ..ur.box import BoxWatchdogConfig, UrArmConfig, check_controller_rate, check_watchdog_program
 from ..ur.config import UrBoxEntry
 from ..ur.dashboard import Robot
 
@@ -74,6 +74,14 @@ class ModbusDriverConfig(UrBoxEntry):
         "watchdog, e.g. a Modbus I/O module that cannot run one; docs/safety.md says what that leaves)")
     sim_control_port: Port | None = Field(
         None, description="simulated cells only (fluidsense simcell): its control port; absent on a real cell")
+
+    @model_validator(mode="after")
+    def _watchdog_program(self) -> ModbusDriverConfig:
+        try:
+            check_watchdog_program(self.watchdog, arm=self.arm is not None)
+        except ValueError as exc:
+            raise FieldError("watchdog.program", str(exc)) from exc
+        return self
 
     @field_validator("rate_hz")
     @classmethod

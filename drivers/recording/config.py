@@ -8,7 +8,7 @@ from typing import ClassVar, Literal
 from fluidsense.common.models import Real, StrictModel
 from pydantic import Field
 
-from ..entry import DriverEntry
+from ..entry import DeadLinkVent, DriverEntry
 
 
 class RecordingConfig(StrictModel):
@@ -43,3 +43,6 @@ class ReplayDriverConfig(DriverEntry):
 
     def files(self) -> dict[str, str]:
         return {"file": self.file}
+
+    def dead_link_vent(self) -> DeadLinkVent:
+        return DeadLinkVent("no_link", "a recording played back: no valve to vent")

@@ -16,7 +16,7 @@ from fluidsense.common.wiring import (
 )
 from pydantic import Field, model_validator
 
-from ..entry import BLOCK_SIZE, DriverEntry
+from ..entry import BLOCK_SIZE, DeadLinkVent, DriverEntry
 from ..reconnect import Reconnect
 
 #: the devices' boards: ADC inputs, digital outputs, analog outputs (firmware/README.md)
@@ -119,6 +119,11 @@ class SerialDriverConfig(DriverEntry):
     sim_control_port: Port | None = Field(
         None, description="simulated devices only (python -m lab simserial): its control port on 127.0.0.1; absent for "
         "a real device")
+
+    def dead_link_vent(self) -> DeadLinkVent:
+        return DeadLinkVent("device_watchdog", f"the device's own watchdog (firmware): every wired valve output safe "
+                            f"and the regulator at 0 kPa {self.watchdog.timeout_s:g} s after the last heartbeat",
+                            self.watchdog.timeout_s, self.reconnect.max_s)
 
     def emulator_hint(self) -> str | None:
         if self.sim_control_port is None:

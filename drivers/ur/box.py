@@ -8,6 +8,7 @@ pymodbus."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 from fluidsense.common.models import Host, Integer, Port, Real, StrictModel
 from fluidsense.common.wiring import CONTROLLER_HZ, AnalogScale, Wiring
@@ -22,6 +23,15 @@ def check_controller_rate(rate_hz: float, controller: str, path: str) -> float:
                          f"{controller} controllers (the box's control rate; a faster poll reads each value again "
                          "and stamps it as new); for 1 kHz use kind serial or nidaqmx (docs/drivers.md)")
     return rate_hz
+
+
+def check_watchdog_program(watchdog: BoxWatchdogConfig | None, arm: bool) -> BoxWatchdogConfig | None:
+    """With an arm, ur_rtde's control script is the box's program and its RTDE watchdog
+    the vent: an integrator's program cannot run beside it."""
+    if watchdog is not None and arm and watchdog.program == "integrator":
+        raise ValueError("program: integrator is for cells without an arm (arm: null): with an arm ur_rtde's "
+                         "control script is the box's program, and its RTDE watchdog vents")
+    return watchdog
 
 
 class UrArmConfig(StrictModel):
@@ -45,6 +55,11 @@ class BoxWatchdogConfig(StrictModel):
     heartbeat_register: Integer = Field(200, ge=128, le=255, description="cells without an arm: the Modbus general "
                                     "purpose register the daemon increments and the box's program watches")
     script_port: Port = Field(30003, description="the box's URScript port (the watchdog is sent there at set-up)")
+    program: Literal["fluidsense", "integrator"] = Field(
+        "fluidsense", description="cells without an arm: fluidsense: the driver sends its watchdog program to the "
+        "box at every connection (it becomes the box's one program); integrator: the box runs the integrator's "
+        "own program, which carries the watchdog thread (`fluidsense watchdog --config` prints it): the daemon "
+        "increments heartbeat_register and sends nothing to the box")
 
 
 @dataclass(frozen=True)

@@ -10,10 +10,10 @@ from fluidsense.common.models import Host, Integer, Port, Real
 from fluidsense.common.wiring import CONTROLLER_HZ, AnalogScale, Wiring
 from pydantic import Field, ValidationInfo, field_validator
 
-from ..entry import BLOCK_SIZE, DriverEntry
+from ..entry import BLOCK_SIZE, DeadLinkVent, DriverEntry
 from ..reconnect import Reconnect
 from ..sampler.config import SamplerOptions
-from .box import BoxWatchdogConfig, ControlBox, UrArmConfig, check_controller_rate
+from .box import BoxWatchdogConfig, ControlBox, UrArmConfig, check_controller_rate, check_watchdog_program
 from .dashboard import Robot
 
 #: highest RTDE output rate per controller generation (UR's RTDE guide): the control rate
@@ -32,6 +32,30 @@ class UrBoxEntry(DriverEntry):
         return ControlBox(host=self.host, controller=self.controller, rate_hz=self.rate_hz, wiring=self.wiring,
                           analog=self.analog, watchdog=self.watchdog, arm=self.arm is not None,
                           modbus_port=self._modbus_port(), sim_control_port=self.sim_control_port)
+
+    def dead_link_vent(self) -> DeadLinkVent:
+        dog, arm, backoff = self.watchdog, self.arm is not None, self.reconnect.max_s
+        if dog is None:
+            if arm:
+                fix = ("set driver.watchdog (delete `watchdog: null`): ur_rtde's control script, the box's program, "
+                       "then runs under its RTDE watchdog and the run-state actions vent when it stops")
+            else:
+                fix = ("put the watchdog thread into the box's program (`fluidsense watchdog --config` prints it) and "
+                       "set driver.watchdog: {program: integrator}, so that the daemon beats its register; or delete "
+                       "`watchdog: null` and let fluidsense's own watchdog program be the box's program")
+            return DeadLinkVent("none", "driver.watchdog is null: the control box keeps its outputs as last set",
+                                reconnect_max_s=backoff, fix=fix)
+        if arm:
+            what = (f"the control box: ur_rtde's control script runs under its RTDE watchdog ({dog.timeout_s:g} s), "
+                    "and the run-state actions set the valve outputs safe when it stops")
+        elif dog.program == "integrator":
+            what = (f"the control box: the watchdog thread in the integrator's program vents {dog.timeout_s:g} s "
+                    f"after the heartbeat register {dog.heartbeat_register} stops (the integrator installs it: "
+                    "fluidsense cannot confirm that it runs)")
+        else:
+            what = (f"the control box: fluidsense's watchdog program vents {dog.timeout_s:g} s after the heartbeat "
+                    f"register {dog.heartbeat_register} stops")
+        return DeadLinkVent("box_watchdog", what, dog.timeout_s, backoff)
 
     def emulator_hint(self) -> str | None:
         if self.sim_control_port is None:
@@ -73,6 +97,11 @@ class UrDriverConfig(UrBoxEntry):
     sim_control_port: Port | None = Field(
         None, description="simulated cells only (fluidsense simcell): its control port, through which "
         "tasks lay out objects and score themselves; absent on a real robot")
+
+    @field_validator("watchdog")
+    @classmethod
+    def _rtde_watchdog(cls, watchdog: BoxWatchdogConfig | None) -> BoxWatchdogConfig | None:
+        return check_watchdog_program(watchdog, arm=True)
 
     @field_validator("rate_hz")
     @classmethod

@@ -67,18 +67,18 @@ def runstate_program(levels: Mapping[int, bool]) -> str:
                       *body, "end", ""])
 
 
-def watchdog_program(levels: Mapping[int, bool], heartbeat_register: int, timeout_s: float) -> str:
-    """The box's own program on cells without an arm: vents when the heartbeat register
-    stops changing for ``timeout_s``, and again whenever it stops after coming back."""
+def watchdog_lines(levels: Mapping[int, bool], heartbeat_register: int, timeout_s: float, handle: str) -> list[str]:
+    """The watchdog itself, as statements inside a program's ``def`` (two spaces in): its
+    constants, the run-state actions, ``fluidsense_vent`` and the thread that watches the
+    heartbeat register, started as ``handle``. ``watchdog_program`` wraps it into the
+    box's program; ``integrator_thread`` hands it to an integrator's own program."""
     if not 128 <= heartbeat_register <= 255:
         raise ValueError(f"heartbeat register {heartbeat_register}: a UR general purpose register is 128-255")
     vent = []
     for output, level in sorted(levels.items()):
         bank, n = _bank(output)
         vent.append(f"    set_{bank}_digital_out({n}, {'True' if level else 'False'})")
-    return "\n".join([
-        f"def {PROGRAM_NAME}():",
-        "  # fluidsense box watchdog (docs/safety.md): generated from the cell's wiring",
+    return [
         f"  HEARTBEAT_REGISTER = {heartbeat_register}",
         f"  TIMEOUT_S = {timeout_s:.6g}",
         *_runstate_lines(levels, "  "),
@@ -105,11 +105,37 @@ def watchdog_program(levels: Mapping[int, bool], heartbeat_register: int, timeou
         "      sync()",
         "    end",
         "  end",
-        "  watch = run fluidsense_heartbeat_watch()",
+        f"  {handle} = run fluidsense_heartbeat_watch()",
+    ]
+
+
+def watchdog_program(levels: Mapping[int, bool], heartbeat_register: int, timeout_s: float) -> str:
+    """The box's own program on cells without an arm: vents when the heartbeat register
+    stops changing for ``timeout_s``, and again whenever it stops after coming back."""
+    return "\n".join([
+        f"def {PROGRAM_NAME}():",
+        "  # fluidsense box watchdog (docs/safety.md): generated from the cell's wiring",
+        *watchdog_lines(levels, heartbeat_register, timeout_s, "watch"),
         "  while True:",
         "    sync()",
         "  end",
         "end",
+        "",
+    ])
+
+
+def integrator_thread(levels: Mapping[int, bool], heartbeat_register: int, timeout_s: float) -> str:
+    """The same watchdog for a box whose one program is the integrator's (the arm's
+    program): statements to paste into that program's ``def`` before its main loop. The
+    daemon beats the register with ``driver.watchdog: {program: integrator}``."""
+    return "\n".join([
+        "  # fluidsense box watchdog thread (docs/safety.md), generated from the cell's wiring: paste these lines",
+        "  # into your program's def, before its main loop. It vents the gripper when the daemon's heartbeat in",
+        f"  # general purpose register {heartbeat_register} stops for {timeout_s:g} s; the daemon beats it with",
+        f"  # driver.watchdog: {{program: integrator, heartbeat_register: {heartbeat_register}, "
+        f"timeout_s: {timeout_s:g}}}",
+        *watchdog_lines(levels, heartbeat_register, timeout_s, "fluidsense_watch"),
+        "  # end of the fluidsense box watchdog thread",
         "",
     ])
 

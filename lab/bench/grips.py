@@ -1,0 +1,157 @@
+"""``python -m lab bench grips``: does an empty gripper read empty, and an object an object,
+through the production drivers on a busy robot PC?
+
+For each driver (``ur``: config/cell-ur-sim.yaml, ``modbus``: config/cell-modbus-sim.yaml,
+both the sorting gripper as shipped, only their addresses and sockets moved) and each load
+(``--loads``, busy processes beside the cell), it starts ``fluidsense simcell`` and
+``fluidsense run`` as an integrator would, takes one free-air reference, then grips
+nothing ``--empty`` times and each cylinder of ``--sizes`` ``--objects`` times (typed
+client: grip, read the grasp, release), in a shuffled order so that a drift in the cell or
+the load does not fall on one kind of grip. It prints the false-object rate (an empty grip
+that read an object), the missed-object rate (an object that did not), the uncertain
+answers (object null, with their reason), and the features of every grip that was not
+right. Figures in docs/performance.md ("Empty grips and objects"); ``make grips`` writes
+docs/performance/grips.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+NAME = "grips"
+HELP = "empty grips and grips on cylinders through ur and modbus, quiet and beside busy processes"
+DESCRIPTION = __doc__
+FEATURES = ("p_eq_kpa", "dp_eq_kpa", "dp_max_kpa", "t_c_threshold_s")
+
+
+def register(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--drivers", default="ur,modbus", help="comma-separated (default ur,modbus)")
+    p.add_argument("--loads", default="0,2", help="busy processes beside the cell, one run each (default 0,2)")
+    p.add_argument("--empty", type=int, default=20, help="empty grips per driver and load (default 20)")
+    p.add_argument("--sizes", default="40,60,100", help="cylinder diameters, mm (default 40,60,100)")
+    p.add_argument("--objects", type=int, default=5, help="grips per cylinder, driver and load (default 5)")
+    p.add_argument("--seed", type=int, default=1, help="seed of the grips' order")
+    p.add_argument("--json", action="store_true")
+
+
+def _cell(tmp: Path, kind: str, host: str) -> Path:
+    """The shipped sorting cell of driver ``kind``, at ``host``, sockets in ``tmp``."""
+    import yaml
+
+    from lab import REPO
+
+    config = REPO / "config"
+    data = yaml.safe_load((config / f"cell-{kind}-sim.yaml").read_text())
+    data["driver"]["host"] = host
+    data["profile"] = str((config / data["profile"]).resolve())
+    data["publisher"] = {"pub": f"ipc://{tmp}/pub", "cmd": f"ipc://{tmp}/cmd"}
+    data["recording"] = {"enabled": False}
+    data["references"] = {"keep": False}
+    path = tmp / f"cell-{kind}.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def _grips(kind: str, load: int, plan: list[float | None]) -> dict[str, Any]:
+    """One box and daemon; a free-air reference, then the grips of ``plan`` (None: empty)."""
+    from fluidsense.client import Gripper
+    from fluidsense.simulator.controlbox.process import EmulatorProcess, free_loopback
+
+    from lab import REPO
+
+    from .timing import _burn
+
+    out: dict[str, Any] = {"driver": kind, "load": load, "grips": []}
+    burners = [multiprocessing.Process(target=_burn, args=(time.monotonic() + 1e6,), daemon=True)
+               for _ in range(load)]
+    t0 = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix="fluidsense-bench-grips-") as d:
+        cell = _cell(Path(d), kind, free_loopback())
+        box = EmulatorProcess(command=[sys.executable, "-m", "fluidsense", "simcell", "--config", str(cell)])
+        box.start(timeout_s=60)
+        daemon = subprocess.Popen([sys.executable, "-m", "fluidsense", "run", "--config", str(cell)],
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO)
+        try:
+            for b in burners:
+                b.start()
+            with Gripper(f"ipc://{d}/cmd", f"ipc://{d}/pub", timeout_s=120) as g:
+                while g.status()["state"] == "connecting":
+                    time.sleep(0.5)  # a bench waiting for the daemon's connection, nothing measured
+                g.scene({"kind": "none"})
+                g.measure(store_reference=True)
+                for size in plan:
+                    g.scene({"kind": "none"} if size is None else {"kind": "cylinder", "diameter_mm": size})
+                    grasp = g.grip()
+                    g.release()
+                    out["grips"].append({"size_mm": size, "object": grasp.object, "contact": grasp.contact,
+                                         "note": grasp.note, **{k: grasp.features.get(k) for k in FEATURES},
+                                         "rise_shift_s": grasp.event.data.get("features", {}).get("rise_shift_s")})
+        finally:
+            for b in burners:
+                if b.is_alive():
+                    b.terminate()
+                b.join()
+            daemon.terminate()
+            daemon.wait(60)
+            box.stop()
+            box.__exit__(None, None, None)
+    out["wall_s"] = round(time.monotonic() - t0, 1)
+    return out
+
+
+def summarise(run: dict[str, Any]) -> dict[str, Any]:
+    """Rates of one run, and the grips that were not right."""
+    empty = [g for g in run["grips"] if g["size_mm"] is None]
+    full = [g for g in run["grips"] if g["size_mm"] is not None]
+    wrong = [g for g in empty if g["object"] is not False] + [g for g in full if g["object"] is not True]
+    return {"driver": run["driver"], "load": run["load"], "wall_s": run["wall_s"],
+            "empty": len(empty), "false_object": sum(g["object"] is True for g in empty),
+            "empty_uncertain": sum(g["object"] is None for g in empty),
+            "objects": len(full), "missed_object": sum(g["object"] is False for g in full),
+            "object_uncertain": sum(g["object"] is None for g in full),
+            "per_size": {f"{s:g}": sum(g["object"] is True for g in full if g["size_mm"] == s)
+                         for s in sorted({g["size_mm"] for g in full})},
+            "wrong": wrong}
+
+
+def run_bench(drivers: list[str], loads: list[int], empty: int, sizes: list[float], objects: int,
+              seed: int) -> dict[str, Any]:
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    runs = []
+    for kind in drivers:
+        for load in loads:
+            plan: list[float | None] = [None] * empty + [s for s in sizes for _ in range(objects)]
+            plan = [plan[i] for i in rng.permutation(len(plan))]
+            runs.append(summarise(_grips(kind, load, plan)))
+    return {"cpus": os.cpu_count(), "empty_per_run": empty, "sizes_mm": sizes, "objects_per_size": objects,
+            "runs": runs}
+
+
+def run(args: argparse.Namespace) -> int:
+    res = run_bench([d for d in args.drivers.split(",") if d], [int(x) for x in args.loads.split(",") if x],
+                    args.empty, [float(x) for x in args.sizes.split(",") if x], args.objects, args.seed)
+    if args.json:
+        print(json.dumps(res, indent=1))
+        return 0
+    print(f"{res['cpus']} CPUs; per run {res['empty_per_run']} empty grips and {res['objects_per_size']} on each of "
+          f"{', '.join(f'{s:g}' for s in res['sizes_mm'])} mm")
+    for r in res["runs"]:
+        print(f"{r['driver']:6s} load {r['load']}: empty read as an object {r['false_object']}/{r['empty']} "
+              f"(uncertain {r['empty_uncertain']}); object missed {r['missed_object']}/{r['objects']} "
+              f"(uncertain {r['object_uncertain']}); read as an object per size {r['per_size']}; {r['wall_s']:.0f} s")
+        for g in r["wrong"]:
+            size = "empty" if g["size_mm"] is None else f"{g['size_mm']:g} mm"
+            print(f"    {size}: object {g['object']}, " + ", ".join(f"{k} {g[k]}" for k in FEATURES)
+                  + f", rise_shift_s {g['rise_shift_s']}; {g['note']}")
+    return 0

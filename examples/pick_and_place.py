@@ -111,7 +111,8 @@ def vent_on_stop(cmd: str, why: str, confirm_s: float = 3.0) -> str:
             status = g.status()
             age = status["valves_age_s"]
             fresh = age is not None and age < time.monotonic() - aborted_at
-            if fresh and status["state"] in ("idle", "vent", "fault") and status["valves"] == status["valves_commanded"]:
+            settled = status["state"] in ("idle", "vent", "fault")
+            if fresh and settled and status["valves"] == status["valves_commanded"]:
                 return f"{said}; the daemon reads the valves back at {status['valves']}: vented"
             if time.monotonic() - aborted_at > confirm_s:
                 return (f"{said}; the daemon reports state {status['state']}, valves {status['valves']} (commanded "

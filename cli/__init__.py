@@ -19,10 +19,13 @@ from fluidsense.common.exitcodes import (  # noqa: F401
     EXIT_CODES,
     EXIT_FAILURE,
     EXIT_FAULT,
+    EXIT_HANGUP,
     EXIT_INTERRUPTED,
     EXIT_OK,
+    EXIT_TERMINATED,
     EXIT_TIMEOUT,
 )
+from fluidsense.common.stopsignals import interruption
 
 BAD_INPUT = (ConfigError, RecordingError, CommandError, SafetyError)
 
@@ -65,8 +68,8 @@ def run_parsed(args: argparse.Namespace) -> int:
     except FluidsenseError as exc:  # the lead maps faults and failures to EXIT_FAULT / EXIT_FAILURE
         report(exc)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        return EXIT_INTERRUPTED
+    except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM/SIGHUP in a job (common/stopsignals.py): 128 + N
+        return interruption(exc).exit_code
     except BrokenPipeError:  # the reader went away (`fluidsense cmd status | head`): stop quietly
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())  # the interpreter's own flush at exit must not fail again

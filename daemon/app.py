@@ -5,12 +5,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import signal
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
 import zmq
+from fluidsense.common import stopsignals
 from fluidsense.common.errors import (
     CommandError,
     ConfigError,
@@ -103,7 +103,11 @@ async def controller(cfg: CellConfig, publish: bool = False, record: bool = Fals
             ctrl.keep_references(default_references_path(cfg))
         if realtime is not None:  # status and the heartbeat say it, not only the log
             ctrl.use_realtime(realtime, cfg.loop.rt_priority)
-        await ctrl.start(connect_in_background)
+        try:
+            await ctrl.start(connect_in_background)
+        except BaseException:  # a stop signal while connecting included: vent what was set up, close it
+            await ctrl.stop()
+            raise
         try:
             if record and cfg.recording.enabled:
                 from fluidsense.controller.telemetry.queued import QueuedSink
@@ -198,7 +202,8 @@ async def _until_stopped(ctrl: Controller, cfg: CellConfig, notifier: Notifier,
 
 async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: Notifier | None = None,
                      own_process: bool = False) -> int:
-    """The service: publish, accept commands, until SIGTERM/SIGINT or a shutdown command.
+    """The service: publish, accept commands, until a stop signal (SIGTERM, SIGINT, SIGHUP:
+    common/stopsignals.py, as the CLI jobs) or a shutdown command.
     Both sockets are bound before any device is touched; a failure on the way in undoes
     what was started. Under systemd (``Type=notify``) it reports READY once the sample
     loop runs, pings the watchdog while the loop is alive, and STOPPING on the way out.
@@ -222,8 +227,8 @@ async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: N
         server.close()
         pub.close()
         raise
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        loop.add_signal_handler(sig, stop.set)
+    signals = contextlib.ExitStack()  # the stop signals' handlers, removed on the way out
+    signals.enter_context(stopsignals.handle_stop_signals(loop, lambda _: stop.set()))
     failed: list[str] = []
     bad_setting: ConfigError | None = None
     try:
@@ -255,8 +260,7 @@ async def run_daemon(cfg: CellConfig, tasks_dir: Path | None = None, notifier: N
         pub.close()
         if live is not None:  # closed already if the controller got to close its sinks
             live.close()
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            loop.remove_signal_handler(sig)
+        signals.close()
         notifier.close()
     if bad_setting is not None:
         raise bad_setting

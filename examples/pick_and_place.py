@@ -18,6 +18,11 @@ arm where it starts (keep the fingers clear there). And an object must be at the
 slot: on a real cell, put it there; against the emulated box, ``--emulated-object
 DIAMETER_MM`` lays a cylinder there through the box's sim control port
 (``driver.sim_control_port``).
+
+Ctrl-C, SIGTERM (systemd, ``docker stop``, ``timeout``) and SIGHUP (a closed terminal)
+stop it the same way: the arm's script stopped, the gripper's cycle aborted (the daemon
+vents), the vent confirmed from the daemon's status, exit 128 + the signal's number
+(130, 143, 129).
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ import socket
 import sys
 
 from fluidsense.client import GripEnded, Gripper, Refused
+from fluidsense.common.stopsignals import interruption, raise_on_stop_signals
 
 PICK = [0.40, -0.20, 0.10, 0.0, 3.14, 0.0]
 PLACE = [0.40, 0.20, 0.10, 0.0, 3.14, 0.0]
@@ -92,6 +98,28 @@ def wait_until_ready(g: Gripper) -> dict:
     return status
 
 
+def vent_on_stop(cmd: str, why: str, confirm_s: float = 3.0) -> str:
+    """Abort whatever the gripper does (the daemon vents) and say what the daemon then
+    reports, once its read-back of the outputs is newer than the abort (within
+    ``confirm_s``). A new connection: the one interrupted may be stuck mid-request."""
+    import time
+
+    with Gripper(cmd, None, timeout_s=10.0) as g:
+        aborted_at = time.monotonic()
+        said = "a cycle aborted" if g.abort(why) else "no cycle was running"
+        while True:
+            status = g.status()
+            age = status["valves_age_s"]
+            fresh = age is not None and age < time.monotonic() - aborted_at
+            settled = status["state"] in ("idle", "vent", "fault")
+            if fresh and settled and status["valves"] == status["valves_commanded"]:
+                return f"{said}; the daemon reads the valves back at {status['valves']}: vented"
+            if time.monotonic() - aborted_at > confirm_s:
+                return (f"{said}; the daemon reports state {status['state']}, valves {status['valves']} (commanded "
+                        f"{status['valves_commanded']}, read {age} s ago): check that the gripper is vented")
+            time.sleep(0.05)  # a person's script polling the daemon's read-back
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--robot", help="the UR controller's address (ur_rtde); without it, moves are printed")
@@ -109,6 +137,17 @@ def main(argv: list[str] | None = None) -> int:
     args.robot = args.robot or cfg.get("robot")
     if args.emulated_object is not None and (not args.robot or not cfg.get("sim_control_port")):
         p.error("--emulated-object needs --config naming the emulated box (driver.host, driver.sim_control_port)")
+    try:
+        with raise_on_stop_signals():
+            return pick_and_place(args, cfg)
+    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP: the arm's script is stopped already (finally)
+        sig = interruption(exc)
+        print(f"pick_and_place: stopped by {sig.name}; {vent_on_stop(args.cmd, f'pick_and_place: {sig.name}')}",
+              file=sys.stderr, flush=True)
+        return sig.exit_code
+
+
+def pick_and_place(args: argparse.Namespace, cfg: dict) -> int:
     with Gripper(args.cmd, args.pub, timeout_s=30.0) as g:
         status = wait_until_ready(g)  # and so is the box: the daemon has connected to it
         if args.emulated_object is not None:

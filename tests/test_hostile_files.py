@@ -377,8 +377,9 @@ def test_help_shows_the_exit_codes():
     out = fluidsense("--help")
     assert out.returncode == 0
     lines = out.stdout[out.stdout.index("exit codes:"):].splitlines()[1:]
-    assert [int(line.split()[0]) for line in lines] == [0, 1, 2, 3, 4, 130]
-    assert "bad input" in lines[2] and "timeout" in lines[3] and "Ctrl-C" in lines[5]
+    assert [int(line.split()[0]) for line in lines] == [0, 1, 2, 3, 4, 129, 130, 143]
+    assert "bad input" in lines[2] and "timeout" in lines[3] and "SIGHUP" in lines[5] and "Ctrl-C" in lines[6]
+    assert "SIGTERM" in lines[7]
 
 
 @pytest.mark.parametrize("raised, code", [

@@ -14,6 +14,7 @@ import asyncio
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from fluidsense.common.errors import ConfigError, LinkLostError
 from fluidsense.controller.safety.ventpath import vent_path, vent_path_line
@@ -46,9 +47,11 @@ def describe_plan(cfg, opts: CheckOptions) -> str:
             f"{opts.pulse_s:g} s, then vents it again. The gripper must be free and empty, and hands out of it.")
 
 
-async def run_check(cfg, path: str, opts: CheckOptions, say: Callable[[str], None]) -> list[Problem]:
+async def run_check(cfg, path: str, opts: CheckOptions, say: Callable[[str], None],
+                    on_backend: Callable[[Any], None] | None = None) -> list[Problem]:
     """The problems found (none: the cell matches its config). Raises DeviceTimeoutError
-    when a device does not answer."""
+    when a device does not answer. ``on_backend`` is given the backend before it connects
+    (the caller tells where a stop left its valves)."""
     driver = cfg.driver
     if not driver.live:
         raise ConfigError(f"{path}: driver.kind: check looks at a live cell; a recording has nothing to connect to")
@@ -56,6 +59,8 @@ async def run_check(cfg, path: str, opts: CheckOptions, say: Callable[[str], Non
     _vent_path(cfg, out)
     await _look_at_robot(driver, opts, out)
     backend = build_backend(driver, cfg.profile.hardware, read_only=not opts.actuate)
+    if on_backend is not None:
+        on_backend(backend)
     out.section(f"connecting to {driver.where()}" + ("" if opts.actuate else " (read-only)"))
     await connect.connect(backend, driver, opts.timeout_s)
     if opts.actuate:

@@ -27,3 +27,31 @@ def print_stopped(exc, as_json: bool) -> None:
                 print("  " + ", ".join(f"{k}={v}" for k, v in step.items()))
         else:
             print(f"{key}: {value}")
+
+
+def vent_words(valves, since: float) -> str:
+    """Where the valves were left after a job stopped, as the device last reported them
+    (``valves``: the backend's valve bank, None when the job never connected); a report
+    older than ``since`` (time.monotonic() of the stop) does not count as confirmation."""
+    if valves is None:  # the controller's start undoes itself: what was set up is vented and closed
+        return "it stopped while connecting: whatever was set up was put in its safe state and closed"
+    if not valves.reports_outputs:
+        return "every valve commanded to its safe position (this device cannot report its outputs)"
+    if valves.reported is None or valves.reported_at is None or valves.reported_at < since \
+            or valves.report_error is not None:
+        why = f" ({valves.report_error})" if valves.report_error else ""
+        return (f"the safe state was commanded but the device did not confirm it{why}: check that the gripper "
+                "is vented")
+    if valves.reports_safe(valves.reported):
+        return "vented: every valve at its safe position, confirmed by read-back"
+    return (f"the device reports {valves.reported} after the safe state was commanded: vent the gripper by hand "
+            "and look for what holds the outputs")
+
+
+def print_signal_stop(sig, job: str, valves, after: str = "") -> int:
+    """A job a stop signal (Ctrl-C, SIGTERM, SIGHUP) ended, once it has unwound: what it
+    was, where the valves were left, ``after`` (what was kept, how to go on) on stderr; its
+    exit code (common/stopsignals.py)."""
+    print(f"fluidsense: {job} stopped by {sig.name}; {vent_words(valves, sig.at)}" + (f"; {after}" if after else ""),
+          file=sys.stderr, flush=True)
+    return sig.exit_code

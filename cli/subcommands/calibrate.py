@@ -9,11 +9,12 @@ import sys
 from pathlib import Path
 
 from fluidsense.common.errors import CommandError, ConfigError, JobStopped
-from fluidsense.common.exitcodes import EXIT_FAULT, EXIT_INTERRUPTED, EXIT_OK
+from fluidsense.common import stopsignals
+from fluidsense.common.exitcodes import EXIT_FAULT, EXIT_OK
 from fluidsense.common.names import FEATURES, FIT_DEGREE
 
 from ..options import add_cell_options, add_scene_options, cell_config, scene_from_args
-from ._common import print_stopped, setup_logging
+from ._common import print_signal_stop, print_stopped, setup_logging
 
 
 def register(sub) -> None:
@@ -165,9 +166,11 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     total = len(values) * cycles + free  # the free (nothing there) cycles count as the bar counts them
     if journal.entries:
         print(f"resuming: {len(journal.entries)} of {total} cycles done ({journal.path})", file=sys.stderr)
+    valves = []  # the cell's valve bank once connected: where a stop left them
 
     async def job():
         async with app.controller(cfg, own_process=True) as ctrl:
+            valves.append(ctrl.backend.valves)
             with tqdm(total=total, initial=len(journal.entries), desc=f"calibrating {cfg.profile.name}",
                       unit="cycle", file=sys.stderr, disable=args.json) as bar:
                 if operator is not None:
@@ -178,14 +181,14 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                                        journal=journal, free_cycles=free)
 
     try:
-        run = asyncio.run(job())
+        run = stopsignals.run(job())
     except JobStopped as exc:
         print_stopped(exc, args.json)
         return EXIT_FAULT
-    except KeyboardInterrupt:
-        print(f"fluidsense: interrupted after {len(journal.entries)} cycles; they are kept in {journal.path}: run "
-              "again with --resume", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP: after the controller vented
+        return print_signal_stop(stopsignals.interruption(exc), "calibration", valves[0] if valves else None,
+                                 f"{len(journal.entries)} of {total} cycles are kept in {journal.path}: run again "
+                                 "with --resume")
     finally:
         if operator is not None:
             operator.close()
@@ -215,16 +218,21 @@ def cmd_sense(args: argparse.Namespace) -> int:
     scene = scene_from_args(args)
 
     operator = Operator(cal.target, args.targets_from, args.yes) if cfg.driver.needs_operator() else None
+    valves = []  # the cell's valve bank once connected: where a stop left them
 
     async def job():
         async with app.controller(cfg, own_process=True) as ctrl:
+            valves.append(ctrl.backend.valves)
             return await sense(ctrl, cal, scene, cycles=args.cycles, place=operator.place if operator else None)
 
     try:
-        res = asyncio.run(job()).to_dict()
+        res = stopsignals.run(job()).to_dict()
     except JobStopped as exc:
         print_stopped(exc, args.json)
         return EXIT_FAULT
+    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP: after the controller vented
+        return print_signal_stop(stopsignals.interruption(exc), "sensing", valves[0] if valves else None,
+                                 "nothing was estimated")
     finally:
         if operator is not None:
             operator.close()

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import asyncio
 import sys
 
+from fluidsense.common import stopsignals
 from fluidsense.common.exitcodes import EXIT_BAD_INPUT, EXIT_FAULT, EXIT_OK
 
 
@@ -45,7 +45,7 @@ def main(args: argparse.Namespace) -> int:
     from fluidsense.cli.check import CheckOptions, describe_plan, run_check
     from fluidsense.controller.config import load_cell_config
 
-    from ._common import setup_logging
+    from ._common import print_signal_stop, setup_logging
 
     for name in ("seconds", "timeout", "pulse_s", "zero_kpa"):
         _positive(f"--{name.replace('_', '-')}", getattr(args, name))
@@ -62,5 +62,14 @@ def main(args: argparse.Namespace) -> int:
         if input("Type yes to go on: ").strip().lower() != "yes":
             print("not confirmed: nothing was moved", file=sys.stderr)
             return EXIT_BAD_INPUT
-    problems = asyncio.run(run_check(cfg, args.config, opts, lambda line: print(line, flush=True)))
+    backends = []  # the one check connected: where a stop left its valves
+    try:
+        problems = stopsignals.run(run_check(cfg, args.config, opts, lambda line: print(line, flush=True),
+                                             on_backend=backends.append))
+    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP: after the check's own way back to safe
+        sig = stopsignals.interruption(exc)
+        if not args.actuate:
+            print(f"fluidsense: check stopped by {sig.name}; read-only: nothing was written", file=sys.stderr)
+            return sig.exit_code
+        return print_signal_stop(sig, "check --actuate", backends[0].valves if backends else None)
     return EXIT_FAULT if problems else EXIT_OK

@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import asyncio
 import json
 
+from fluidsense.common import stopsignals
 from fluidsense.common.errors import ConfigError, JobStopped
 from fluidsense.common.exitcodes import EXIT_FAULT, EXIT_OK
 
-from ._common import print_stopped, setup_logging
+from ._common import print_signal_stop, print_stopped, setup_logging
 
 
 def register(sub) -> None:
@@ -45,14 +45,19 @@ def main(args: argparse.Namespace) -> int:
         except ValueError:
             raise ConfigError(f"--order: expected comma-separated diameters, got {args.order!r}") from None
 
+    valves = []  # the cell's valve bank once connected: where a stop left them
+
     async def job():
         async with app.controller(cfg, publish=args.publish, own_process=True) as ctrl:
+            valves.append(ctrl.backend.valves)
             return await run_task(ctrl, task, order_mm=order)
 
     try:
-        summary = asyncio.run(job())
+        summary = stopsignals.run(job())
     except JobStopped as exc:
         print_stopped(exc, args.json)
         return EXIT_FAULT
+    except KeyboardInterrupt as exc:  # Ctrl-C, SIGTERM, SIGHUP: after the controller vented
+        return print_signal_stop(stopsignals.interruption(exc), f"task {task.task}", valves[0] if valves else None)
     print(json.dumps(summary, indent=2, default=float))
     return EXIT_OK if summary.get("success", True) is not False else EXIT_FAULT

@@ -78,6 +78,9 @@ class SimulatedCell:
         self.scene = cfg.scene
         self._nominal_scene = cfg.scene  # as set on the caliper; self.scene is where it landed
         self.scene_set_t = 0.0
+        # s every valve command reaches its valve late beyond the switching delay: a busy PC's
+        # command latency, which a polled driver cannot see (set by a test or a bench)
+        self.command_lag_s = 0.0
         net, valves = network(hw, volume_law(hw.actuator, cfg.scene, self.p_atm))
         self.act_node = net.index["actuator"]
         self.sense_node = sensed_node(hw, net)
@@ -220,7 +223,7 @@ class SimulatedCell:
     def command_valve(self, valve: str, open_: bool, t: float) -> None:
         if valve in self.outputs:
             self.outputs[valve] = open_
-        t_eff = max(t, self.t_last) + self.hw.circuit.valve_delay_s
+        t_eff = max(t, self.t_last) + self.hw.circuit.valve_delay_s + self.command_lag_s
         self._invalidate(t_eff)
         self.plant.schedule_valve(t_eff, valve, open_)
         if valve == ACTUATE and open_:  # a new cycle: the flow sensor repeats only within its figure

@@ -62,9 +62,16 @@ class Reference:
 AUTO_RISE = (0.02, 0.08)
 #: ... and at least this many times the reference's noise in the first window
 AUTO_RISE_NOISE = (5.0, 10.0)
-#: the levels must stay on the first, steep part of the rise: past this fraction of the
-#: level the curve bends over, and a small shift is no longer a small dP
+#: ... and the upper level at least this many sample periods after the lower one on the
+#: reference: a steep rise sampled at 500 Hz crosses 2-8 % in two samples, and a polled
+#: driver's one late or missing sample there would leave nothing to align on
+AUTO_RISE_SAMPLES = 8
+#: the levels stay on the first part of the rise: past this fraction of the level the
+#: curve bends over, and fingers begin to reach the largest objects
 AUTO_RISE_MAX = 0.3
+#: levels between lo and hi whose crossing times are compared, and how many must be
+#: clear of gaps in the samples
+RISE_LEVELS, RISE_MIN_LEVELS = 7, 3
 #: a grasp's object needs its equilibrium dP beyond this many sd of the difference of two
 #: free-air cycles (one in about 30,000 empty grips for a normal cycle-to-cycle error)
 OBJECT_SIGMAS = 4.0
@@ -97,8 +104,13 @@ def alignment(cfg: SequenceConfig, reference: Reference, sign: float) -> Alignme
         level, noise = float(np.mean(ref[sel])), float(np.std(ref[sel]))
         lo = max(AUTO_RISE[0] * level, AUTO_RISE_NOISE[0] * noise)
         hi = max(AUTO_RISE[1] * level, AUTO_RISE_NOISE[1] * noise)
-        if not 0 < lo < hi <= AUTO_RISE_MAX * level:
+        if not 0 < lo < hi <= AUTO_RISE_MAX * level:  # a rise too small for its noise
             return None
+        t_lo = F.crossing_time(reference.t_rel, ref, lo)
+        if t_lo is not None and len(reference.t_rel) > 1:
+            period = float(np.median(np.diff(reference.t_rel[: min(len(reference.t_rel), 1000)])))
+            hi = max(hi, float(np.interp(t_lo + AUTO_RISE_SAMPLES * period, reference.t_rel, ref)))
+        hi = min(hi, AUTO_RISE_MAX * level)
     else:
         lo, hi = (v * KPA for v in spec)
     t_min = F.crossing_time(reference.t_rel, ref, hi)
@@ -261,7 +273,8 @@ def analyse(cycle_id: int, p0: float, t_start: float, t_open: float | None, t_en
     align = alignment(cfg, reference, sign)
     if align is not None:
         res.t_c_min = align.t_min
-        res.rise_shift = F.rise_shift(t_rel, sign * p_rel, reference.t_rel, sign * reference.p, align.lo, align.hi)
+        res.rise_shift = F.rise_shift(t_rel, sign * p_rel, reference.t_rel, sign * reference.p, align.lo, align.hi,
+                                      RISE_LEVELS, RISE_MIN_LEVELS)
         if res.rise_shift is not None:
             t_al = t_rel - res.rise_shift
     dp = F.delta_p(t_al, p_rel, reference.t_rel, reference.p)

@@ -45,6 +45,7 @@ log = logging.getLogger(__name__)
 #: the cycle's features a grasp carries beside its estimates, as the cycle's result
 #: publishes them (CycleResult.to_dict: the unit in each name)
 GRASP_FEATURES = ("p_eq_kpa", "p_sd_kpa", "offset_kpa", "dp_eq_kpa", "dp_max_kpa", "t_c_slope_s", "t_c_threshold_s",
+                  "rise_shift_s", "object_bound_kpa",
                   "v_eq_ml")
 
 

@@ -25,7 +25,7 @@ from collections import deque
 
 import numpy as np
 from fluidsense.controller.cycles import features as F
-from fluidsense.controller.cycles.analysis import Alignment, Reference
+from fluidsense.controller.cycles.analysis import RISE_LEVELS, RISE_MIN_LEVELS, Alignment, Reference
 
 
 class ContactWatch:
@@ -95,7 +95,7 @@ class ContactWatch:
             return None, p
         ref = self.reference
         shift = F.rise_shift(t_all[after], self.sign * (p_all[after] - self.offset), ref.t_rel, self.sign * ref.p,
-                             self.align.lo, self.align.hi)
+                             self.align.lo, self.align.hi, RISE_LEVELS, RISE_MIN_LEVELS)
         if shift is None:
             # not lined up (samples missing across the levels): dP on the rise would be the
             # valve's timing, so nothing is reported live; the grasp says why

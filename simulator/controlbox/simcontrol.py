@@ -11,7 +11,8 @@ request's ``id`` echoed when it has one. This is not part of the UR control box.
 
 A box backed by the simulated plant (``fluidsense simcell``) also answers ``scene``
 (place an object), ``world`` (lay out slots and objects for an arm), ``truth`` (what a
-bench instrument would read) and ``inject`` / ``clear_faults`` (fault injection). Every
+bench instrument would read), ``inject`` / ``clear_faults`` (fault injection) and
+``command_lag`` (valve commands reach the valves late, as from a busy PC). Every
 box answers ``network`` (pull the cable), ``rtde_lag`` (slow RTDE streams arrive late) and
 ``lie`` (say on the wire what cannot be true: lies.py). The
 same commands are served over TCP (one JSON object per line each way) when the cell
@@ -92,6 +93,15 @@ class InjectCommand(StrictModel):
     after_s: float = Field(0.0, ge=0, le=3600)
 
 
+class CommandLagCommand(StrictModel):
+    """Every valve command reaches its valve ``lag_s`` late (a PC busy between deciding a
+    command and sending it: the latency a polled driver cannot see); 0 ends it."""
+
+    cmd: Literal["command_lag"]
+    id: Any = None
+    lag_s: float = Field(ge=0, le=1)
+
+
 class ClearFaultsCommand(StrictModel):
     cmd: Literal["clear_faults"]
     id: Any = None
@@ -126,9 +136,10 @@ class LieCommand(StrictModel):
     count: int = Field(gt=0, le=1_000_000)
 
 
-_PLANT = (SceneCommand, WorldCommand, TruthCommand, InjectCommand, ClearFaultsCommand)
+_PLANT = (SceneCommand, WorldCommand, TruthCommand, InjectCommand, ClearFaultsCommand, CommandLagCommand)
 SimRequest = TypeAdapter(Annotated[StateCommand | SetCommand | SceneCommand | WorldCommand | TruthCommand
-                                | InjectCommand | ClearFaultsCommand | NetworkCommand | RtdeLagCommand
+                                | InjectCommand | ClearFaultsCommand | CommandLagCommand | NetworkCommand
+                                | RtdeLagCommand
                                 | LieCommand,
                                 Field(discriminator="cmd")])
 
@@ -176,6 +187,8 @@ def _plant(box: ControlBox, c: StrictModel) -> dict[str, Any]:
         m.inject(c.fault, c.after_s)
     elif isinstance(c, ClearFaultsCommand):
         m.clear_faults()
+    elif isinstance(c, CommandLagCommand):
+        m.cell.command_lag_s = c.lag_s
     if not isinstance(c, TruthCommand):
         log.info("sim control: %s", c.cmd)
     return {"truth": m.truth()}

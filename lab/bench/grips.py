@@ -30,7 +30,7 @@ from typing import Any
 NAME = "grips"
 HELP = "empty grips and grips on cylinders through ur and modbus, quiet and beside busy processes"
 DESCRIPTION = __doc__
-FEATURES = ("p_eq_kpa", "dp_eq_kpa", "dp_max_kpa", "t_c_threshold_s")
+FEATURES = ("p_eq_kpa", "dp_eq_kpa", "dp_max_kpa", "t_c_threshold_s", "object_bound_kpa")
 
 
 def register(p: argparse.ArgumentParser) -> None:
@@ -94,7 +94,7 @@ def _grips(kind: str, load: int, plan: list[float | None]) -> dict[str, Any]:
                     g.release()
                     out["grips"].append({"size_mm": size, "object": grasp.object, "contact": grasp.contact,
                                          "note": grasp.note, **{k: grasp.features.get(k) for k in FEATURES},
-                                         "rise_shift_s": grasp.event.data.get("features", {}).get("rise_shift_s")})
+                                         "rise_shift_s": grasp.features.get("rise_shift_s")})
         finally:
             for b in burners:
                 if b.is_alive():
@@ -106,6 +106,13 @@ def _grips(kind: str, load: int, plan: list[float | None]) -> dict[str, Any]:
             box.__exit__(None, None, None)
     out["wall_s"] = round(time.monotonic() - t0, 1)
     return out
+
+
+def _median(values: list[float | None]) -> float | None:
+    import numpy as np
+
+    vals = [v for v in values if v is not None]
+    return round(float(np.median(vals)), 4) if vals else None
 
 
 def summarise(run: dict[str, Any]) -> dict[str, Any]:
@@ -120,6 +127,11 @@ def summarise(run: dict[str, Any]) -> dict[str, Any]:
             "object_uncertain": sum(g["object"] is None for g in full),
             "per_size": {f"{s:g}": sum(g["object"] is True for g in full if g["size_mm"] == s)
                          for s in sorted({g["size_mm"] for g in full})},
+            "dp_eq_kpa_median": {("empty" if s is None else f"{s:g}"): _median(
+                [g["dp_eq_kpa"] for g in run["grips"] if g["size_mm"] == s]) for s in
+                [None, *sorted({g["size_mm"] for g in full})]},
+            "object_bound_kpa": _median([g["object_bound_kpa"] for g in run["grips"]]),
+            "aligned": sum(g["rise_shift_s"] is not None for g in run["grips"]), "grips": len(run["grips"]),
             "wrong": wrong}
 
 
@@ -150,6 +162,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"{r['driver']:6s} load {r['load']}: empty read as an object {r['false_object']}/{r['empty']} "
               f"(uncertain {r['empty_uncertain']}); object missed {r['missed_object']}/{r['objects']} "
               f"(uncertain {r['object_uncertain']}); read as an object per size {r['per_size']}; {r['wall_s']:.0f} s")
+        print(f"    median dP_eq (kPa) {r['dp_eq_kpa_median']} against the bound {r['object_bound_kpa']}; "
+              f"aligned on the rise {r['aligned']}/{r['grips']}")
         for g in r["wrong"]:
             size = "empty" if g["size_mm"] is None else f"{g['size_mm']:g} mm"
             print(f"    {size}: object {g['object']}, " + ", ".join(f"{k} {g[k]}" for k in FEATURES)

@@ -58,6 +58,11 @@ class SimDriverConfig(DriverEntry):
         return DeadLinkVent("no_link", "the simulated cell runs inside the daemon: it has no link to lose, and it "
                             "stops with the daemon")
 
+    def valves_on_sample_clock(self) -> bool:
+        # virtual time: a command is an event at its sample time; in real time the cell may
+        # already have produced samples past it, and the valve switches after those
+        return self.clock == "virtual"
+
     def for_job(self, seed: int) -> SimDriverConfig:
         return self.model_copy(update={"clock": "virtual", "seed": seed})
 

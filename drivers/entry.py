@@ -107,6 +107,14 @@ class DriverEntry(StrictModel):
         watchdog of its own keeps its outputs: the default."""
         return DeadLinkVent("none", f"{self.where()} keeps its outputs as last set")
 
+    def valves_on_sample_clock(self) -> bool:
+        """The valves switch at the sample time a command names, on the samples' own clock
+        (a simulated cell in virtual time): cycles and their references are then timed
+        alike, and the profile's ``align_rise_kpa: auto`` leaves them so. False (the
+        default): the command reaches the valve after the host got round to it, by as
+        many ms as the PC was busy."""
+        return False
+
     def needs_operator(self) -> bool:
         """Only an operator can place objects in front of the gripper (a real cell whose
         scene no software lays out): a calibration then asks for each target."""

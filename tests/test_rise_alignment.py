@@ -188,3 +188,21 @@ def test_alignment_levels_must_be_an_increasing_pair_of_small_pressures(bad, tmp
             "windows": [{"name": "eq", "start_s": 2.0, "end_s": 2.5}], "align_rise_kpa": bad}
     with pytest.raises(ConfigError, match="align_rise_kpa must be"):
         validate(SequenceConfig, data, tmp_path / "p.yaml")
+
+
+def test_auto_keeps_the_commanded_timing_only_where_the_valves_switch_on_the_samples_clock(tmp_path):
+    """A simulated cell in virtual time switches a valve at the sample time its command
+    names: cycles and references are timed alike, and the cell's profile keeps that timing.
+    Everywhere else (the emulated or a real box, a serial board, a real-time simulated cell)
+    the command reaches the valve when the host gets round to it: auto stays auto."""
+    from fluidsense.controller.config import load_cell_config
+    from support.harness import CONFIG, sim_config, simcell_config
+
+    assert load_cell_config(sim_config(tmp_path)).profile.sequence.align_rise_kpa is None
+    assert load_cell_config(sim_config(tmp_path, clock="realtime")).profile.sequence.align_rise_kpa == "auto"
+    for kind in ("modbus", "ur"):
+        cfg = load_cell_config(simcell_config(tmp_path, kind, "127.0.0.9"))
+        assert cfg.profile.sequence.align_rise_kpa == "auto", kind
+    # levels set by hand are the profile's, whatever the driver
+    quick = load_cell_config(sim_config(tmp_path, profile=str(CONFIG / "profiles" / "pneunet-gripper-quick.yaml")))
+    assert quick.profile.sequence.align_rise_kpa == (1.0, 3.0)

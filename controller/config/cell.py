@@ -188,6 +188,19 @@ class CellConfig(StrictModel):
     gripper: GripperConfig = GripperConfig()
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = "INFO"
 
+    @field_validator("profile")
+    @classmethod
+    def _timed_like_the_driver(cls, profile: Profile, info: ValidationInfo) -> Profile:
+        """``align_rise_kpa: auto`` on a driver whose valves switch on the samples' clock:
+        cycles and references are timed alike there, and aligning would only hide contacts
+        on the first rise (the stiffness scene's soft plate, met during it, read 4.69 mm of
+        indentation instead of 0.93). The cell's profile keeps the commanded timing."""
+        driver = info.data.get("driver")
+        seq = profile.sequence
+        if seq.align_rise_kpa == "auto" and driver is not None and driver.valves_on_sample_clock():
+            return profile.model_copy(update={"sequence": seq.model_copy(update={"align_rise_kpa": None})})
+        return profile
+
     @model_validator(mode="after")
     def _paced(self) -> CellConfig:
         """The sample loop handles one block per iteration and yields to the event loop

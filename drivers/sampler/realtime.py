@@ -5,6 +5,13 @@ thread"), on purpose: the ZeroMQ I/O thread, started before these are applied, k
 the normal policy and may run on any CPU, so moving blocks to the daemon never
 competes with the slot loop at real-time priority.
 
+Except the poller's own threads (``poller_threads``: those its ``open()`` started, such
+as ur_rtde's RTDE receive thread), which get the same SCHED_FIFO priority, unpinned. The
+slot loop reads what they receive: at normal priority beside two busy processes they
+got a third of a CPU in slices, the newest RTDE package was often not yet parsed when
+its slot came (a missed slot), and the mutex a getter shares with them could be held by
+a thread the scheduler had put aside (docs/performance.md, "The ur driver under load").
+
 Each setting is reported as ``{"applied": bool, "requested": bool, "detail": str}``; when one is not
 applied the process logs one warning line saying what and why (e.g. EPERM).
 """
@@ -107,12 +114,44 @@ def freeze_gc() -> dict[str, Any]:
     return _result(True, f"gc.freeze() ({gc.get_freeze_count()} objects) + gc.disable()")
 
 
-def apply(priority: int | None, cpu: int | str, timerslack_ns: int = 1) -> Report:
-    """Apply everything, in an order that lets each step still succeed after the others."""
+def threads() -> set[int]:
+    """This process's thread ids (Linux: /proc/self/task); empty where it cannot be read."""
+    try:
+        return {int(tid) for tid in os.listdir("/proc/self/task")}
+    except OSError:
+        return set()
+
+
+def set_fifo_threads(tids: set[int], priority: int | None) -> dict[str, Any]:
+    """SCHED_FIFO for other threads of this process (sched_setscheduler takes a thread id)."""
+    if not tids:
+        return _result(False, "none started by the poller", requested=False)
+    if priority is None:
+        return _result(False, "not requested (rt_priority: null)", requested=False)
+    if not hasattr(os, "sched_setscheduler"):
+        return _result(False, f"SCHED_FIFO is not available on {sys.platform}")
+    done = []
+    for tid in sorted(tids):
+        try:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+        except ProcessLookupError:
+            continue  # a thread that has ended since
+        except OSError as exc:
+            return _result(False, f"SCHED_FIFO priority {priority} for the poller's thread {tid} refused: "
+                           f"{_os_reason(exc)}")
+        done.append(tid)
+    return {**_result(True, f"the poller's {len(done)} thread(s) at SCHED_FIFO priority {priority}"), "tids": done}
+
+
+def apply(priority: int | None, cpu: int | str, timerslack_ns: int = 1,
+          poller_threads: set[int] = frozenset()) -> Report:
+    """Apply everything, in an order that lets each step still succeed after the others.
+    ``poller_threads``: the threads the poller started (``threads()`` around its open())."""
     report = {
         "timerslack": set_timerslack(timerslack_ns),
         "affinity": pin(cpu),
         "sched_fifo": set_fifo(priority),
+        "poller_threads": set_fifo_threads(set(poller_threads), priority),
         "gc": freeze_gc(),
     }
     for name, r in report.items():

@@ -70,6 +70,35 @@ def set_fifo(priority: int | None, reset_on_fork: bool = False) -> dict[str, Any
     return _result(True, f"SCHED_FIFO priority {priority} (kernel RT budget sched_rt_runtime_us={_rt_runtime()})")
 
 
+#: the SCHED_FIFO priority the daemon's sample loop was granted (set_loop_priority); None
+#: while it runs at normal priority
+_loop_priority: int | None = None
+
+
+def set_loop_priority(priority: int | None) -> dict[str, Any]:
+    """The daemon's (or a CLI job's) sample loop thread at SCHED_FIFO ``priority``; the
+    processes it starts get the normal policy back (SCHED_RESET_ON_FORK), and so, on
+    Linux, do the threads it starts: they are clones too. Its own threads that take the
+    GIL or a lock the loop takes (the recording's) call ``share_loop_priority``."""
+    global _loop_priority
+    result = set_fifo(priority, reset_on_fork=True)
+    if result["applied"]:
+        _loop_priority = priority
+    return result
+
+
+def share_loop_priority() -> None:
+    """The calling thread, one of the loop's process's own, at the loop's priority when the
+    loop has one. A thread at normal priority that holds the GIL (or the queue's lock)
+    while two busy processes share the CPUs is put aside for tens to hundreds of ms, and
+    the loop, which needs the GIL next, waits with it (docs/performance.md, "The overrun as
+    load starts")."""
+    if _loop_priority is not None:
+        result = set_fifo(_loop_priority, reset_on_fork=True)
+        if not result["applied"]:
+            log.warning("a thread of the sample loop's process stays at normal priority: %s", result["detail"])
+
+
 def pin(cpu: int | str) -> dict[str, Any]:
     if cpu == "none":
         return _result(False, "not requested (cpu: none)", requested=False)

@@ -54,7 +54,7 @@ class Controller:
         self.telemetry = Telemetry(publisher or NullPublisher(), cfg.publisher, now=now, rate_hz=lambda: backend.source.rate_hz,
                                    clock_origin=lambda: backend.source.clock_origin_s, on_failure=self._internal)
         self.cycles = CycleRunner(self.profile, backend, now=now, emit=self.telemetry.emit,
-                                  record=self.telemetry.record, trip=self._trip)
+                                  record=self.telemetry.record, trip=self._trip, freeze_s=cfg.supervision.freeze_s)
         self.supervisor = Supervisor(self.profile, cfg.supervision)
         self.outputs = OutputWatch(backend, self.latch, self.telemetry.emit, cfg.publisher.heartbeat_s)
         self.loop = SampleLoop(cfg, backend, connect=self._connect, handle=self._on_block, fail=self._read_failed,

@@ -50,9 +50,9 @@ def _loop_priority(cfg: CellConfig) -> dict[str, Any]:
     on a busy robot PC a loop at normal priority falls behind its samples. Processes
     started from here (sampler, ur_rtde worker, publisher outlet) get the normal policy
     back and set their own."""
-    from fluidsense.drivers.sampler.realtime import set_fifo
+    from fluidsense.drivers.sampler.realtime import set_loop_priority
 
-    result = set_fifo(cfg.loop.rt_priority, reset_on_fork=True)
+    result = set_loop_priority(cfg.loop.rt_priority)
     if result["applied"]:
         log.info("sample loop: %s", result["detail"])
     elif result["requested"]:

@@ -201,3 +201,23 @@ def test_lack_of_fit_does_not_average_away():
         inv = cal.invert(y, n_measurements=50)
         covered += inv.interval95[0] <= h <= inv.interval95[1]
     assert covered == 9
+
+
+def test_loading_a_calibration_imports_what_its_intervals_need_so_no_sample_loop_imports_it():
+    """A daemon loads its calibrations before its sample loop runs; the first interval
+    used to import scipy.special inside the loop (0.2-0.35 s of CPU, over a second beside
+    busy processes: an ``overrun`` at a fresh daemon's first grasp). In a fresh
+    interpreter: not imported by the modules, imported by the load, and the interval then
+    imports nothing more."""
+    code = (
+        "import sys\n"
+        "from fluidsense.controller.requests.grip import GripHandler\n"
+        "from fluidsense.controller.sensing.calibration import Calibration\n"
+        "before = 'scipy.special' in sys.modules\n"
+        f"cal = Calibration.load({str(REPO / 'config' / 'calibrations' / 'pneunet-gripper-quick-p_eq.json')!r})\n"
+        "loaded = 'scipy.special' in sys.modules\n"
+        "modules = set(sys.modules)\n"
+        "cal.estimate(float(cal.predict(60.0)) * 1e3)  # Pa of a 60 mm object\n"
+        "print(before, loaded, sorted(set(sys.modules) - modules))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO).stdout
+    assert out.split() == ["False", "True", "[]"], out

@@ -33,9 +33,20 @@ class Supervision(StrictModel):
     """Thresholds of the safety supervisor (controller/safety/supervisor.py)."""
 
     stuck_s: Real = Field(0.25, gt=0, le=60, description="a pressure reading that does not change for this long is stuck")
+    freeze_s: Real = Field(
+        0.05, gt=0, le=60, description="p_act unchanged this long (but under stuck_s) inside a cycle's measured span "
+        "marks its reading unreliable (a box or sensor that froze); a live one repeats a reading for a few ms "
+        "(docs/safety.md)")
     leak_kpa_per_s: Real = Field(0.1, gt=0, le=100, description="decay towards atmosphere while held that is a leak")
     no_data_s: Real = Field(0.5, gt=0, le=60, description="real time: no block for this long is a fault")
     overrun_s: Real = Field(0.25, gt=0, le=60, description="real time: the loop this far behind the samples is a fault")
+
+    @model_validator(mode="after")
+    def _freeze_under_stuck(self) -> Supervision:
+        if self.freeze_s >= self.stuck_s:
+            raise ValueError(f"freeze_s ({self.freeze_s:g}) must be below stuck_s ({self.stuck_s:g}): a longer "
+                             "freeze is a sensor_stuck fault")
+        return self
 
 
 class LoopConfig(StrictModel):

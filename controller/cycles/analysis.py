@@ -12,6 +12,7 @@ from fluidsense.common.samples import SampleBlock
 from fluidsense.common.units import KPA
 from fluidsense.controller.config import SequenceConfig
 from fluidsense.controller.cycles import features as F
+from fluidsense.controller.cycles import frozen
 from fluidsense.controller.cycles.sequencer import Transition
 
 
@@ -149,6 +150,8 @@ def judge_object(res: CycleResult) -> tuple[bool | None, str | None]:
         return None, "no free-air reference at this P0"
     if res.dp_eq is None or res.object_bound is None:
         return None, "no equilibrium dP (the first window is outside the reference)"
+    if res.unreliable:  # a frozen input in the measured span: the readings are not the cell's
+        return None, f"the reading is unreliable: {res.unreliable}"
     bound, eq = res.object_bound, sign * res.dp_eq
     if eq < -bound:
         return None, (f"the equilibrium is {-eq / KPA:.3f} kPa below the free-air reference, beyond its spread "
@@ -204,6 +207,8 @@ class CycleResult:
     flow_offset: float | None = None
     samples: int = 0
     missed: int = 0
+    unchanged_s: float | None = None  # longest run of unchanged p_act readings in the measured span
+    unreliable: str | None = None  # why the reading is not to be trusted (a freeze under stuck_s), or None
     trace: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
 
     @property
@@ -233,6 +238,7 @@ class CycleResult:
             "object": self.object, "object_note": self.object_note, "object_bound_kpa": _kpa(self.object_bound),
             "v_eq_ml": None if self.v_eq is None else self.v_eq * 1e6,
             "samples": self.samples, "missed": self.missed,
+            "unchanged_s": self.unchanged_s, "unreliable": self.unreliable,
         }
 
 
@@ -243,9 +249,11 @@ def _kpa(v: float | None) -> float | None:
 def analyse(cycle_id: int, p0: float, t_start: float, t_open: float | None, t_end: float | None,
             t: np.ndarray, values: np.ndarray, channels: tuple[str, ...], cfg: SequenceConfig,
             reference: Reference | None, aborted: str | None = None, label: str | None = None,
-            missed: int = 0, circuit: Circuit | None = None) -> CycleResult:
-    """Features of one cycle from its recorded samples (SI units); ``circuit``: the
-    profile's, whose repeatability sets the object's bound (eq_sd)."""
+            missed: int = 0, circuit: Circuit | None = None, freeze_s: float | None = None) -> CycleResult:
+    """Features of one cycle from its recorded samples (SI units). ``circuit``: the
+    profile's, whose repeatability sets the object's bound (eq_sd). ``freeze_s``: a run of
+    unchanged p_act readings this long in the measured span makes the result unreliable
+    (frozen.py); None: not looked for (a noise-free simulated sensor never changes)."""
     res = CycleResult(cycle_id, p0, t_start, t_open, t_end, aborted=aborted, label=label,
                       samples=len(t), missed=missed)
     if t_open is None or aborted is not None:
@@ -256,6 +264,14 @@ def analyse(cycle_id: int, p0: float, t_start: float, t_open: float | None, t_en
     for w in cfg.windows:
         ws = F.window_stats(t, pc, t_open, w.start_s, w.end_s)
         res.windows.append(WindowResult(w.name, w.start_s, w.end_s, ws.mean, ws.sd, ws.n))
+    if freeze_s is not None:
+        # the offset window, the windows and the actuation whose dP gives the contact times
+        run = frozen.longest_run(t, p, t_open - cfg.offset_s, t_open + cfg.actuate_s)
+        if run is not None:
+            res.unchanged_s = run.held_s
+            if run.held_s >= freeze_s:
+                part = frozen.where(run, t_open, cfg.offset_s, cfg.windows)
+                res.unreliable = frozen.reason("p_act", run, t_open, part, freeze_s)
     if cfg.flow_window is not None and "flow" in channels:
         q = values[:, channels.index("flow")]
         res.flow_offset = F.sensor_offset(t, q, t_open, cfg.offset_s)

@@ -36,7 +36,7 @@ from fluidsense.controller.cycles.analysis import (
     analyse,
     make_reference,
 )
-from fluidsense.controller.cycles.runner import reference_key
+from fluidsense.controller.cycles.runner import freeze_for, reference_key
 from fluidsense.drivers.recording.backend import ReplaySource
 from fluidsense.drivers.recording.messages import to_json
 from fluidsense.drivers.recording.reader import Record
@@ -159,8 +159,11 @@ def check_event(rec: Record) -> None:
 class CycleReplay:
     """Rebuilds cycles from a recording's records in file order (no I/O)."""
 
-    def __init__(self, seq: SequenceConfig, circuit: Circuit | None = None):
+    def __init__(self, seq: SequenceConfig, circuit: Circuit | None = None, freeze_s: float | None = None):
+        """``circuit``: the profile's (the object's bound); ``freeze_s``: as the controller
+        had it (runner.freeze_for)."""
         self.seq, self.circuit = seq, circuit
+        self.freeze_s = freeze_s
         self.references: dict[float, Reference] = {}
         self.cycles: list[ReplayedCycle] = []
         self._open: _Cycle | None = None
@@ -234,7 +237,7 @@ class CycleReplay:
         try:
             return analyse(cur.cycle_id, cur.p0_pa, cur.t_start, cur.t_open, t_end, t, values, cur.recorder.channels,
                            self.seq, ref, aborted=aborted, label=cur.label, missed=cur.recorder.missed,
-                           circuit=self.circuit)
+                           circuit=self.circuit, freeze_s=self.freeze_s)
         except ValueError as exc:
             return CycleResult(cur.cycle_id, cur.p0_pa, cur.t_start, cur.t_open, cur.t_result or self.t_last,
                                aborted=f"analysis failed: {exc}", missed=cur.recorder.missed)
@@ -263,8 +266,13 @@ def _same(a: Any, b: Any) -> bool:
     return a == b
 
 
+#: fields of a cycle's result newer than some recordings: one recorded without them has
+#: nothing to compare them with (a recording from before a field existed still agrees)
+NEWER_FIELDS = frozenset({"unchanged_s", "unreliable"})
+
+
 def _differences(replay: dict[str, Any], live: dict[str, Any]) -> list[str]:
-    keys = sorted(set(replay) | (set(live) - {"t_s"}))
+    keys = sorted((set(replay) - (NEWER_FIELDS - set(live))) | (set(live) - {"t_s"}))
     return [k for k in keys if not _same(replay.get(k), live.get(k))]
 
 
@@ -281,7 +289,7 @@ async def replay_file(path: str | Path) -> ReplayReport:
 async def _replay(source: ReplaySource, path: str | Path) -> ReplayReport:
     """The replay proper, on a set-up source."""
     cfg = validate(CellConfig, source.config, path, prefix="(recorded config) ")
-    pipeline = CycleReplay(cfg.profile.sequence, cfg.profile.circuit)
+    pipeline = CycleReplay(cfg.profile.sequence, cfg.profile.circuit, freeze_for(cfg.profile, cfg.supervision.freeze_s))
     report = ReplayReport(str(path), closed=False, dropped_bytes=0)
     while True:
         try:

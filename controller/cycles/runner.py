@@ -47,6 +47,13 @@ log = logging.getLogger(__name__)
 Emit = Callable[[str, dict[str, Any]], None]
 
 
+def freeze_for(profile: Profile, freeze_s: float | None) -> float | None:
+    """``freeze_s`` where a frozen p_act can be told from a live one: not for a sensor the
+    profile declares noise-free and unquantised (the supervisor's stuck check skips it too)."""
+    sensor = profile.sensor
+    return freeze_s if sensor.noise_sd_kpa > 0 or sensor.quantum_kpa > 0 else None
+
+
 def reference_key(p0_pa: float) -> float:
     """References are kept per P0, to the Pa."""
     return round(p0_pa / KPA, 3)
@@ -62,10 +69,12 @@ def _action_dict(action: Action) -> dict[str, Any]:
 
 class CycleRunner:
     def __init__(self, profile: Profile, backend: Backend, *, now: Callable[[], float], emit: Emit, record: Emit,
-                 trip: Callable[[Fault], Any]):
+                 trip: Callable[[Fault], Any], freeze_s: float | None = None):
         """``emit`` publishes an event; ``record`` hands one only to the recording sinks
-        (a cycle's start, each action: what a replay needs); ``trip`` latches a fault."""
+        (a cycle's start, each action: what a replay needs); ``trip`` latches a fault;
+        ``freeze_s``: supervision.freeze_s (analysis.analyse)."""
         self.profile, self.backend = profile, backend
+        self.freeze_s = freeze_for(profile, freeze_s)
         self._now, self._emit, self._record, self._trip = now, emit, record, trip
         self.sequencer = Sequencer(profile.sequence, backend.valves.safe_positions, settled=self._settled)
         self.references: dict[float, Reference] = {}
@@ -240,7 +249,8 @@ class CycleRunner:
         try:
             return analyse(seq.cycle_id, seq.p0_pa, seq.t_start, seq.t_open, (seq.t_end or now) if final else None,
                            t, values, trace.channels, self.profile.sequence, ref, aborted=seq.aborted,
-                           label=self._opts.get("label"), missed=trace.missed, circuit=self.profile.circuit)
+                           label=self._opts.get("label"), missed=trace.missed, circuit=self.profile.circuit,
+                           freeze_s=self.freeze_s)
         except ValueError as exc:  # too few samples for a window: report, do not crash
             return CycleResult(seq.cycle_id, seq.p0_pa, seq.t_start, seq.t_open, now,
                                aborted=f"analysis failed: {exc}", missed=trace.missed)

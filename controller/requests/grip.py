@@ -221,7 +221,7 @@ class GripHandler(Sink):
             "cycle_id": res.cycle_id, "command": self.op, "at_s": self.t_grasp, "p0_kpa": published["p0_kpa"],
             "object": obj, "contact": contact, "t_c_s": res.t_c_threshold,
             "calibrated": bool(self.calibrations), "estimates": [E.to_edge(e) for e in ests],
-            "in_range": None if not ests or obj is False else all(ok), "note": note,
+            "in_range": None if not ests or obj is False else all(ok), "note": note, "unreliable": res.unreliable,
             "features": {name: published[name] for name in GRASP_FEATURES}}
         self._offset = res.offset or 0.0
         level = (res.p_eq or 0.0) + self._offset

@@ -35,7 +35,7 @@ from fluidsense.controller.config.loading import validate
 from pydantic import Field, JsonValue, model_validator
 
 from .estimate import Estimate, quantity_name, si_unit
-from .fitstats import fit_stats, prediction_sd, t_quantile
+from .fitstats import fit_stats, load_quantiles, prediction_sd, t_quantile
 
 FORMAT = "fluidsense-calibration/1"
 
@@ -258,7 +258,9 @@ class Calibration:
             raise ConfigError(f"{path}: not a calibration file: JSON nested more than {MAX_DEPTH} levels deep")
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise ConfigError(f"{path}: format: not a calibration file (format is not {FORMAT!r})")
-        return cls(**validate(CalibrationFile, data, path).model_dump())
+        calibration = cls(**validate(CalibrationFile, data, path).model_dump())
+        load_quantiles()  # its intervals need scipy.special: imported now, not in a sample loop
+        return calibration
 
 
 def _refuse_constant(name: str) -> Any:

@@ -65,12 +65,22 @@ def prediction_sd(fs: FitStats, x0: float, n_measurements: int = 1) -> float:
     return math.sqrt(var)
 
 
+def load_quantiles() -> None:
+    """Import what ``t_quantile`` needs, now: called where a calibration is loaded (before
+    any loop runs), so that a daemon's first interval does not import scipy.special in its
+    sample loop (0.2-0.35 s of CPU quiet, more than a second beside busy processes: a
+    fresh daemon's first grasp once latched ``overrun``; docs/performance.md, "The overrun
+    as load starts")."""
+    from scipy import special  # noqa: F401, PLC0415
+
+
 def t_quantile(coverage: float, dof: int) -> float:
     """Two-sided quantile of Student's t for ``coverage`` (normal when dof is unknown)."""
     # scipy.stats' t.ppf and norm.ppf are these functions; scipy.special imports in a third
-    # of the time. Imported here, at the first interval, not with the module: the daemon
-    # imports this module at start (every daemon, simcell and CLI start in the suite paid
-    # 0.2-0.35 s of CPU for it) and most of them never compute an interval.
+    # of the time. Imported here, not with the module: the daemon imports this module at
+    # start (every daemon, simcell and CLI start in the suite paid 0.2-0.35 s of CPU for
+    # it) and most of them never compute an interval; those that load a calibration import
+    # it then (load_quantiles).
     from scipy import special
 
     q = 0.5 + coverage / 2

@@ -18,6 +18,7 @@ import threading
 from typing import Any
 
 from fluidsense.common.samples import SampleBlock
+from fluidsense.drivers.sampler.realtime import share_loop_priority
 
 from .fanout import Sink
 
@@ -98,6 +99,7 @@ class QueuedSink(Sink):
 
     # ------------------------------------------------------------ the thread's side
     def _work(self) -> None:
+        share_loop_priority()  # it takes the GIL and the queue's lock the loop takes
         failed = False
         while True:
             item = self._q.get()

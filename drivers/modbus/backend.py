@@ -189,6 +189,17 @@ def modbus_inputs(cfg: ModbusDriverConfig, channels: tuple[str, ...]) -> list[li
     return out
 
 
+def modbus_domains(cfg: ModbusDriverConfig, channels: tuple[str, ...]) -> list[list[int]]:
+    """Per wired input of ``channels`` [analog input, domain register, code expected]; none
+    for a map without domain registers (a generic I/O module)."""
+    regs = cfg.registers.analog_input_domains
+    if regs is None:
+        return []
+    inputs = sorted({cfg.wiring.sensors[name].analog_input: cfg.wiring.sensors[name].transfer.domain
+                     for name in channels}.items())
+    return [[ch, regs[ch], _DOMAIN_CODE[domain]] for ch, domain in inputs]
+
+
 def build(cfg: ModbusDriverConfig, hw: Hardware, read_only: bool = False) -> Backend:
     """``read_only``: the Modbus connection refuses writes, nothing runs at connection (no
     safe positions written, no watchdog sent) and the arm is left out (its control
@@ -213,7 +224,7 @@ def build(cfg: ModbusDriverConfig, hw: Hardware, read_only: bool = False) -> Bac
     script = None if cfg.watchdog is None or read_only or cfg.watchdog.program == "integrator" else \
         box_script(cfg.wiring.valves, hw.circuit.safe_valves, cfg.watchdog, arm=cfg.arm is not None)
     poller = {"host": cfg.host, "port": cfg.port, "device_id": cfg.device_id, "timeout_s": cfg.timeout_s,
-              "inputs": modbus_inputs(cfg, hw.channels)}
+              "inputs": modbus_inputs(cfg, hw.channels), "domains": modbus_domains(cfg, hw.channels)}
     sampler = sampler_config("fluidsense.drivers.modbus.poller:ModbusAnalogPoller", poller, hw.channels, cfg.rate_hz,
                              cfg.block_size, cfg.sampler, cfg.reconnect.connect_timeout_s)
     regulated = isinstance(hw.circuit, (TankCircuit, RegulatedCircuit))

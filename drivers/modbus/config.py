@@ -28,7 +28,7 @@ class RegisterMap(StrictModel):
     clear_mask: Register | None = Field(3, description="writing clears those output bits")
     analog_inputs: tuple[Register, Register] = Field((4, 6), description="raw 0..65535 of analog input 0, 1")
     analog_input_domains: tuple[Register, Register] | None = Field(
-        (5, 7), description="0 current, 1 voltage; checked against the wiring at set-up")
+        (5, 7), description="0 current, 1 voltage; checked against the wiring at set-up and at every poll")
     analog_outputs: tuple[Register, Register] = (16, 18)
     analog_output_domains: tuple[Register, Register] | None = (17, 19)
 
@@ -36,8 +36,10 @@ class RegisterMap(StrictModel):
     def _masks_together(self) -> RegisterMap:
         if (self.set_mask is None) != (self.clear_mask is None):
             raise ValueError("set_mask and clear_mask go together (both, or neither)")
-        if abs(self.analog_inputs[1] - self.analog_inputs[0]) >= 125:
-            raise ValueError("analog_inputs must lie within 125 registers of each other: one poll reads both")
+        polled = (*self.analog_inputs, *(self.analog_input_domains or ()))
+        if max(polled) - min(polled) >= 125:
+            raise ValueError("analog_inputs and analog_input_domains must lie within 125 registers of each other: "
+                             "one poll reads them all")
         return self
 
 

@@ -33,6 +33,7 @@ from fluidsense.common.errors import ConfigError, RecordingError
 from fluidsense.common.samples import SampleBlock
 
 from ..base import SampleSource
+from ..sampler.realtime import share_loop_priority
 from .config import RecordingConfig
 from .schema import REFERENCE
 from .writer import RecordingWriter
@@ -82,7 +83,8 @@ class RecordingSink:
                                                 "virtual": str(bool(source.virtual)).lower()}
         self._config, self._schema = config, config_schema
         self._t0_ns = time.time_ns()  # sample time 0 on the wall clock (for viewers' timelines)
-        self._sync_pool = ThreadPoolExecutor(1, thread_name_prefix="recording-fsync") if self.rc.fsync else None
+        self._sync_pool = ThreadPoolExecutor(1, thread_name_prefix="recording-fsync",
+                                             initializer=share_loop_priority) if self.rc.fsync else None
         self._sync_job: Future | None = None
         self._in_cycle = False
         self._flushed_t = 0.0

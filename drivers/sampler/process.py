@@ -8,7 +8,8 @@ Order of start-up, and why:
 1. ZeroMQ sockets first, so the I/O thread exists before the real-time settings and
    keeps the normal policy on any CPU (the settings are per thread);
 2. the poller is built and opened (this may block on a network connect);
-3. real-time settings, then ``hello`` (with what was applied), then the slot loop.
+3. real-time settings (the threads the poller's open() started get SCHED_FIFO too: they
+   receive what the loop reads), then ``hello`` (with what was applied), then the slot loop.
 
 The process ends on a ``stop`` message, on SIGTERM (SIGINT is ignored: a Ctrl-C in
 the daemon's terminal reaches the whole process group and the daemon stops us itself),
@@ -152,14 +153,15 @@ def _cpu_report(start: tuple[float, float, resource.struct_rusage], wall_s: floa
             "minor_faults": r1.ru_minflt - r0.ru_minflt, "major_faults": r1.ru_majflt - r0.ru_majflt}
 
 
-def run(args: dict[str, Any], poller: Any, sender: Sender, ctl: zmq.Socket) -> int:
+def run(args: dict[str, Any], poller: Any, sender: Sender, ctl: zmq.Socket,
+        poller_threads: set[int] = frozenset()) -> int:
     rate_hz = float(args["rate_hz"])
     clock = SpinClock(spin_ns=int(args["spin_us"] * 1000))
     loop = SlotLoop(poller, clock, sender.block, rate_hz=rate_hz, block_size=int(args["block_size"]),
                     n_channels=len(args["channels"]), late_threshold_ns=int(args["late_threshold_us"] * 1000),
                     max_consecutive_failures=2, link_timeout_ns=int(args["link_timeout_s"] * 1e9))
     keeper = Housekeeper(ctl, sender, int(args["parent_pid"]), max(1, round(rate_hz * HOUSEKEEPING_S)), loop)
-    report = realtime.apply(args["rt_priority"], args["cpu"])
+    report = realtime.apply(args["rt_priority"], args["cpu"], poller_threads=poller_threads)
     t0 = clock.now_ns() + START_LEAD_NS
     sender.send("hello", {"pid": os.getpid(), "t0_monotonic_ns": t0, "period_ns": loop.period_ns,
                           "realtime": report})
@@ -220,6 +222,7 @@ def _with_poller(args: dict[str, Any], sender: Sender, ctl: zmq.Socket) -> int:
         log.error("%s", exc)
         sender.final("fatal", {"stage": "construct", "error": str(exc)})
         return wire.EXIT_CONFIG
+    before = realtime.threads()
     try:
         poller.open()
     except Exception as exc:  # noqa: BLE001 - reported to the daemon, which raises
@@ -229,7 +232,7 @@ def _with_poller(args: dict[str, Any], sender: Sender, ctl: zmq.Socket) -> int:
         _close(poller)
         return wire.EXIT_OPEN
     try:
-        return run(args, poller, sender, ctl)
+        return run(args, poller, sender, ctl, realtime.threads() - before)
     finally:
         _close(poller)
 

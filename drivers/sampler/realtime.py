@@ -5,6 +5,13 @@ thread"), on purpose: the ZeroMQ I/O thread, started before these are applied, k
 the normal policy and may run on any CPU, so moving blocks to the daemon never
 competes with the slot loop at real-time priority.
 
+Except the poller's own threads (``poller_threads``: those its ``open()`` started, such
+as ur_rtde's RTDE receive thread), which get the same SCHED_FIFO priority, unpinned. The
+slot loop reads what they receive: at normal priority beside two busy processes they
+got a third of a CPU in slices, the newest RTDE package was often not yet parsed when
+its slot came (a missed slot), and the mutex a getter shares with them could be held by
+a thread the scheduler had put aside (docs/performance.md, "The ur driver under load").
+
 Each setting is reported as ``{"applied": bool, "requested": bool, "detail": str}``; when one is not
 applied the process logs one warning line saying what and why (e.g. EPERM).
 """
@@ -63,6 +70,35 @@ def set_fifo(priority: int | None, reset_on_fork: bool = False) -> dict[str, Any
     return _result(True, f"SCHED_FIFO priority {priority} (kernel RT budget sched_rt_runtime_us={_rt_runtime()})")
 
 
+#: the SCHED_FIFO priority the daemon's sample loop was granted (set_loop_priority); None
+#: while it runs at normal priority
+_loop_priority: int | None = None
+
+
+def set_loop_priority(priority: int | None) -> dict[str, Any]:
+    """The daemon's (or a CLI job's) sample loop thread at SCHED_FIFO ``priority``; the
+    processes it starts get the normal policy back (SCHED_RESET_ON_FORK), and so, on
+    Linux, do the threads it starts: they are clones too. Its own threads that take the
+    GIL or a lock the loop takes (the recording's) call ``share_loop_priority``."""
+    global _loop_priority
+    result = set_fifo(priority, reset_on_fork=True)
+    if result["applied"]:
+        _loop_priority = priority
+    return result
+
+
+def share_loop_priority() -> None:
+    """The calling thread, one of the loop's process's own, at the loop's priority when the
+    loop has one. A thread at normal priority that holds the GIL (or the queue's lock)
+    while two busy processes share the CPUs is put aside for tens to hundreds of ms, and
+    the loop, which needs the GIL next, waits with it (docs/performance.md, "The overrun as
+    load starts")."""
+    if _loop_priority is not None:
+        result = set_fifo(_loop_priority, reset_on_fork=True)
+        if not result["applied"]:
+            log.warning("a thread of the sample loop's process stays at normal priority: %s", result["detail"])
+
+
 def pin(cpu: int | str) -> dict[str, Any]:
     if cpu == "none":
         return _result(False, "not requested (cpu: none)", requested=False)
@@ -107,12 +143,44 @@ def freeze_gc() -> dict[str, Any]:
     return _result(True, f"gc.freeze() ({gc.get_freeze_count()} objects) + gc.disable()")
 
 
-def apply(priority: int | None, cpu: int | str, timerslack_ns: int = 1) -> Report:
-    """Apply everything, in an order that lets each step still succeed after the others."""
+def threads() -> set[int]:
+    """This process's thread ids (Linux: /proc/self/task); empty where it cannot be read."""
+    try:
+        return {int(tid) for tid in os.listdir("/proc/self/task")}
+    except OSError:
+        return set()
+
+
+def set_fifo_threads(tids: set[int], priority: int | None) -> dict[str, Any]:
+    """SCHED_FIFO for other threads of this process (sched_setscheduler takes a thread id)."""
+    if not tids:
+        return _result(False, "none started by the poller", requested=False)
+    if priority is None:
+        return _result(False, "not requested (rt_priority: null)", requested=False)
+    if not hasattr(os, "sched_setscheduler"):
+        return _result(False, f"SCHED_FIFO is not available on {sys.platform}")
+    done = []
+    for tid in sorted(tids):
+        try:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+        except ProcessLookupError:
+            continue  # a thread that has ended since
+        except OSError as exc:
+            return _result(False, f"SCHED_FIFO priority {priority} for the poller's thread {tid} refused: "
+                           f"{_os_reason(exc)}")
+        done.append(tid)
+    return {**_result(True, f"the poller's {len(done)} thread(s) at SCHED_FIFO priority {priority}"), "tids": done}
+
+
+def apply(priority: int | None, cpu: int | str, timerslack_ns: int = 1,
+          poller_threads: set[int] = frozenset()) -> Report:
+    """Apply everything, in an order that lets each step still succeed after the others.
+    ``poller_threads``: the threads the poller started (``threads()`` around its open())."""
     report = {
         "timerslack": set_timerslack(timerslack_ns),
         "affinity": pin(cpu),
         "sched_fifo": set_fifo(priority),
+        "poller_threads": set_fifo_threads(set(poller_threads), priority),
         "gc": freeze_gc(),
     }
     for name, r in report.items():

@@ -2,7 +2,10 @@
 
 Starts ``fluidsense run`` (real time) on the simulated cell (``--source sim``: hardware-
 timed, exact timestamps), on a polled Modbus analog input served by the emulated UR
-control box (``--source modbus``: the sampler process polls it), or on the serial driver
+control box (``--source modbus``: the sampler process polls it), on the ur driver against
+the same emulated box (``--source ur``: the sampler takes ur_rtde's newest RTDE package
+each slot, a slot without a new one is missed; the ur_rtde worker runs beside it as
+shipped), or on the serial driver
 against the firmware's host board behind a pty, fed by the simulated cell (``--source
 serial``: ``python -m lab simserial``; hardware-timed by the board's timer, each sample
 stamped from its device tick), attaches a ZeroMQ subscriber in this process and
@@ -53,7 +56,7 @@ DESCRIPTION = __doc__
 
 def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seconds", type=float, default=60.0, help="measurement length (default 60)")
-    p.add_argument("--source", choices=["sim", "modbus", "serial"], default="sim")
+    p.add_argument("--source", choices=["sim", "modbus", "ur", "serial"], default="sim")
     p.add_argument("--board", choices=["host", "avr"], default="host",
                    help="serial: the host board (default) or the AVR image in simavr")
     p.add_argument("--cycles", action="store_true",
@@ -116,6 +119,16 @@ def _cell_config(tmp: Path, source: str, rate: float, record: bool = True, reade
             driver["reader"] = reader
         data["driver"] = driver
         data["profile"] = str(REPO / "config" / cell["profile"])
+    elif source == "ur":
+        # the whole ur driver as shipped (the sampler's RTDE receive, the ur_rtde worker with
+        # its own RTDE streams and the box's watchdog), on a free loopback address: ur_rtde's
+        # ports are fixed and other boxes may run on this machine
+        from fluidsense.simulator.controlbox.process import free_loopback
+
+        cell = yaml.safe_load((REPO / "config" / "cell-ur-sim.yaml").read_text())
+        data["driver"] = {**cell["driver"], "host": free_loopback(), "rate_hz": rate}
+        data["driver"].pop("sim_control_port", None)
+        data["profile"] = str((REPO / "config" / cell["profile"]).resolve())
     else:
         modbus = REPO / "config" / "cell-modbus-sim.yaml"
         if not modbus.exists():
@@ -162,7 +175,7 @@ def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, loa
         if not ready or not ready.startswith("ready"):
             device.kill()
             raise RuntimeError(f"python -m lab simserial did not start (said {ready!r})")
-    if source == "modbus":
+    if source in ("modbus", "ur"):
         box = subprocess.Popen([sys.executable, "-m", "fluidsense", "simcell", "--config", str(cfg)],
                                stdout=subprocess.PIPE)
         extra.append(box)
@@ -170,13 +183,13 @@ def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, loa
         if not ready or not ready.startswith("ready"):
             box.kill()
             raise RuntimeError(f"fluidsense simcell did not start (said {ready!r}); is another box on its ports?")
-        rtt = _modbus_read_times(cfg)
+        rtt = _modbus_read_times(cfg) if source == "modbus" else None
     daemon = subprocess.Popen([sys.executable, "-m", "fluidsense", "run", "--config", str(cfg)],
                               stderr=subprocess.PIPE, start_new_session=kill_at_end)
     ctx = zmq.Context()
     sub = ctx.socket(zmq.SUB)
     sub.setsockopt(zmq.RCVHWM, 100_000)
-    for topic in (b"pressure", b"hello"):
+    for topic in (b"pressure", b"hello", b"fault"):
         sub.setsockopt(zmq.SUBSCRIBE, topic)
     sub.connect(f"ipc://{tmp}/pub")
     burners: list[multiprocessing.Process] = []
@@ -191,7 +204,7 @@ def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, loa
             burners.append(pr)
         cpu0, wall0 = _cpu_s(daemon.pid), time.monotonic()
         dev_cpu0 = _cpu_s(device.pid) if device is not None else 0.0
-        times, newest_age, oldest_age, in_daemon = [], [], [], []
+        times, newest_age, oldest_age, in_daemon, faults = [], [], [], [], []
         next_cycle = time.monotonic() + 2.0 if cycles else float("inf")
         while time.monotonic() < stop_at:
             if time.monotonic() >= next_cycle:
@@ -201,6 +214,11 @@ def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, loa
                 continue
             frames = sub.recv_multipart()
             arrival = time.monotonic()
+            if frames[0] == b"fault":  # e.g. overrun: the loop fell behind its samples
+                fault = json.loads(frames[1])
+                faults.append({"kind": fault["kind"], "detail": fault["detail"], "t_s": fault["t_s"]})
+                _request(ctx, tmp, {"cmd": "reset"})  # measure on: the next cycles go on after it
+                continue
             if frames[0] != b"pressure":
                 continue
             msg = json.loads(frames[1])
@@ -257,7 +275,7 @@ def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, loa
         "daemon_send_to_subscriber_ms": _pcts(newest_ms - in_daemon_ms),
         "cpu_percent": 100.0 * cpu,
         "recording": record, "recorded_mb": recorded / 2**20,
-        "modbus_read_us": rtt,
+        "modbus_read_us": rtt, "faults": faults,
         **({"device_cpu_percent": 100.0 * dev_cpu, "link": link, "board": board} if source == "serial" else {}),
     }
 
@@ -323,13 +341,13 @@ def _modbus_read_times(cfg: Path, n: int = 5000) -> dict[str, float]:
     starts: the sampler's own poller code, here at normal priority in this process, paced
     at 1 kHz. The floor under any polled sample's latency."""
     from fluidsense.controller.config import load_cell_config
-    from fluidsense.drivers.modbus.backend import modbus_inputs
+    from fluidsense.drivers.modbus.backend import modbus_domains, modbus_inputs
     from fluidsense.drivers.modbus.poller import ModbusAnalogPoller
 
     cell = load_cell_config(cfg)
-    d = cell.driver
-    poller = ModbusAnalogPoller(d.host, d.port, d.device_id, modbus_inputs(d, cell.profile.hardware.channels),
-                                d.timeout_s)
+    d, channels = cell.driver, cell.profile.hardware.channels
+    poller = ModbusAnalogPoller(d.host, d.port, d.device_id, modbus_inputs(d, channels), d.timeout_s,
+                                modbus_domains(d, channels))
     poller.open()
     took = np.empty(n)
     try:
@@ -355,7 +373,7 @@ def _pcts(x: np.ndarray, p999: bool = False) -> dict[str, float]:
 
 
 def run(args: argparse.Namespace) -> int:
-    rate = args.rate_hz or (500.0 if args.source == "modbus" else 1000.0)
+    rate = args.rate_hz or (500.0 if args.source in ("modbus", "ur") else 1000.0)
     res = run_bench(args.seconds, args.source, rate, args.load, args.late_us, args.record, args.reader, args.board,
                     args.cycles)
     if args.json:
@@ -367,6 +385,8 @@ def run(args: argparse.Namespace) -> int:
           f"{100 * res['late_fraction']:.3f} % late; lateness p50/p99/p99.9/max {lat['p50']:.1f}/{lat['p99']:.1f}/"
           f"{lat['p999']:.1f}/{lat['max']:.1f} us; latency to subscriber p50/p99/max {e2e['p50']:.2f}/"
           f"{e2e['p99']:.2f}/{e2e['max']:.2f} ms; CPU {res['cpu_percent']:.1f} % of one core")
+    for fault in res["faults"]:
+        print(f"fault {fault['kind']} at {fault['t_s']:.3f} s: {fault['detail']}")
     if res["source"] == "serial":
         link, board = res["link"] or {}, res["board"] or {}
         wake = board.get("wake_late_us", {})

@@ -125,6 +125,7 @@ class ControlBox:
         #: reads them; (0, 0): none
         self.rtde_lag: tuple[float, float] = (0.0, 0.0)
         self.lies = Lies()  # what the box says that cannot be true (sim control ``lie``)
+        self._outputs_seen = model.digital_outputs  # the digital outputs as the last change left them
         #: the I/O image: the inputs as read at the start of the current I/O cycle (number
         #: ``io_cycle``, at ``io_cycle / config.io_hz`` s); what Modbus and RTDE report
         self.io_cycle = 0
@@ -145,8 +146,9 @@ class ControlBox:
             start = cycle / self.config.io_hz
             if start > self.model.t:
                 self.model.advance(start)
-            self.io_cycle = cycle
-            self.latch_inputs()
+            cycles, self.io_cycle = cycle - self.io_cycle, cycle
+            if not self.lies.frozen(start, cycles):  # a frozen box (sim control lie) keeps its image
+                self.latch_inputs()
         if t > self.model.t:
             self.model.advance(t)
         return self.model.t
@@ -291,6 +293,8 @@ class ControlBox:
         if by is not None:
             self.journal.append((self.model.t, self.model.digital_outputs, by))
         self.model.on_outputs_changed(self.model.t)
+        before, self._outputs_seen = self._outputs_seen, self.model.digital_outputs
+        self.lies.outputs_changed(self.model.t, before, self._outputs_seen)  # an armed lie may begin
 
     # -- RTDE inputs -------------------------------------------------------------------------------
     def write_inputs(self, values: dict[str, Any]) -> None:

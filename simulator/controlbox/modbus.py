@@ -208,8 +208,9 @@ class ModbusServer:
             if isinstance(pdu, ReadHoldingRegistersRequest | ReadInputRegistersRequest):
                 self._reads[pdu.transaction_id] = pdu.address
         elif isinstance(pdu, ReadHoldingRegistersResponse | ReadInputRegistersResponse):
-            if self._reads.pop(pdu.transaction_id, None) in ANALOG_INPUTS:
-                pdu.registers = self.map.box.lies.modbus(self.map.box.model.t, pdu.registers)
+            address = self._reads.pop(pdu.transaction_id, None)
+            if address in ANALOG_INPUTS:
+                pdu.registers = self.map.box.lies.modbus(self.map.box.model.t, pdu.registers, address)
         return pdu
 
     async def close(self) -> None:

@@ -127,13 +127,16 @@ class RtdeLagCommand(StrictModel):
 
 
 class LieCommand(StrictModel):
-    """The box says what cannot be true in ``count`` packages or replies (lies.py names
-    each ``kind``): a hostile box for the driver's checks."""
+    """The box says what cannot be true in ``count`` packages or replies (or, for a
+    ``freeze``, I/O cycles; lies.py names each ``kind``): a hostile box for the driver's
+    checks. ``on_output``: the lie begins ``delay_s`` after that digital output next turns on."""
 
     cmd: Literal["lie"]
     id: Any = None
     kind: Literal[KINDS]  # type: ignore[valid-type]
     count: int = Field(gt=0, le=1_000_000)
+    on_output: int | None = Field(None, ge=0, le=17)
+    delay_s: float = Field(0.0, ge=0, le=60)
 
 
 _PLANT = (SceneCommand, WorldCommand, TruthCommand, InjectCommand, ClearFaultsCommand, CommandLagCommand)
@@ -167,7 +170,7 @@ def handle(box: ControlBox, line: str) -> dict[str, Any]:
             box.rtde_lag = (command.max_hz, command.lag_s)
             log.info("sim control: RTDE streams at %g Hz or slower %g s late", command.max_hz, command.lag_s)
         elif isinstance(command, LieCommand):
-            box.lies.tell(command.kind, box.model.t, command.count)
+            box.lies.tell(command.kind, box.model.t, command.count, command.on_output, command.delay_s)
         reply["state"] = box.snapshot()
         reply["lies"] = box.lies.state()
     except (FluidsenseError, ValueError) as exc:

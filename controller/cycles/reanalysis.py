@@ -268,7 +268,7 @@ def _same(a: Any, b: Any) -> bool:
 
 #: fields of a cycle's result newer than some recordings: one recorded without them has
 #: nothing to compare them with (a recording from before a field existed still agrees)
-NEWER_FIELDS = frozenset({"unchanged_s", "unreliable"})
+NEWER_FIELDS = frozenset({"unchanged_s", "unreliable", "t_c_min_s", "object", "object_note", "object_bound_kpa"})
 
 
 def _differences(replay: dict[str, Any], live: dict[str, Any]) -> list[str]:

@@ -1,0 +1,224 @@
+"""fluidsense characterise (issue 36 items 1 and 4): the fit against eq. 1, its refusals,
+and the proof: simulated cells whose actuator differs from the shipped profile by known
+amounts, characterised from the shipped profile, give back the hidden values within their
+stated 95 % intervals."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import yaml
+from fluidsense.common.units import KPA, ML
+from fluidsense.controller.config import load_cell_config, load_profile
+from fluidsense.controller.service import Controller
+from fluidsense.drivers.config import build_backend
+from fluidsense.tasks import characterise as ch
+from fluidsense.tasks.journal import journal_path
+from support.configs import cell_config, profile_config
+from support.harness import REPO, free_simcell, sim_config
+
+START = "pneunet-gripper-quick"  # the shipped profile a user starts from: 6 s cycles, laminar circuit
+HIDDEN_SETUPS = 10
+LEVELS = 5
+CYCLES = 4
+
+
+def hidden_factors(seed: int) -> tuple[float, float]:
+    """The hidden actuator of set-up ``seed``: free volume and compliance each 0.85-1.15
+    times the shipped profile's (drawn, not chosen to pass)."""
+    rng = np.random.default_rng(1000 + seed)
+    return float(rng.uniform(0.85, 1.15)), float(rng.uniform(0.85, 1.15))
+
+
+def hidden_profile(tmp_path, seed: int, start=START, **extra):
+    shipped = load_profile(profile_config(tmp_path, start))
+    fv, fc = hidden_factors(seed)
+    actuator = {"v0_ml": round(shipped.actuator.v0_ml * fv, 4),
+                "compliance_ml_per_kpa": round(shipped.actuator.compliance_ml_per_kpa * fc, 5)}
+    return profile_config(tmp_path, start, actuator=actuator, **extra), actuator
+
+
+def characterise_in_process(tmp_path, seed: int, plant_profile_path, levels=None, cycles=CYCLES):
+    """The shipped profile runs the cycles; the simulated plant is the hidden profile's
+    hardware (the controller never sees it). Virtual time."""
+    start = load_profile(profile_config(tmp_path, START))
+    hidden_cfg = load_cell_config(sim_config(tmp_path, seed=seed, profile=str(plant_profile_path)))
+    cfg = hidden_cfg.model_copy(update={"profile": start})
+    levels = ch.check_plan(start, levels or ch.default_levels(start, LEVELS), cycles)
+    journal = ch.CharacteriseJournal.open(journal_path(tmp_path / f"out-{seed}.yaml"),
+                                          {"levels_kpa": levels, "cycles": cycles}, resume=False)
+
+    async def main():
+        ctrl = Controller(cfg, build_backend(cfg.driver, hidden_cfg.profile.hardware))
+        await ctrl.start()
+        try:
+            return await ch.measure(ctrl, levels, cycles, journal)
+        finally:
+            await ctrl.stop()
+
+    entries = asyncio.run(main())
+    return start, entries
+
+
+# ------------------------------------------------------------------ the model
+def test_the_fit_model_is_the_simulators_equilibrium():
+    """free_equilibrium (the fit's eq. 1 in closed form) against the simulator's own root
+    search on the actuator's volume law, for both signs of P0."""
+    from fluidsense.common.hardware import GripperActuator
+    from fluidsense.common.scenes import EmptyScene
+    from fluidsense.simulator.actuators import volume_law
+    from fluidsense.simulator.equilibrium import equilibrium
+
+    p_atm = 101325.0
+    act = GripperActuator(v0_ml=87.0, compliance_ml_per_kpa=1.21)
+    law = volume_law(act, EmptyScene(), p_atm)
+    for p0_kpa in (20.0, 45.0, 63.0):
+        ours = ch.free_equilibrium(p0_kpa * KPA, 0.3e-3, act.v0, act.compliance, p_atm)
+        theirs = equilibrium(p0_kpa * KPA, 0.3e-3, law, p_atm)
+        assert ours == pytest.approx(theirs, abs=1e-3), p0_kpa  # 1 mPa
+
+
+def _synthetic(levels, cycles, v_side_ml, c_ml_kpa, sd_kpa, rng, bend=0.0, drift=0.0):
+    """Entries as measure() writes them, from eq. 1 plus a spread (and a bend of the law or
+    a drift when asked)."""
+    out, cid = [], 0
+    for lv in levels:
+        pe = ch.free_equilibrium(lv * KPA, 0.3e-3, v_side_ml * ML, c_ml_kpa * ML / KPA, 101325.0) / KPA
+        pe += bend * (lv / levels[-1]) ** 4
+        for k in range(cycles):
+            cid += 1
+            out.append({"level_kpa": lv, "k": k, "cycle_id": cid, "p_eq_kpa": pe + rng.normal(0, sd_kpa),
+                        "noise_kpa": 0.07, "lag_s": 0.013, "settle_s": 0.8, "rise_s": 0.1,
+                        "drift_kpa_per_s": drift + rng.normal(0, 1e-3), "drift_se_kpa_per_s": 1e-3,
+                        "rise_t_s": None})
+    return out
+
+
+def test_refusals_name_why():
+    """Too few levels, a leak, a law that bends beyond the cycles' spread, a window before
+    settling: each refused with its reason, and nothing is refused on clean readings."""
+    prof = load_profile(REPO / "config" / "profiles" / f"{START}.yaml")
+    rng = np.random.default_rng(3)
+    levels = [25.2, 34.6, 44.1, 53.5, 63.0]
+    clean = _synthetic(levels, 4, 100.0, 1.07, 0.04, rng)
+    ch.fit(clean, prof)  # holds
+    with pytest.raises(ch.FitRefused, match="too few levels: 2"):
+        ch.fit([e for e in clean if e["level_kpa"] in levels[:2]], prof)
+    with pytest.raises(ch.FitRefused, match="a leak"):
+        ch.fit(_synthetic(levels, 4, 100.0, 1.07, 0.04, rng, drift=-0.02), prof)
+    with pytest.raises(ch.FitRefused, match="does not fit"):
+        ch.fit(_synthetic(levels, 4, 100.0, 1.07, 0.04, rng, bend=1.0), prof)
+    slow = [{**e, "settle_s": 2.4} for e in clean]
+    with pytest.raises(ch.FitRefused, match="settled only after 2.4"):
+        ch.fit(slow, prof)
+
+
+def test_bad_plans_are_refused_before_any_valve_moves(tmp_path):
+    prof = load_profile(REPO / "config" / "profiles" / f"{START}.yaml")
+    from fluidsense.common.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="at least 3 levels"):
+        ch.check_plan(prof, [30, 63], 4)
+    with pytest.raises(ConfigError, match="outside the profile's limits"):
+        ch.check_plan(prof, [30, 50, 89.9], 4)
+    with pytest.raises(ConfigError, match="--cycles 1"):
+        ch.check_plan(prof, [30, 50, 63], 1)
+    flow = load_profile(REPO / "config" / "profiles" / "pneunet-bending-pressure-flow.yaml")
+    with pytest.raises(ConfigError, match="not characterised yet"):
+        ch.check_plan(flow, [5, 10, 15], 4)
+
+
+# ------------------------------------------------------------------ the proof, in virtual time
+def test_hidden_actuators_are_recovered_within_their_intervals(tmp_path):
+    """Ten hidden set-ups (seeds 1-10; v0 and c each 0.85-1.15 x the shipped): each
+    characterised from the shipped profile in virtual time. The stated 95 % intervals of
+    v0 and c must cover the hidden values in at least 9 of 10 set-ups each, and no
+    interval may be wide enough to cover the shipped value and the hidden one both when
+    they differ by more than 5 % (an interval that says nothing would cover anything)."""
+    covered = {"actuator.v0_ml": 0, "actuator.compliance_ml_per_kpa": 0}
+    rows = []
+    for seed in range(1, HIDDEN_SETUPS + 1):
+        d = tmp_path / f"s{seed}"
+        d.mkdir()
+        path, hidden = hidden_profile(d, seed)
+        start, entries = characterise_in_process(d, seed, path)
+        res = ch.fit(entries, start)
+        for name, key in (("actuator.v0_ml", "v0_ml"), ("actuator.compliance_ml_per_kpa", "compliance_ml_per_kpa")):
+            f = next(x for x in res.fitted if x.field == name)
+            truth, shipped = hidden[key], getattr(start.actuator, key)
+            rows.append((seed, name, truth, f.value, f.lo95, f.hi95))
+            covered[name] += f.lo95 <= truth <= f.hi95
+            if abs(truth / shipped - 1) > 0.05:
+                assert not f.lo95 <= shipped <= f.hi95, (seed, name, shipped, f)
+    summary = "\n".join(f"seed {s} {n}: hidden {t:.4g}, fitted {v:.4g} [{lo:.4g}, {hi:.4g}]"
+                        for s, n, t, v, lo, hi in rows)
+    assert covered["actuator.v0_ml"] >= 9, summary
+    assert covered["actuator.compliance_ml_per_kpa"] >= 9, summary
+
+
+def test_a_leak_is_refused_in_the_plant(tmp_path):
+    """A hidden actuator that leaks (a laminar leak of 1e11 Pa s/m^3 to the air): the fit is
+    refused naming the leak."""
+    path, _ = hidden_profile(tmp_path, 1, circuit={"leak_resistance_pa_s_per_m3": 1.0e11})
+    start, entries = characterise_in_process(tmp_path, 1, path, cycles=2)
+    with pytest.raises(ch.FitRefused, match="a leak"):
+        ch.fit(entries, start)
+
+
+# ------------------------------------------------------------------ the CLI, and design on what it wrote
+def _cli(*args, timeout=900):
+    return subprocess.run([sys.executable, "-m", "fluidsense", *args], capture_output=True, text=True, cwd=REPO,
+                          timeout=timeout)
+
+
+def test_cli_writes_a_profile_that_design_accepts(tmp_path):
+    """characterise on a simulated cell (virtual time) writes a profile with provenance that
+    loads, keeps the shipped values it could not measure, and that design takes."""
+    cell = sim_config(tmp_path, profile=str(REPO / "config" / "profiles" / f"{START}.yaml"))
+    out = tmp_path / "mine.yaml"
+    run = _cli("characterise", "--config", str(cell), "--out", str(out), "--cycles", "3", "--yes")
+    assert run.returncode == 0, run.stderr
+    prof = load_profile(out)
+    assert prof.provenance is not None and prof.provenance.cycles_per_level == 3
+    fields = {f.field for f in prof.provenance.fitted}
+    assert {"actuator.v0_ml", "actuator.compliance_ml_per_kpa", "sequence.eq_sd_kpa"} <= fields
+    assert "circuit.tank_l" in prof.provenance.kept
+    assert prof.actuator.wrap_ratio == 0.58  # contact: kept from the start
+    assert "# Fitted on the rig" in out.read_text()
+    again = _cli("characterise", "--config", str(cell), "--out", str(out), "--cycles", "3", "--yes")
+    assert again.returncode != 0 and "never overwritten" in again.stderr
+    design = _cli("design", "--profile", str(out), "--resolution-mm", "5", "--decide-by-s", "3", "--json")
+    assert design.returncode == 0, design.stderr
+    assert "tank_l" in design.stdout
+
+
+# ------------------------------------------------------------------ the proof, through the emulated box
+def test_the_box_recovers_a_hidden_actuator_end_to_end(tmp_path):
+    """``fluidsense simcell`` with a hidden sorting gripper (v0 x1.12, c x0.88), characterised
+    through the ur driver by the CLI from the shipped sorting profile, real time: the hidden
+    values lie within the written profile's 95 % intervals."""
+    shipped = load_profile(REPO / "config" / "profiles" / "sorting-gripper.yaml")
+    hidden = {"v0_ml": round(shipped.actuator.v0_ml * 1.12, 3),
+              "compliance_ml_per_kpa": round(shipped.actuator.compliance_ml_per_kpa * 0.88, 4)}
+    hidden_path = profile_config(tmp_path, "sorting-gripper", actuator=hidden)
+    with free_simcell(tmp_path, "ur", profile=str(hidden_path)) as (_box, box_cell):
+        data = yaml.safe_load(box_cell.read_text())
+        data["profile"] = str(REPO / "config" / "profiles" / "sorting-gripper.yaml")
+        cell = tmp_path / "cell-user.yaml"
+        cell.write_text(yaml.safe_dump(data))
+        out = tmp_path / "mine.yaml"
+        run = _cli("characterise", "--config", str(cell), "--out", str(out), "--levels", "30,41,52,64",
+                   "--cycles", "3", "--yes", "--json", timeout=1200)
+    assert run.returncode == 0, run.stderr + run.stdout
+    prof = load_profile(out)
+    for key in ("v0_ml", "compliance_ml_per_kpa"):
+        f = next(x for x in prof.provenance.fitted if x.field == f"actuator.{key}")
+        assert f.lo95 <= hidden[key] <= f.hi95, (key, hidden[key], f)
+        assert not f.lo95 <= getattr(shipped.actuator, key) <= f.hi95, (key, f)
+    assert prof.provenance.rig.startswith("driver ur at 127.0.0.")
+    assert math.isfinite(prof.sequence.eq_sd_kpa)

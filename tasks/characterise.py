@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 from fluidsense.common.errors import ConfigError, FluidsenseError, JobStopped
+from fluidsense.common.hardware import PORT_VOLUME_M3
 from fluidsense.common.scenes import EmptyScene
 from fluidsense.common.units import KPA, LITRE, ML
 from fluidsense.controller.config.profile import FittedNumber, Profile, Provenance
@@ -323,8 +324,6 @@ def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
     c_cfg, act, seq = start.circuit, start.actuator, start.sequence
     p_atm, v_tank = c_cfg.p_atm, c_cfg.tank_m3
     hose = c_cfg.hose.volume_m3 if c_cfg.hose is not None else 0.0
-    from fluidsense.simulator.circuit import PORT_VOLUME_M3  # the plant's own figure for it
-
     port = PORT_VOLUME_M3 if (c_cfg.valve is not None and c_cfg.resistor_pa_s_per_m3 > 0) else 0.0
     fixed = hose + port  # stated by the config, not measured
     refused: list[str] = []

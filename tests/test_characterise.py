@@ -159,6 +159,7 @@ def test_hidden_actuators_are_recovered_within_their_intervals(tmp_path):
             assert (f.hi95 - f.lo95) / 2 < 0.2 * f.value, (seed, f)
     summary = "\n".join(f"seed {s} {n}: hidden {t:.4g}, fitted {v:.4g} [{lo:.4g}, {hi:.4g}]"
                         for s, n, t, v, lo, hi in rows)
+    print(f"\n{covered}\n{summary}")  # docs/cli.md quotes these (-s)
     assert all(n >= 9 for n in covered.values()), f"{covered}\n{summary}"
 
 
@@ -223,3 +224,21 @@ def test_the_box_recovers_a_hidden_actuator_end_to_end(tmp_path):
         assert (f.hi95 - f.lo95) / 2 < 0.2 * f.value, (key, f)  # an interval that says something
     assert prof.provenance.rig.startswith("driver ur at 127.0.0.")
     assert math.isfinite(prof.sequence.eq_sd_kpa)
+
+
+def test_resume_runs_only_the_missing_cycles(tmp_path):
+    """A run cut short (its journal holding the first cycles) resumes: those are not run
+    again, and the profile's provenance lists them."""
+    cell = sim_config(tmp_path, profile=str(REPO / "config" / "profiles" / f"{START}.yaml"))
+    args = ["characterise", "--config", str(cell), "--levels", "20,40,63", "--cycles", "2", "--yes"]
+    first = tmp_path / "first.yaml"
+    assert _cli(*args, "--out", str(first)).returncode == 0
+    lines = journal_path(first).read_text().splitlines()
+    cut = tmp_path / "cut.yaml"
+    journal_path(cut).write_text("\n".join(lines[:4]) + "\n")  # the header and three cycles
+    run = _cli(*args, "--out", str(cut), "--resume")
+    assert run.returncode == 0, run.stderr
+    assert "resuming: 3 of 6 cycles done" in run.stderr
+    kept_ids = [yaml.safe_load(x)["cycle_id"] for x in lines[1:4]]
+    ids = load_profile(cut).provenance.cycle_ids
+    assert ids[:3] == kept_ids and len(ids) == 6

@@ -11,11 +11,11 @@ from pathlib import Path
 
 from fluidsense.common import stopsignals
 from fluidsense.common.errors import CommandError, ConfigError, JobStopped
-from fluidsense.common.exitcodes import EXIT_FAULT, EXIT_OK
+from fluidsense.common.exitcodes import EXIT_FAILURE, EXIT_FAULT, EXIT_OK
 
 from ._common import print_signal_stop, print_stopped, setup_logging
 
-EXIT_REFUSED = 3  # the cycles ran, the fit does not hold: no profile written
+EXIT_REFUSED = EXIT_FAILURE  # the cycles ran, the fit does not hold: no profile written (as replay's mismatch)
 
 
 def register(sub) -> None:
@@ -87,7 +87,7 @@ def cmd_characterise(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.suffix not in (".yaml", ".yml"):
         raise ConfigError(f"--out {args.out}: a profile is a .yaml file")
-    if out.exists() and not args.resume:
+    if out.exists():
         raise ConfigError(f"--out {args.out}: exists; move it away (a profile is never overwritten)")
     name = args.name or f"{start.name}-characterised"[:80]
     from fluidsense.tasks.journal import journal_path

@@ -219,7 +219,10 @@ async def measure(ctrl: Controller, levels: Sequence[float], cycles: int, journa
                 res = await ctrl.run_cycle(p0_kpa=level, label=f"characterise P0={level:g}")
                 if not res.ok or res.trace is None or res.p_eq is None:
                     raise FluidsenseError(f"free-air cycle {res.cycle_id} at {level:g} kPa ended: {res.aborted}")
-                journal.add(reading(res, level, k, window))
+                # off the event loop: the sampler shares it, and a real-time loop held up by a
+                # fit or an fsync on a busy host latches an overrun fault (seen through the box)
+                line = await asyncio.to_thread(reading, res, level, k, window)
+                await asyncio.to_thread(journal.add, line)
                 if progress is not None:
                     progress(1)
     except (asyncio.CancelledError, KeyboardInterrupt):

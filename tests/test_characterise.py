@@ -278,3 +278,19 @@ def test_sigterm_mid_cycle_vents_and_keeps_a_resumable_journal(tmp_path):
     assert kept >= 1 and not out.exists(), err
     header = yaml.safe_load(journal.read_text().splitlines()[0])
     assert len(ch.CharacteriseJournal.open(journal, header["plan"], resume=True).entries) == kept
+
+
+def test_cli_refuses_a_leaking_actuator_and_writes_nothing(tmp_path):
+    """A cell whose actuator leaks (1e11 Pa s/m^3 to the air): the cycles run, the fit is
+    refused naming the leak, the exit code is docs/cli.md's, no profile is written and the
+    cycles are kept."""
+    from test_stop_signals import documented_exit
+
+    leaky = profile_config(tmp_path, START, circuit={"leak_resistance_pa_s_per_m3": 1.0e11})
+    cell = sim_config(tmp_path, profile=str(leaky))
+    out = tmp_path / "mine.yaml"
+    run = _cli("characterise", "--config", str(cell), "--out", str(out), "--levels", "20,40,63", "--cycles", "2",
+               "--yes")
+    assert run.returncode == documented_exit("characterise", "the cycles ran but the fit does not hold") == 1
+    assert "a leak: the settled free-air pressure falls" in run.stderr and "no profile written" in run.stderr
+    assert not out.exists() and len(journal_path(out).read_text().splitlines()) == 1 + 6

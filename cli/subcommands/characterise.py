@@ -98,6 +98,11 @@ def cmd_characterise(args: argparse.Namespace) -> int:
     total = len(levels) * args.cycles
     if journal.entries:
         print(f"resuming: {len(journal.entries)} of {total} cycles done ({journal.path})", file=sys.stderr)
+        if cfg.driver.kind == "sim":
+            # a simulated cell started again with the same seed draws what the cycles already
+            # done drew: the resumed cycles would repeat them exactly and show no spread (the
+            # fit refused a resumed run so). A real cell does not repeat itself.
+            cfg = cfg.model_copy(update={"driver": cfg.driver.for_job(args.seed + len(journal.entries))})
     _ask_empty(args.yes, cfg.driver.needs_operator())
     valves = []
 

@@ -27,6 +27,11 @@ Ratio = Annotated[Real, Field(ge=0, le=1)]
 # every circuit declares where each of its valves is safe (actuator vented, tank isolated).
 SUPPLY, ACTUATE, VENT = "supply", "actuate", "vent"
 
+# An ISO valve and a laminar resistor in series have the valve's outlet port and fittings
+# between them: this volume (assumed; 0.1 % of the smallest actuator here). The simulated
+# plant holds gas in it, and characterise counts it with the hose as the config's.
+PORT_VOLUME_M3 = 0.2e-6
+
 
 class Iso6358Valve(StrictModel):
     """The actuation valve as ISO 6358 describes it (sonic conductance, critical pressure

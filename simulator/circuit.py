@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from fluidsense.common.hardware import (
     ACTUATE,
+    PORT_VOLUME_M3,
     SUPPLY,
     VENT,
     FlowControlledCircuit,
@@ -39,7 +40,6 @@ def _valve_path(c, a: int, b: int, valve: str, when_open: bool, name: str, downs
 # tank charges (50-74 kPa gauge) and of its grippers' readings (20-40 kPa gauge).
 _P_TANK_CORRELATION = P_ATM + 60 * KPA
 _P_ACT_CORRELATION = P_ATM + 35 * KPA
-PORT_VOLUME_M3 = 0.2e-6  # an ISO valve's outlet port before a resistor (assumed; 0.1 % of the smallest actuator here)
 
 
 def wall_times(c) -> dict[str, float]:

@@ -4,6 +4,7 @@ here: they live in the repository's ``lab/`` (``python -m lab``), outside the wh
 
 from . import (
     calibrate,
+    characterise,
     check,
     clients,
     demo,
@@ -18,4 +19,4 @@ from . import (
     watchdog,
 )
 
-MODULES = [run, demo, clients, init, check, calibrate, design, task, simcell, watchdog, keys, replay, plot]
+MODULES = [run, demo, clients, init, check, calibrate, characterise, design, task, simcell, watchdog, keys, replay, plot]

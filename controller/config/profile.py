@@ -176,6 +176,47 @@ class CalibrationPlan(StrictModel):
         return self
 
 
+class FittedNumber(StrictModel):
+    """One number ``fluidsense characterise`` measured on a rig: the profile field it set,
+    its value and 95 % interval in the field's own unit, and how it was obtained."""
+
+    field: str = Field(min_length=1, max_length=120, description="dotted profile field, e.g. actuator.v0_ml")
+    value: Real
+    lo95: Real
+    hi95: Real
+    unit: str = Field("", max_length=40)
+    how: str = Field("", max_length=2000, description="what was fitted to what, and what it assumes")
+
+    @model_validator(mode="after")
+    def _ordered(self) -> FittedNumber:
+        if not self.lo95 <= self.value <= self.hi95:
+            raise ValueError(f"{self.field}: value {self.value} outside its interval [{self.lo95}, {self.hi95}]")
+        return self
+
+
+class Provenance(StrictModel):
+    """Where a characterised profile's numbers came from (``fluidsense characterise``): the
+    rig, the date, the config, the cycles, the fit's residual; which fields were fitted
+    (with their 95 % intervals) and which were kept from the starting profile, and why.
+    A shipped profile has none: its numbers come from the paper (see its comments)."""
+
+    tool: Literal["fluidsense characterise"] = "fluidsense characterise"
+    date: str = Field(min_length=1, max_length=40, description="UTC, ISO 8601")
+    rig: str = Field(max_length=400, description="the driver and where it reached the cell")
+    config: str = Field(max_length=1000, description="the cell config the run was given")
+    from_profile: str = Field(max_length=1000, description="the starting profile (its name and file)")
+    levels_kpa: list[Real] = Field(min_length=1, max_length=100, description="the P0 levels swept (free air)")
+    cycles_per_level: Integer = Field(ge=1, le=10_000)
+    cycle_ids: list[Integer] = Field(default_factory=list, max_length=100_000)
+    residual_kpa: Real = Field(ge=0, description="rms of the P-V fit's residual over the levels' means")
+    pure_error_kpa: Real = Field(ge=0, description="pooled cycle-to-cycle sd of the free-air equilibrium")
+    fitted: list[FittedNumber] = Field(default_factory=list, max_length=100)
+    measured: list[FittedNumber] = Field(default_factory=list, max_length=100, description="numbers the rig "
+                                         "showed that no profile field holds (reported, not used)")
+    kept: dict[str, str] = Field(default_factory=dict, description="field -> why the starting value was kept")
+    notes: list[str] = Field(default_factory=list, max_length=100)
+
+
 class Profile(StrictModel):
     """One actuator or gripper: its hardware, its safe envelope and its cycle."""
 
@@ -191,6 +232,10 @@ class Profile(StrictModel):
     calibration: CalibrationPlan | None = None
     budget: PartsBudget = Field(default_factory=PartsBudget, description="the parts' error budget "
                                 "(common/budget.py; figures and sources in simulator/parts.py)")
+    provenance: Provenance | None = Field(
+        None, description="a characterised profile: which numbers were measured on which rig, with their 95 % "
+        "intervals, and which were kept from the starting profile (fluidsense characterise); None: a shipped "
+        "profile, whose numbers come from the paper")
 
     @model_validator(mode="after")
     def _consistent(self) -> Profile:

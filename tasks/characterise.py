@@ -1,0 +1,598 @@
+"""Characterise an actuator on its rig: free-air cycles of the tank circuit over a sweep of
+P0, and from them the numbers a profile needs that the rig can show.
+
+What the readings can tell apart (docs/cli.md, "characterise"):
+- The free-air equilibria fix the actuator's free P-V law (``v = v0 + c p``) through eq. 1
+  (isothermal ideal gas; tank, hose and actuator start at the tank's P0 and at atmosphere):
+  ``(P0 - Pe) Vt = Pe (v0 + Vh) + Pe (Pe + Pa) c`` in gauge pressures. Only ratios of
+  volumes show in it: scale the tank, the hose and the actuator together and every
+  equilibrium stays. The scale is the tank's volume the config states (``circuit.tank_l``,
+  on its label) and the hose's bore and length: v0 and c are in units of them, and move with
+  them if they are wrong.
+- The cycle-to-cycle spread of the equilibrium at one P0 (``sequence.eq_sd_kpa``), the
+  sensor's noise (the settled window's sd), the lag (where the rise starts), the settling
+  time and the leak (the drift after settling) are read from the traces.
+- The valve's conductance: for a laminar circuit without a hose (valve and resistor in
+  series, no ISO 6358 valve), the path's resistance from the rise (an isothermal two-volume
+  model with the fitted volumes, least squares on each trace). The rig shows only the sum of
+  the valve and the resistor: the valve's assumed figure is kept and the resistor takes the
+  rest. Other circuits keep theirs (said so).
+
+The fit is refused, naming why, when it cannot hold: fewer than three levels or two cycles
+per level, a leak, a window that reads before the actuator settled, a residual beyond the
+cycles' own spread (lack-of-fit test), a non-physical volume.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import datetime
+import math
+from collections.abc import Awaitable, Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from fluidsense.common.errors import ConfigError, FluidsenseError, JobStopped
+from fluidsense.common.hardware import PORT_VOLUME_M3
+from fluidsense.common.scenes import EmptyScene
+from fluidsense.common.units import KPA, LITRE, ML
+from fluidsense.controller.config.profile import FittedNumber, Profile, Provenance
+from fluidsense.controller.service import Controller
+from scipy import integrate, optimize, stats
+
+from .journal import CycleJournal
+from .stopping import fault_dict, stopped_message
+
+Place = Callable[[Any], Awaitable[None]]
+
+MIN_LEVELS = 3  # two parameters, and one level more to see whether the law holds
+MIN_CYCLES = 2  # a spread per level needs two
+LACK_OF_FIT_P = 0.001  # below this the P-V law does not describe the readings: refused
+LEAK_T = 4.0  # a drift this many standard errors from zero is a leak
+SETTLE_FRACTION = 0.02  # the 2 % settling time, as docs/physics.md's timing rows
+DEFAULT_LEVELS = 5
+KEY_DIGITS = 3  # levels are compared in kPa to 1 Pa
+RISE_FRACTIONS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)  # the rise kept per cycle: when it crossed these
+RISE_SMOOTH_S = 0.011  # moving average before the crossings are taken (11 samples at 1 kHz)
+# The rise model's own error (smoothing, sampling, the law taken as quasi-static), as an sd:
+# against the simulated plant (tests/test_characterise.py, ten set-ups) its resistance came
+# 0.0-0.5 % low and its lag within 0.3 ms, with the cycles' spread alone giving +-0.3 %
+RISE_MODEL_REL = 0.005
+RISE_MODEL_LAG_S = 0.0005
+RISE_DRAWS = 40  # draws of the fitted volumes carried into the rise's fit
+RISE_MIN_LEVEL = 0.5  # rises fitted only at levels at least this fraction of the top one (clear of the noise)
+
+
+class CharacteriseJournal(CycleJournal):
+    """The finished free-air cycles of a characterisation (``OUT.cycles.jsonl``): each line
+    one cycle's level, index and the numbers read from its trace."""
+
+    KIND = "fluidsense characterise cycles"
+    WHAT = "a characterisation journal"
+    NUMBERS = ("p_eq_kpa", "noise_kpa", "lag_s", "settle_s", "drift_kpa_per_s", "drift_se_kpa_per_s", "rise_s")
+
+    @staticmethod
+    def parse_entry(e: dict[str, Any]) -> dict[str, Any]:
+        out = {"level_kpa": float(e["level_kpa"]), "k": int(e["k"]), "cycle_id": int(e["cycle_id"])}
+        for key in CharacteriseJournal.NUMBERS:
+            out[key] = None if e[key] is None else float(e[key])
+        rise = e["rise_t_s"]
+        out["rise_t_s"] = None if rise is None else [float(x) for x in rise]
+        if out["rise_t_s"] is not None and len(out["rise_t_s"]) != len(RISE_FRACTIONS):
+            raise ValueError(f"rise_t_s has {len(out['rise_t_s'])} times, not {len(RISE_FRACTIONS)}")
+        return out
+
+    @staticmethod
+    def check_entry(entry: dict[str, Any], plan: dict[str, Any]) -> str | None:
+        if entry["level_kpa"] not in plan["levels_kpa"] or not 0 <= entry["k"] < plan["cycles"]:
+            return f"cycle {entry['k']} at {entry['level_kpa']} kPa is not in the plan"
+        if entry["p_eq_kpa"] is None:
+            return "a cycle without an equilibrium"
+        return None
+
+
+# ------------------------------------------------------------------ the plan
+def default_levels(profile: Profile, n: int = DEFAULT_LEVELS) -> list[float]:
+    """From 20 % of the profile's P0 up to it: the profile's own P0 is where its cycles run
+    (its eq_sd is read there), nothing above it is asked of an actuator nobody has
+    characterised yet, and the wider the span the better the compliance (the curvature of
+    eq. 1) separates from the free volume."""
+    p0 = profile.sequence.p0_kpa
+    return [round(float(v), KEY_DIGITS) for v in np.linspace(0.2 * p0, p0, n)]
+
+
+def check_plan(profile: Profile, levels: Sequence[float], cycles: int) -> list[float]:
+    """The levels, sorted, or a ConfigError naming the option and the reason; before any
+    valve moves."""
+    if profile.sequence.method != "tank" or profile.circuit.kind != "tank":
+        raise ConfigError(f"profile {profile.name!r}: characterise sweeps the tank circuit's P0 (sequence.method "
+                          f"tank); this profile's method is {profile.sequence.method!r}: the pressure-flow and "
+                          "flow circuits are not characterised yet")
+    if not hasattr(profile.actuator, "compliance_ml_per_kpa"):
+        raise ConfigError(f"profile {profile.name!r}: actuator kind {profile.actuator.kind!r} has no free P-V "
+                          "line (v0_ml, compliance_ml_per_kpa) to fit")
+    if cycles < MIN_CYCLES:
+        raise ConfigError(f"--cycles {cycles}: at least {MIN_CYCLES} per level are needed to state a spread")
+    out = sorted({round(float(v), KEY_DIGITS) for v in levels})
+    if len(out) < MIN_LEVELS:
+        raise ConfigError(f"--levels: {len(out)} distinct level(s); the free P-V law has two parameters and needs "
+                          f"at least {MIN_LEVELS} levels to show whether it holds")
+    lim, margin, p0 = profile.limits, profile.p0_margin_kpa, profile.sequence.p0_kpa
+    for v in out:
+        if v == 0 or (v > 0) != (p0 > 0):
+            raise ConfigError(f"--levels: {v:g} kPa: every level must drive the actuator the way its P0 does "
+                              f"({p0:g} kPa)")
+        if not lim.min_kpa + margin <= v <= lim.max_kpa - margin:
+            raise ConfigError(f"--levels: {v:g} kPa is outside the profile's limits [{lim.min_kpa:g}, "
+                              f"{lim.max_kpa:g}] kPa less their {margin:.2f} kPa margin")
+    return out
+
+
+# ------------------------------------------------------------------ one cycle's trace
+def read_trace(t: np.ndarray, p: np.ndarray, p_eq: float, noise: float, window: tuple[float, float]) -> dict:
+    """Lag, 2 % settling time, the drift after settling and the 63 % rise time of one
+    free-air cycle (t: s since the commanded opening; p: Pa, offset removed). Oriented so
+    that the rise is upwards (vacuum too)."""
+    sign = 1.0 if p_eq >= 0 else -1.0
+    q, level = sign * p, abs(p_eq)
+    out: dict[str, Any] = {"lag_s": None, "settle_s": None, "drift_kpa_per_s": None,
+                           "drift_se_kpa_per_s": None, "rise_s": None, "rise_t_s": None}
+    # lag: the rise's early part (out of the noise, below 30 %) extrapolated back to zero
+    lo, hi = max(0.02 * level, 5 * noise), 0.3 * level
+    first_hi = np.flatnonzero(q >= hi)
+    if first_hi.size and lo < hi:
+        end = first_hi[0]
+        sel = np.flatnonzero(q[:end + 1] >= lo)
+        sel = sel[sel >= (np.flatnonzero(q[:end + 1] < lo)[-1] + 1 if (q[:end + 1] < lo).any() else 0)]
+        if sel.size >= 2:
+            slope, icpt = np.polyfit(t[sel], q[sel], 1)
+            if slope > 0:
+                out["lag_s"] = float(-icpt / slope)
+        elif sel.size == 1 and sel[0] > 0:  # a fast rise between two samples: the line through them
+            i = sel[0]
+            slope = (q[i] - q[i - 1]) / (t[i] - t[i - 1])
+            if slope > 0:
+                out["lag_s"] = float(t[i] - q[i] / slope)
+    r63 = np.flatnonzero(q >= (1 - math.exp(-1)) * level)
+    if r63.size and out["lag_s"] is not None:
+        out["rise_s"] = float(t[r63[0]] - out["lag_s"])
+    # the rise, kept compactly: when it first crossed each fraction of P_eq (interpolated),
+    # on the trace averaged over RISE_SMOOTH_S: the first crossing of a noisy trace comes
+    # early, the more so where the rise is slow (it biased the resistance 2-6 % low)
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+    w = max(1, int(round(RISE_SMOOTH_S / dt)) | 1)
+    qs = np.convolve(q, np.ones(w) / w, mode="same") if q.size > w else q
+    times = []
+    for f in RISE_FRACTIONS:
+        i = np.flatnonzero(qs >= f * level)
+        if not i.size or i[0] == 0:
+            break
+        j = i[0]
+        times.append(float(t[j - 1] + (f * level - qs[j - 1]) * (t[j] - t[j - 1]) / (qs[j] - qs[j - 1])))
+    if len(times) == len(RISE_FRACTIONS):
+        out["rise_t_s"] = times
+    # settling: the last time the trace was outside the band before the window ended
+    band = max(SETTLE_FRACTION * level, 5 * noise)
+    upto = t < window[1]
+    outside = np.flatnonzero(upto & (np.abs(q - level) > band))
+    out["settle_s"] = float(t[outside[-1] + 1]) if outside.size and outside[-1] + 1 < t.size else 0.0
+    # drift from the window's start to the trace's end (a leak lets the pressure fall)
+    after = t >= window[0]
+    if after.sum() >= 10:
+        tt, qq = t[after], q[after]
+        slope, icpt = np.polyfit(tt, qq, 1)
+        resid = qq - (slope * tt + icpt)
+        # samples are not independent after smoothing by nothing: white sensor noise, so OLS se holds
+        se = math.sqrt(float(resid @ resid) / (tt.size - 2) / float(((tt - tt.mean()) ** 2).sum()))
+        out["drift_kpa_per_s"] = float(sign * slope / KPA)
+        out["drift_se_kpa_per_s"] = se / KPA
+    return out
+
+
+def reading(res, level_kpa: float, k: int, window: tuple[float, float]) -> dict[str, Any]:
+    """One journal line from a finished cycle."""
+    t, p = res.trace
+    p_eq = res.p_eq
+    noise = res.p_sd
+    numbers = read_trace(np.asarray(t), np.asarray(p), p_eq, noise, window)
+    return {"level_kpa": level_kpa, "k": k, "cycle_id": res.cycle_id, "p_eq_kpa": p_eq / KPA,
+            "noise_kpa": noise / KPA, **numbers}
+
+
+# ------------------------------------------------------------------ the cycles
+async def measure(ctrl: Controller, levels: Sequence[float], cycles: int, journal: CharacteriseJournal,
+                  place: Place | None = None, progress: Callable[[int], None] | None = None) -> list[dict]:
+    """``cycles`` free-air cycles at each level; each finished one goes into ``journal`` as
+    it completes (those already there are not run again). A run that cannot finish raises
+    JobStopped with what it had done."""
+    place = place or ctrl.scene.place
+    seq = ctrl.profile.sequence
+    window = (seq.windows[0].start_s, seq.windows[0].end_s)
+    entries = journal.entries
+    total = len(levels) * cycles
+    try:
+        await place(EmptyScene())
+        # the levels interleaved (one pass over all, then the next): every cycle sets the
+        # regulator anew, so the spread at a level holds its setting error too. Through
+        # the box the regulator lands anew only when its setpoint changes: cycles run
+        # level by level shared one error and spread 0.0055 kPa, while the levels' means
+        # scattered 0.016 kPa about the law (refused as a lack of fit)
+        for k in range(cycles):
+            for level in levels:
+                if any(e["level_kpa"] == level and e["k"] == k for e in entries):
+                    continue
+                res = await ctrl.run_cycle(p0_kpa=level, label=f"characterise P0={level:g}")
+                if not res.ok or res.trace is None or res.p_eq is None:
+                    raise FluidsenseError(f"free-air cycle {res.cycle_id} at {level:g} kPa ended: {res.aborted}")
+                # off the event loop: the sampler shares it, and a real-time loop held up by a
+                # fit or an fsync on a busy host latches an overrun fault (seen through the box)
+                line = await asyncio.to_thread(reading, res, level, k, window)
+                await asyncio.to_thread(journal.add, line)
+                if progress is not None:
+                    progress(1)
+    except (asyncio.CancelledError, KeyboardInterrupt):
+        raise
+    except FluidsenseError as exc:
+        partial = {"completed": False, "cycles_done": len(entries), "cycles_total": total,
+                   "journal": str(journal.path), "fault": fault_dict(ctrl), "error": f"{type(exc).__name__}: {exc}"}
+        raise JobStopped(stopped_message("characterisation", ctrl, exc, f"{len(entries)} of {total} cycles")
+                         + f"; finished cycles are kept in {journal.path}: run again with --resume", partial,
+                         partial["fault"]) from exc
+    return entries
+
+
+# ------------------------------------------------------------------ the fit
+class FitRefused(FluidsenseError):
+    """The readings do not support a profile: ``reasons`` says why, each on its own."""
+
+    def __init__(self, reasons: list[str], result: Characterisation | None = None):
+        self.reasons, self.result = reasons, result
+        super().__init__("characterisation refused: " + "; ".join(reasons))
+
+
+@dataclass
+class Characterisation:
+    fitted: list[FittedNumber]
+    measured: list[FittedNumber]
+    kept: dict[str, str]
+    notes: list[str]
+    residual_kpa: float
+    pure_error_kpa: float
+    levels: list[dict[str, float]] = field(default_factory=list)  # per level: P0, mean, sd, n, fitted
+
+    def value(self, name: str) -> float | None:
+        for f in self.fitted:
+            if f.field == name:
+                return f.value
+        return None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"fitted": [f.model_dump() for f in self.fitted], "measured": [f.model_dump() for f in self.measured],
+                "kept": self.kept, "notes": self.notes, "residual_kpa": self.residual_kpa,
+                "pure_error_kpa": self.pure_error_kpa, "levels": self.levels}
+
+
+def free_equilibrium(p0: np.ndarray | float, v_tank: float, v_act0: float, c: float, p_atm: float):
+    """Gauge pressure (Pa) at which a tank of ``v_tank`` at gauge ``p0`` and an actuator side
+    of volume ``v_act0 + c p`` (actuator, hose and ports, from atmosphere) settle: eq. 1,
+    ``c Pe^2 + (Vt + V0 + c Pa) Pe - P0 Vt = 0``; the root that goes to P0 Vt / (Vt + V0)
+    as c goes to zero (either sign of P0)."""
+    b = v_tank + v_act0 + c * p_atm
+    p0 = np.asarray(p0, dtype=float)
+    disc = b * b + 4.0 * c * p0 * v_tank
+    # the numerically stable form of (-b + sqrt(disc)) / (2c)
+    return 2.0 * p0 * v_tank / (b + np.sqrt(disc))
+
+
+def _t95(dof: int) -> float:
+    return float(stats.t.ppf(0.975, max(dof, 1)))
+
+
+def _mean_interval(values: Sequence[float]) -> tuple[float, float, float]:
+    x = np.asarray(values, dtype=float)
+    m = float(x.mean())
+    if x.size < 2:
+        return m, m, m
+    h = _t95(x.size - 1) * float(x.std(ddof=1)) / math.sqrt(x.size)
+    return m, m - h, m + h
+
+
+def fit_rise(times: Sequence[float], v_tank: float, v_act0: float, c: float, p0: float, p_atm: float
+             ) -> tuple[float, float, float]:
+    """(lag s, laminar path resistance Pa s/m^3, rms time residual s) of one rise, from the
+    times it crossed RISE_FRACTIONS of its equilibrium. The model: tank at P0 and the
+    actuator side (v_act0 + c p, from atmosphere, on its law) joined by a laminar path
+    (eq. 3, the amount moved p_std q); isothermal. Then dp/dt = g(p) / R, so the time to
+    reach p is lag + R * I(p), I(p) = integral of 1/g from 0 to p: linear in (lag, R), and
+    fitted so. Each crossing is compared at the same fraction of the model's equilibrium
+    (the cycle's own P0 differs from the commanded by the regulator's error)."""
+    m_total = (p0 + p_atm) * v_tank + p_atm * v_act0
+    p_eq = float(free_equilibrium(p0, v_tank, v_act0, c, p_atm))
+    grid = np.linspace(0.0, max(RISE_FRACTIONS) * p_eq, 2001)
+    m_act = (grid + p_atm) * (v_act0 + c * grid)
+    pt = (m_total - m_act) / v_tank - p_atm
+    cap = v_act0 + c * grid + (grid + p_atm) * c  # d(p v)/dp of the actuator side
+    inv_g = cap / (p_atm * (pt - grid))
+    integral = integrate.cumulative_trapezoid(inv_g, grid, initial=0.0)
+    x = np.interp(np.array(RISE_FRACTIONS) * p_eq, grid, integral)
+    a = np.column_stack([np.ones_like(x), x])
+    coef, *_ = np.linalg.lstsq(a, np.asarray(times, dtype=float), rcond=None)
+    resid = np.asarray(times) - a @ coef
+    return float(coef[0]), float(coef[1]), float(np.sqrt(np.mean(resid**2)))
+
+
+def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
+    """The profile's numbers from the free-air cycles, or FitRefused naming why.
+
+    The P-V law: least squares of the levels' mean equilibria (each weighted by its cycles)
+    against eq. 1 in (v0 + hose, c); the covariance from the pooled cycle-to-cycle spread
+    (the pure error: what the cycles at one level disagree by), inflated by the lack-of-fit
+    ratio when the means scatter more than that; 95 % intervals with Student's t on the
+    pure error's degrees of freedom."""
+    c_cfg, act, seq = start.circuit, start.actuator, start.sequence
+    p_atm, v_tank = c_cfg.p_atm, c_cfg.tank_m3
+    hose = c_cfg.hose.volume_m3 if c_cfg.hose is not None else 0.0
+    port = PORT_VOLUME_M3 if (c_cfg.valve is not None and c_cfg.resistor_pa_s_per_m3 > 0) else 0.0
+    fixed = hose + port  # stated by the config, not measured
+    refused: list[str] = []
+    by_level: dict[float, list[dict]] = {}
+    for e in entries:
+        by_level.setdefault(e["level_kpa"], []).append(e)
+    levels = sorted(by_level)
+    if len(levels) < MIN_LEVELS:
+        raise FitRefused([f"too few levels: {len(levels)} (at least {MIN_LEVELS})"])
+    counts = [len(by_level[v]) for v in levels]
+    if min(counts) < MIN_CYCLES:
+        raise FitRefused([f"too few cycles at a level: {min(counts)} (at least {MIN_CYCLES} per level)"])
+
+    p0 = np.array([v * KPA for v in levels])
+    ys = [np.array([e["p_eq_kpa"] * KPA for e in by_level[v]]) for v in levels]
+    n = np.array(counts, dtype=float)
+    means = np.array([y.mean() for y in ys])
+    n_total, n_lev = int(n.sum()), len(levels)
+    dof_pure = n_total - n_lev
+    ss_pure = float(sum(((y - y.mean()) ** 2).sum() for y in ys))
+    s_pure = math.sqrt(ss_pure / dof_pure)
+    if s_pure <= 0:
+        raise FitRefused(["the cycles at each level read exactly the same: no spread to state an uncertainty from"])
+
+    def resid(x: np.ndarray) -> np.ndarray:
+        v_act0, c = x[0] * ML, x[1] * ML / KPA
+        return np.sqrt(n) * (free_equilibrium(p0, v_tank, v_act0, c, p_atm) - means) / s_pure
+
+    x0 = np.array([act.v0_ml + fixed / ML, act.compliance_ml_per_kpa])
+    sol = optimize.least_squares(resid, x0, x_scale=x0, method="lm")
+    jac = sol.jac
+    cov = np.linalg.inv(jac.T @ jac)
+    ss_lof = float(sol.fun @ sol.fun)  # in units of the pure error's variance
+    dof_lof = n_lev - 2
+    f_ratio = ss_lof / dof_lof if dof_lof > 0 else 0.0
+    p_lof = float(stats.f.sf(f_ratio, dof_lof, dof_pure)) if dof_lof > 0 else 1.0
+    if p_lof < LACK_OF_FIT_P:
+        refused.append(f"the free P-V law does not fit: the levels' means scatter {math.sqrt(f_ratio):.2g} times "
+                       f"the cycles' own spread about it (lack-of-fit p = {p_lof:.2g}; a law that bends, a leak, "
+                       "or a volume that is not the config's)")
+    cov = cov * max(1.0, f_ratio)
+    t95 = _t95(dof_pure)
+    v_side, c_fit = float(sol.x[0]), float(sol.x[1])
+    se_v, se_c = math.sqrt(cov[0, 0]), math.sqrt(cov[1, 1])
+    v0_ml = v_side - fixed / ML
+    fitted_eq = free_equilibrium(p0, v_tank, v_side * ML, c_fit * ML / KPA, p_atm)
+    residual = math.sqrt(float(np.mean((fitted_eq - means) ** 2))) / KPA
+    if v0_ml - t95 * se_v <= 0 or c_fit - t95 * se_c <= 0:
+        refused.append(f"the fitted volume or compliance is not positive within its interval (v0 {v0_ml:.4g} "
+                       f"+- {t95 * se_v:.2g} ml, c {c_fit:.4g} +- {t95 * se_c:.2g} ml/kPa): the levels do not "
+                       "span enough of the law, or the stated tank or hose is wrong")
+    scale = (f"scaled by the stated tank ({c_cfg.tank_l:g} L, circuit.tank_l)"
+             + (f" and hose ({hose / ML:.4g} ml, circuit.hose)" if hose else "")
+             + ": the equilibria show only ratios of volumes; if the tank is k times the stated one, so are "
+               "v0 and c")
+    fitted = [
+        FittedNumber(field="actuator.v0_ml", value=v0_ml, lo95=v0_ml - t95 * se_v, hi95=v0_ml + t95 * se_v,
+                     unit="ml", how=f"eq. 1 least squares over {n_lev} levels x {counts[0]} cycles, {scale}"
+                     + (f"; the hose's {hose / ML:.4g} ml taken off the fitted side volume" if fixed else "")),
+        FittedNumber(field="actuator.compliance_ml_per_kpa", value=c_fit, lo95=c_fit - t95 * se_c,
+                     hi95=c_fit + t95 * se_c, unit="ml/kPa", how=f"eq. 1, the same fit, {scale}"),
+    ]
+    measured: list[FittedNumber] = []
+    kept: dict[str, str] = {}
+    notes = [f"correlation of v0 and c in the fit: {cov[0, 1] / (se_v * se_c):+.3f}"]
+
+    # cycle-to-cycle spread at the profile's own P0 (the level nearest it), as sequence.eq_sd_kpa
+    near = min(levels, key=lambda v: abs(v - seq.p0_kpa))
+    y_near = ys[levels.index(near)]
+    k_near = y_near.size
+    sd_near = float(y_near.std(ddof=1)) / KPA
+    lo_sd = sd_near * math.sqrt((k_near - 1) / stats.chi2.ppf(0.975, k_near - 1))
+    hi_sd = sd_near * math.sqrt((k_near - 1) / stats.chi2.ppf(0.025, k_near - 1))
+    fitted.append(FittedNumber(field="sequence.eq_sd_kpa", value=sd_near, lo95=lo_sd, hi95=hi_sd, unit="kPa",
+                               how=f"sd of the free-air equilibrium over {k_near} cycles at {near:g} kPa "
+                               f"(chi-square interval)" + ("" if near == seq.p0_kpa else
+                                                             f"; the profile's P0 is {seq.p0_kpa:g} kPa")))
+    measured.append(FittedNumber(field="pure_error_kpa", value=s_pure / KPA, lo95=s_pure / KPA,
+                                 hi95=s_pure / KPA, unit="kPa", how=f"pooled sd of the equilibrium over all levels "
+                                 f"({dof_pure} degrees of freedom)"))
+
+    # the sensor's noise: the settled window's sample sd, pooled over every cycle
+    noise = np.array([e["noise_kpa"] for e in entries])
+    noise_rms = float(np.sqrt(np.mean(noise**2)))
+    lo_n, hi_n = float(np.min(noise)), float(np.max(noise))
+    fitted.append(FittedNumber(field="sensor.noise_sd_kpa", value=noise_rms, lo95=min(lo_n, noise_rms),
+                               hi95=max(hi_n, noise_rms), unit="kPa",
+                               how=f"rms of the sample sd in the settled window ({seq.windows[0].start_s:g}-"
+                               f"{seq.windows[0].end_s:g} s) over {len(entries)} cycles; the interval is the "
+                               "cycles' range (quantisation included)"))
+
+    # the lag: where the rise starts, after the commanded opening
+    lags = [e["lag_s"] for e in entries if e["lag_s"] is not None]
+    if len(lags) >= MIN_CYCLES:
+        m, lo, hi = _mean_interval(lags)
+        measured.append(FittedNumber(field="rise_start_s", value=m, lo95=lo, hi95=hi, unit="s",
+                                     how=f"mean over {len(lags)} cycles of the rise's early part (out of the noise, "
+                                     "below 30 %) extrapolated back to zero, from the commanded opening: early by "
+                                     "the rise's curvature (on the simulated laminar circuit 9.5 ms for a 12 ms "
+                                     "delay), so not written"))
+    kept["circuit.valve_delay_s"] = ("the rise's start is fitted only with a laminar circuit's rise (below); "
+                                     "this circuit's rise is not modelled here")
+
+    # the settling time (2 %), and whether the window reads after it
+    settles = [e["settle_s"] for e in entries if e["settle_s"] is not None]
+    m_s, lo_s, hi_s = _mean_interval(settles)
+    measured.append(FittedNumber(field="settle_s", value=m_s, lo95=lo_s, hi95=hi_s, unit="s",
+                                 how=f"mean over {len(settles)} cycles of the last time before the window's end "
+                                 f"that the trace was more than {SETTLE_FRACTION:.0%} of P_eq (or 5 x the noise) "
+                                 "from it"))
+    if max(settles) > seq.windows[0].start_s:
+        refused.append(f"the window starts at {seq.windows[0].start_s:g} s but the actuator settled only after "
+                       f"{max(settles):.3g} s in a cycle: its readings are not equilibria (a slower actuator, a "
+                       "leak or a larger resistance than the profile's): lengthen sequence.windows")
+
+    # the leak: the drift after settling, over every cycle
+    drifts = [(e["drift_kpa_per_s"], e["drift_se_kpa_per_s"]) for e in entries if e["drift_kpa_per_s"] is not None]
+    if drifts:
+        d = np.array([x for x, _ in drifts])
+        m_d = float(d.mean())
+        se_d = float(d.std(ddof=1)) / math.sqrt(d.size) if d.size > 1 else drifts[0][1]
+        se_d = max(se_d, math.sqrt(sum(s**2 for _, s in drifts)) / d.size)
+        h_d = _t95(d.size - 1) * se_d
+        measured.append(FittedNumber(field="drift_kpa_per_s", value=m_d, lo95=m_d - h_d, hi95=m_d + h_d,
+                                     unit="kPa/s", how="mean slope of the free-air trace from the window's start to "
+                                     "the valve's closing, oriented away from atmosphere (a leak is negative)"))
+        if m_d < -LEAK_T * se_d:
+            refused.append(f"a leak: the settled free-air pressure falls {-m_d:.3g} kPa/s (+- {h_d:.2g}, "
+                           f"{-m_d / se_d:.1f} standard errors): an equilibrium with a leak is not eq. 1's; find "
+                           "the leak and characterise again")
+            kept["circuit.leak_resistance_pa_s_per_m3"] = "a leak was seen: the fit is refused"
+        else:
+            kept["circuit.leak_resistance_pa_s_per_m3"] = (f"no leak shown (drift {m_d:+.2g} +- {h_d:.2g} kPa/s): "
+                                                          "the starting value is kept")
+
+    # the path's resistance from the rise (laminar circuits without a hose only)
+    rises = [e["rise_s"] for e in entries if e["rise_s"] is not None]
+    if rises:
+        m_r, lo_r, hi_r = _mean_interval(rises)
+        measured.append(FittedNumber(field="rise_63_s", value=m_r, lo95=lo_r, hi95=hi_r, unit="s",
+                                     how="time from the rise's start to 63 % of P_eq, mean over cycles"))
+    laminar = c_cfg.valve is None and c_cfg.hose is None and c_cfg.thermal.model == "isothermal"
+    if laminar:
+        top = max(abs(v) for v in levels)
+        used = [e for e in entries if e["rise_t_s"] is not None and abs(e["level_kpa"]) >= RISE_MIN_LEVEL * top]
+
+        def rises(v_act0: float, c: float) -> tuple[list[float], list[float], list[float]]:
+            out = [fit_rise(e["rise_t_s"], v_tank, v_act0, c, e["level_kpa"] * KPA, p_atm) for e in used]
+            return [x[0] for x in out], [x[1] for x in out], [x[2] for x in out]
+
+        rise_lags, rs, rms = rises(v_side * ML, c_fit * ML / KPA)
+        # the rise's model uses the fitted volumes: carry their uncertainty (draws from the
+        # P-V fit's covariance, a fixed seed: the same readings give the same intervals)
+        draws = np.random.default_rng(0).multivariate_normal(sol.x, cov, size=RISE_DRAWS if used else 0)
+        spread_lag, spread_r = [], []
+        for v_d, c_d in draws:
+            if v_d > 0 and c_d > 0:
+                dl, dr, _ = rises(v_d * ML, c_d * ML / KPA)
+                spread_lag.append(float(np.mean(dl)))
+                spread_r.append(float(np.mean(dr)))
+
+        def widened(values: list[float], spread: list[float], floor: float) -> tuple[float, float, float]:
+            m, lo, hi = _mean_interval(values)
+            extra = 1.96 * float(np.std(spread, ddof=1)) if len(spread) > 1 else 0.0
+            h = math.sqrt((hi - m) ** 2 + extra**2 + (1.96 * floor) ** 2)
+            return m, m - h, m + h
+
+        if len(rise_lags) >= MIN_CYCLES:
+            m, lo, hi = widened(rise_lags, spread_lag, RISE_MODEL_LAG_S)
+            kept.pop("circuit.valve_delay_s", None)
+            fitted.append(FittedNumber(field="circuit.valve_delay_s", value=max(m, 0.0), lo95=max(min(lo, m), 0.0),
+                                       hi95=max(hi, 0.0), unit="s", how=f"mean over {len(rise_lags)} rises (levels "
+                                       f"from {RISE_MIN_LEVEL:.0%} of the top) of the start of the laminar two-volume "
+                                       "rise fitted to its 10-90 % crossings (with the resistance below), from the "
+                                       "commanded opening; the interval carries the fitted volumes' uncertainty"))
+            notes.append(f"rise fit: rms time residual {1e3 * float(np.sqrt(np.mean(np.square(rms)))):.3g} ms "
+                         "over the 10-90 % crossings")
+        if len(rs) >= MIN_CYCLES:
+            m_r, lo_r, hi_r = widened(rs, spread_r, RISE_MODEL_REL * float(np.mean(rs)))
+            valve = c_cfg.valve_resistance_pa_s_per_m3
+            if m_r - valve > 0 and lo_r - valve > 0:
+                fitted.append(FittedNumber(field="circuit.resistor_pa_s_per_m3", value=m_r - valve,
+                                           lo95=lo_r - valve, hi95=hi_r - valve, unit="Pa s/m^3",
+                                           how=f"the path's resistance fitted to {len(rs)} rises (isothermal, "
+                                           "the fitted volumes and their uncertainty, the actuator on its law, "
+                                           "quasi-static; the model's own error taken as "
+                                           f"{RISE_MODEL_REL:.1%} sd) less the valve's "
+                                           f"{valve:.3g} (kept: the rig shows only their sum)"))
+                kept["circuit.valve_resistance_pa_s_per_m3"] = "the rig shows only the path's sum; the valve's kept"
+            else:
+                measured.append(FittedNumber(field="path_resistance_pa_s_per_m3", value=m_r, lo95=lo_r, hi95=hi_r,
+                                             unit="Pa s/m^3", how="the path's resistance from the rises: not "
+                                             "above the valve's assumed figure, so neither is changed"))
+                kept["circuit.resistor_pa_s_per_m3"] = "the rise's resistance is within the valve's assumed figure"
+        else:
+            kept["circuit.resistor_pa_s_per_m3"] = "too few rises could be fitted"
+    else:
+        why = ("an ISO 6358 valve or a hose: the rise is not a laminar two-volume one, and its conductance is "
+               "not fitted yet")
+        for name in ("circuit.valve", "circuit.valve_resistance_pa_s_per_m3", "circuit.resistor_pa_s_per_m3"):
+            kept[name] = why
+
+    for name, why in {
+        "circuit.tank_l": "the scale of every volume: as the config states it (the tank's label)",
+        "circuit.hose": "as the config states it (bore and length)",
+        "circuit.regulator_repeatability_kpa": "not separable from the other causes of the spread; "
+                                               "sequence.eq_sd_kpa holds the spread itself",
+        "actuator (other fields)": "contact and closing need objects (issue 36 item 2): kept",
+        "sensor.offset_kpa": "removed per cycle before the valve opens; not a property of the actuator",
+    }.items():
+        kept.setdefault(name, why)
+    level_rows = [{"p0_kpa": lv, "mean_kpa": float(m / KPA), "sd_kpa": float(y.std(ddof=1) / KPA), "n": int(k),
+                   "fitted_kpa": float(f / KPA)} for lv, m, y, k, f in zip(levels, means, ys, counts, fitted_eq)]
+    result = Characterisation(fitted, measured, kept, notes, residual, s_pure / KPA, level_rows)
+    if refused:
+        raise FitRefused(refused, result)
+    return result
+
+
+# ------------------------------------------------------------------ the profile
+FIELD_UNITS = {"actuator.v0_ml": "ml", "actuator.compliance_ml_per_kpa": "ml/kPa"}
+
+
+def characterised_profile(start_data: dict[str, Any], start: Profile, result: Characterisation, *, name: str,
+                          rig: str, config: str, from_profile: str, levels: Sequence[float], cycles: int,
+                          cycle_ids: Sequence[int], date: datetime.datetime | None = None) -> dict[str, Any]:
+    """The starting profile's document with the fitted fields set and the provenance
+    block added; checked by the Profile model before it is returned."""
+    data = {**start_data}
+    for key in ("circuit", "actuator", "sensor", "sequence"):
+        data[key] = dict(data.get(key) or {})
+    for f in result.fitted:
+        section, _, key = f.field.partition(".")
+        data[section][key] = float(f"{f.value:.6g}")
+    data["name"] = name
+    data["description"] = (f"{start.name} characterised on {rig} "
+                           f"({(date or datetime.datetime.now(datetime.UTC)).date().isoformat()})")
+    when = (date or datetime.datetime.now(datetime.UTC)).isoformat(timespec="seconds")
+    prov = Provenance(date=when, rig=rig, config=config, from_profile=from_profile, levels_kpa=list(levels),
+                      cycles_per_level=cycles, cycle_ids=list(cycle_ids), residual_kpa=result.residual_kpa,
+                      pure_error_kpa=result.pure_error_kpa, fitted=result.fitted, measured=result.measured,
+                      kept=result.kept, notes=result.notes)
+    data["provenance"] = prov.model_dump(mode="json")
+    Profile.model_validate(data)  # a profile nobody can load is never written
+    return data
+
+
+def profile_comments(result: Characterisation, prov_line: str) -> str:
+    """The header a characterised profile carries: every fitted number with its interval,
+    and what was kept, in words (the provenance block holds the same, for programs)."""
+    lines = [f"# Characterised by fluidsense characterise: {prov_line}", "# Fitted on the rig (95 % intervals):"]
+    for f in result.fitted:
+        lines.append(f"#   {f.field} = {f.value:.6g} {f.unit} [{f.lo95:.6g}, {f.hi95:.6g}]")
+    lines.append("# Kept from the starting profile:")
+    for k, why in result.kept.items():
+        lines.append(f"#   {k}: {why}")
+    lines.append(f"# P-V fit residual {result.residual_kpa:.3g} kPa rms over the levels' means; the cycles' own "
+                 f"spread {result.pure_error_kpa:.3g} kPa")
+    return "\n".join(lines) + "\n"
+
+
+def v_tank_of(profile: Profile) -> float:
+    return profile.circuit.tank_l * LITRE

@@ -9,8 +9,8 @@ nothing ``--empty`` times and each cylinder of ``--sizes`` ``--objects`` times (
 client: grip, read the grasp, release), in a shuffled order so that a drift in the cell or
 the load does not fall on one kind of grip. It prints the false-object rate (an empty grip
 that read an object), the missed-object rate (an object that did not), the uncertain
-answers (object null, with their reason), and the features of every grip that was not
-right. Figures in docs/performance.md ("Empty grips and objects"); ``make grips`` writes
+answers (object null, with their reason), the grips a fault ended (vented; the daemon is
+reset and the next grip goes on), and the features of every grip that was not right. Figures in docs/performance.md ("Empty grips and objects"); ``make grips`` writes
 docs/performance/grips.json.
 """
 
@@ -64,6 +64,7 @@ def _cell(tmp: Path, kind: str, host: str) -> Path:
 def _grips(kind: str, load: int, plan: list[float | None]) -> dict[str, Any]:
     """One box and daemon; a free-air reference, then the grips of ``plan`` (None: empty)."""
     from fluidsense.client import Gripper
+    from fluidsense.client.types import GripEnded
     from fluidsense.simulator.controlbox.process import EmulatorProcess, free_loopback
 
     from lab import REPO
@@ -90,9 +91,15 @@ def _grips(kind: str, load: int, plan: list[float | None]) -> dict[str, Any]:
                 g.measure(store_reference=True)
                 for size in plan:
                     g.scene({"kind": "none"} if size is None else {"kind": "cylinder", "diameter_mm": size})
-                    grasp = g.grip()
+                    try:
+                        grasp = g.grip()
+                    except GripEnded as exc:  # a fault ended it (vented): counted, reset, on to the next
+                        out["grips"].append({"size_mm": size, "object": None, "contact": None, "faulted": str(exc),
+                                             "note": None, **dict.fromkeys(FEATURES), "rise_shift_s": None})
+                        g.reset()
+                        continue
                     g.release()
-                    out["grips"].append({"size_mm": size, "object": grasp.object, "contact": grasp.contact,
+                    out["grips"].append({"faulted": None, "size_mm": size, "object": grasp.object, "contact": grasp.contact,
                                          "note": grasp.note, **{k: grasp.features.get(k) for k in FEATURES},
                                          "rise_shift_s": grasp.features.get("rise_shift_s")})
         finally:
@@ -119,12 +126,15 @@ def summarise(run: dict[str, Any]) -> dict[str, Any]:
     """Rates of one run, and the grips that were not right."""
     empty = [g for g in run["grips"] if g["size_mm"] is None]
     full = [g for g in run["grips"] if g["size_mm"] is not None]
-    wrong = [g for g in empty if g["object"] is not False] + [g for g in full if g["object"] is not True]
+    wrong = [g for g in empty if g["object"] is not False and not g["faulted"]] + \
+        [g for g in full if g["object"] is not True and not g["faulted"]]
+    faulted = [g for g in run["grips"] if g["faulted"]]
     return {"driver": run["driver"], "load": run["load"], "wall_s": run["wall_s"],
             "empty": len(empty), "false_object": sum(g["object"] is True for g in empty),
-            "empty_uncertain": sum(g["object"] is None for g in empty),
+            "empty_uncertain": sum(g["object"] is None and not g["faulted"] for g in empty),
             "objects": len(full), "missed_object": sum(g["object"] is False for g in full),
-            "object_uncertain": sum(g["object"] is None for g in full),
+            "object_uncertain": sum(g["object"] is None and not g["faulted"] for g in full),
+            "faulted": len(faulted), "faults": sorted({g["faulted"] for g in faulted}),
             "per_size": {f"{s:g}": sum(g["object"] is True for g in full if g["size_mm"] == s)
                          for s in sorted({g["size_mm"] for g in full})},
             "dp_eq_kpa_median": {("empty" if s is None else f"{s:g}"): _median(
@@ -161,7 +171,10 @@ def run(args: argparse.Namespace) -> int:
     for r in res["runs"]:
         print(f"{r['driver']:6s} load {r['load']}: empty read as an object {r['false_object']}/{r['empty']} "
               f"(uncertain {r['empty_uncertain']}); object missed {r['missed_object']}/{r['objects']} "
-              f"(uncertain {r['object_uncertain']}); read as an object per size {r['per_size']}; {r['wall_s']:.0f} s")
+              f"(uncertain {r['object_uncertain']}); read as an object per size {r['per_size']}; "
+              f"ended by a fault {r['faulted']}; {r['wall_s']:.0f} s")
+        for f in r["faults"]:
+            print(f"    fault: {f}")
         print(f"    median dP_eq (kPa) {r['dp_eq_kpa_median']} against the bound {r['object_bound_kpa']}; "
               f"aligned on the rise {r['aligned']}/{r['grips']}")
         for g in r["wrong"]:

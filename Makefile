@@ -108,11 +108,11 @@ busy: $(STAMP)
 	mkdir -p docs/performance
 	$(LAB) bench tasks --runs 10 --load 2 --idle-s 600 --json > docs/performance/busy.json
 
-# Empty grips on a busy robot PC, with and without the rise alignment (docs/physics.md
-# "Timing the valve"): 20 per driver and setting beside two busy processes (~12 minutes).
+# Empty grips and grips on cylinders through ur and modbus (the shipped sorting cells), quiet
+# and beside two busy processes (docs/performance.md "Empty grips and objects"; ~1.5 hours)
 grips: $(STAMP)
 	mkdir -p docs/performance
-	$(LAB) bench tasks --runs 0 --load 2 --empty-grips 20 --json > docs/performance/empty-grips.json
+	$(LAB) bench grips --loads 0,2 --empty 100 --sizes 40,60,100 --objects 5 --json > docs/performance/grips.json
 
 # Soak figures of docs/soak.md: 8 hours of sample time in virtual time (~10 minutes).
 soak: $(STAMP)

@@ -64,14 +64,14 @@ def _cell(tmp: Path, kind: str, host: str) -> Path:
 def _grips(kind: str, load: int, plan: list[float | None]) -> dict[str, Any]:
     """One box and daemon; a free-air reference, then the grips of ``plan`` (None: empty)."""
     from fluidsense.client import Gripper
-    from fluidsense.client.types import GripEnded
+    from fluidsense.client.types import GripEnded, Refused
     from fluidsense.simulator.controlbox.process import EmulatorProcess, free_loopback
 
     from lab import REPO
 
     from .timing import _burn
 
-    out: dict[str, Any] = {"driver": kind, "load": load, "grips": []}
+    out: dict[str, Any] = {"driver": kind, "load": load, "grips": [], "idle_faults": []}
     burners = [multiprocessing.Process(target=_burn, args=(time.monotonic() + 1e6,), daemon=True)
                for _ in range(load)]
     t0 = time.monotonic()
@@ -91,9 +91,13 @@ def _grips(kind: str, load: int, plan: list[float | None]) -> dict[str, Any]:
                 g.measure(store_reference=True)
                 for size in plan:
                     g.scene({"kind": "none"} if size is None else {"kind": "cylinder", "diameter_mm": size})
+                    fault = g.status().get("fault")
+                    if fault:  # latched while idle (a no_data between grips): counted, reset, on
+                        out["idle_faults"].append(f"{fault['kind']}: {fault['detail']}")
+                        g.reset()
                     try:
                         grasp = g.grip()
-                    except GripEnded as exc:  # a fault ended it (vented): counted, reset, on to the next
+                    except (GripEnded, Refused) as exc:  # a fault ended or refused it (vented): counted, reset, on
                         out["grips"].append({"size_mm": size, "object": None, "contact": None, "faulted": str(exc),
                                              "note": None, **dict.fromkeys(FEATURES), "rise_shift_s": None})
                         g.reset()
@@ -135,6 +139,7 @@ def summarise(run: dict[str, Any]) -> dict[str, Any]:
             "objects": len(full), "missed_object": sum(g["object"] is False for g in full),
             "object_uncertain": sum(g["object"] is None and not g["faulted"] for g in full),
             "faulted": len(faulted), "faults": sorted({g["faulted"] for g in faulted}),
+            "idle_faults": run["idle_faults"],
             "per_size": {f"{s:g}": sum(g["object"] is True for g in full if g["size_mm"] == s)
                          for s in sorted({g["size_mm"] for g in full})},
             "dp_eq_kpa_median": {("empty" if s is None else f"{s:g}"): _median(
@@ -175,6 +180,8 @@ def run(args: argparse.Namespace) -> int:
               f"ended by a fault {r['faulted']}; {r['wall_s']:.0f} s")
         for f in r["faults"]:
             print(f"    fault: {f}")
+        for f in r["idle_faults"]:
+            print(f"    fault while idle between grips (reset): {f}")
         print(f"    median dP_eq (kPa) {r['dp_eq_kpa_median']} against the bound {r['object_bound_kpa']}; "
               f"aligned on the rise {r['aligned']}/{r['grips']}")
         for g in r["wrong"]:

@@ -178,6 +178,8 @@ class Daemon:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             rc = self.proc.wait()
+        for pipe in (self.proc.stdout, self.proc.stderr):  # an open pipe is a ResourceWarning when collected
+            pipe.close()
         self.sub.close()
         self.ctx.term()
         return rc

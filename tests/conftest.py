@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import gc
 import os
 import signal
 from pathlib import Path
@@ -74,6 +75,10 @@ def nothing_left_behind(request, monkeypatch):
     tasks.install(monkeypatch)
     before = leaks.snapshot()
     yield
+    # what the test dropped is collected now, so a ResourceWarning (an unclosed file or socket,
+    # an error under filterwarnings) is reported at this test, not at whichever test the
+    # collector happens to run in
+    gc.collect()
     after = leaks.snapshot()
     left = tasks.pending + leaks.left_behind(before, after)
     for pid in set(after.children) - set(before.children):

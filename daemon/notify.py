@@ -60,8 +60,8 @@ class Notifier:
             if self._sock is None:
                 target = "\0" + self.address[1:] if self.address.startswith("@") else self.address
                 sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
+                self._sock = sock  # before connect: a refused connection is closed below with it
                 sock.connect(target)
-                self._sock = sock
             self._sock.send("\n".join(assignments).encode())
             return True
         except OSError as exc:

@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import asyncio
+import gc
+import os
 import signal
 from pathlib import Path
 
 import pytest
 from fluidsense.common.errors import LinkLostError
 from fluidsense.simulator.controlbox.process import EmulatorProcess
+from support import leaks
 from support.controlbox import MODBUS_PORT, free_host
 from support.harness import REPO, Daemon, sim_config
 
@@ -50,6 +53,43 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if "hardware" in item.keywords:
             item.add_marker(skip)
+
+
+@pytest.hookimpl(wrapper=True, tryfirst=True)
+def pytest_runtest_makereport(item, call):
+    """Each phase's report on its item: the leak guard below judges only a test that passed."""
+    report = yield
+    setattr(item, f"_report_{report.when}", report)
+    return report
+
+
+@pytest.fixture(autouse=True)
+def nothing_left_behind(request, monkeypatch):
+    """Fails a test that leaves behind what it started: asyncio tasks still pending when its
+    event loop ended (asyncio.run cancels them without a word), threads, child processes or
+    sockets, each named. Only a test that passed is judged (a failed one stops half-way, and
+    its own failure says why). Children left running are killed here, so that one test's
+    daemons do not load the next ones. What a module- or session-scoped fixture starts exists
+    before this snapshot and is not counted."""
+    tasks = leaks.TaskWatch()
+    tasks.install(monkeypatch)
+    before = leaks.snapshot()
+    yield
+    # what the test dropped is collected now, so a ResourceWarning (an unclosed file or socket,
+    # an error under filterwarnings) is reported at this test, not at whichever test the
+    # collector happens to run in
+    gc.collect()
+    after = leaks.snapshot()
+    left = tasks.pending + leaks.left_behind(before, after)
+    for pid in set(after.children) - set(before.children):
+        try:
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+        except (ProcessLookupError, ChildProcessError):
+            pass  # ended, or reaped by its Popen meanwhile
+    call = getattr(request.node, "_report_call", None)
+    if left and call is not None and call.passed:
+        pytest.fail("the test left behind:\n  " + "\n  ".join(left), pytrace=False)
 
 
 @pytest.fixture

@@ -51,7 +51,8 @@ def test_output_to_a_closed_pipe_ends_quietly():
     demo = subprocess.Popen([sys.executable, "-m", "fluidsense", "demo", "--json", "--cycles", "3"], cwd=REPO,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     demo.stdout.close()  # gone before the demo has anything to say
-    err = demo.stderr.read().decode()
+    with demo.stderr:
+        err = demo.stderr.read().decode()
     assert demo.wait(120) == 0
     assert "Traceback" not in err and "BrokenPipe" not in err, err
 

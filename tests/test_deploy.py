@@ -21,11 +21,22 @@ from support.harness import run, sim_config
 from support.shipping import unit_entries
 
 
+_NOTIFY_SOCKETS: list[socket.socket] = []
+
+
 def notify_socket(path: Path) -> socket.socket:
-    """What systemd listens on: an AF_UNIX datagram socket."""
+    """What systemd listens on: an AF_UNIX datagram socket (closed after the test)."""
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    _NOTIFY_SOCKETS.append(sock)
     sock.bind(str(path))
     return sock
+
+
+@pytest.fixture(autouse=True)
+def _close_notify_sockets():
+    yield
+    while _NOTIFY_SOCKETS:
+        _NOTIFY_SOCKETS.pop().close()
 
 
 def receive(sock: socket.socket, timeout_s: float) -> str:
@@ -142,8 +153,10 @@ def test_pings_stop_when_the_loop_stops_progressing(tmp_path):
         if len(periods) <= 3:
             loop.ticks += 100
 
+    notifier = Notifier(str(tmp_path / "notify"))
     with pytest.raises(asyncio.CancelledError):
-        run(keep_alive(Notifier(str(tmp_path / "notify")), LoopWatchdog(loop), 5.0, sleep=sleep))
+        run(keep_alive(notifier, LoopWatchdog(loop), 5.0, sleep=sleep))
+    notifier.close()
     got = []
     sock.setblocking(False)
     while True:

@@ -326,6 +326,9 @@ def busy_machine():
             b.wait()
 
 
+# two real-time sorting tasks beside two busy loops: a few minutes on a loaded 2-core machine,
+# each bounded by its own 600 s wait below
+@pytest.mark.timeout(900)
 def test_sorting_task_through_both_drivers_at_once_on_a_busy_machine(tmp_path):
     """The paper's sorting task, as a user runs it (``fluidsense task run``), through each
     production driver, beside two busy processes: the simulated cell lays out the

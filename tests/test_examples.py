@@ -92,7 +92,8 @@ def test_log_grasps_csv_writes_a_row_per_grasp(tmp_path):
         finally:
             rc = d.close()
         assert rc == 0, d.stderr_now()
-    rows = list(csv.DictReader(out.open()))
+    with out.open() as f:
+        rows = list(csv.DictReader(f))
     assert [r["topic"] for r in rows] == ["grasp", "grasp"]
     assert rows[0]["object"] == "False" and rows[1]["object"] == "True"  # the reference: nothing there
     assert abs(float(rows[1]["value_mm"]) - 80) < 2 and float(rows[1]["lo_mm"]) < 80 < float(rows[1]["hi_mm"])

@@ -114,7 +114,7 @@ def test_viewers_see_the_recordings_channels_and_the_published_samples(tmp_path)
     finally:
         stack.close()
         rc = daemon.close()
-    err = daemon.proc.stderr.read().decode()
+    err = daemon.stderr_now()
     assert rc == 0, err
     assert "Traceback" not in err, err
     assert f"ws://127.0.0.1:{port}" in err
@@ -167,5 +167,5 @@ def test_lichtblicks_protocol_name_is_served_and_an_unknown_one_refused(tmp_path
     finally:
         stack.close()
         rc = daemon.close()
-    err = daemon.proc.stderr.read().decode()
+    err = daemon.stderr_now()
     assert rc == 0 and "Traceback" not in err, err

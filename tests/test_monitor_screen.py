@@ -88,7 +88,8 @@ def test_monitor_in_a_terminal_shows_state_pressure_and_the_last_result(tmp_path
     assert re.search(r"cycle 1: P_eq \d+\.\d{3} ± \d+\.\d{3} kPa", screen), screen
     assert re.search(r"p_act\s+-?\d+\.\d\d kPa", screen), screen  # the trace of the cycle
     assert "state IDLE" in screen and "valves (device):" in screen and "closed" in screen, screen
-    assert "Traceback" not in mon.stderr.read().decode()
+    with mon.stderr:
+        assert "Traceback" not in mon.stderr.read().decode()
 
 
 def ipc_endpoints_of(cfg) -> tuple[str, str]:

@@ -195,6 +195,8 @@ def test_the_sampler_exits_when_its_parent_dies(tmp_path):
     finally:
         if parent.poll() is None:
             parent.kill()
+            parent.wait(30)
+        parent.stdout.close()
 
 
 def _is_zombie(pid: int) -> bool:

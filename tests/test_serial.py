@@ -151,7 +151,10 @@ def test_every_session_starts_at_tick_0(tmp_path, simserial, board):
     """40 sessions in a row, each STARTed wherever the device's sampling happens to be:
     the first sample of each is tick 0, of that session, without an ADC overrun. (The AVR
     image once sent the sample its ADC was converting when START came, ticked by the old
-    count: a tick going backwards, which the driver takes for a reset.)"""
+    count: a tick going backwards, which the driver takes for a reset.) Each STOP's ACK
+    leaves the board quiet, as the board itself reports it when asked right after the ACK
+    (the simulated AVR once told its plant only at its next tick: a test that asked
+    between the two read `streaming` after STOP.)"""
     sim = simserial(serial_config(tmp_path), "--board", board)
     port = _Port(sim.port)
     try:
@@ -163,6 +166,8 @@ def test_every_session_starts_at_tick_0(tmp_path, simserial, board):
                 first = port.next()
             assert (first.session, first.tick, first.flags & p.F_ADC_LATE) == (session, 0, 0), first
             assert port.command(p.STOP).status == p.OK
+            state = sim.control(cmd="state")
+            assert (state["streaming"], state["armed"], state["session"]) == (False, False, 0), state
     finally:
         os.close(port.fd)
 

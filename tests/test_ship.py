@@ -253,6 +253,7 @@ def image_check_output() -> tuple[int, str]:
     return int(re.search(r"^exit (\d+)$", text, re.M).group(1)), text
 
 
+# waits for `make image-check` started beside the suite (network and engine bound; its own 3000 s bound)
 @pytest.mark.timeout(3600)
 def test_the_image_builds_and_runs_as_a_deployment_relies_on():
     """The Dockerfile built by podman on a Debian base made here, then run with a config

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 import yaml
 import zmq
+from fluidsense.common.names import welcome_instance
 
 PROFILE = "sorting-gripper-quick.yaml"
 SAFE, INFLATED = 0b01, 0b11  # supply isolated (output 0 high), actuation valve (output 1) vented
@@ -75,10 +76,22 @@ class _Daemon:
         self.sub.setsockopt(zmq.SUBSCRIBE, b"")
         self.sub.connect(cfg["pub"])
         self.cmd = cfg["cmd"]
-        self._next(lambda t, m: t == "hello", 60)
-        # the daemon binds its sockets before it reaches its devices and refuses cycles until then
-        while self.request({"cmd": "status"})["state"] == "connecting":
-            pass  # each request waits for the daemon's answer
+        try:
+            self._welcome(60)
+            # the daemon binds its sockets before it reaches its devices and refuses cycles until then
+            while self.request({"cmd": "status"})["state"] == "connecting":
+                pass  # each request waits for the daemon's answer
+        except BaseException:
+            self.close()  # a daemon that never came up is not left running (the scenario's figure is its failure)
+            raise
+
+    def _welcome(self, timeout_s: float) -> None:
+        """The one-frame welcome (``hello INSTANCE``) that says our subscription is attached."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if self.sub.poll(100) and welcome_instance(self.sub.recv_multipart()) is not None:
+                return
+        raise TimeoutError(f"no welcome from the daemon within {timeout_s:g} s")
 
     def request(self, payload: dict) -> dict:
         req = self.ctx.socket(zmq.REQ)

@@ -305,6 +305,7 @@ def _run_from(manifest: Path, start: int, results: dict[int, tuple[str, str]], t
     finally:
         proc.kill()
         proc.wait()
+        proc.stdout.close()
 
 
 def fuzz_config_files(examples: int, seed: int) -> dict[str, Any]:

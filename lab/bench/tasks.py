@@ -27,6 +27,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ._procs import end as end_process
+
 NAME = "tasks"
 HELP = "the README's sorting task through ur and modbus, and an idle daemon, beside busy processes"
 DESCRIPTION = __doc__
@@ -123,7 +125,7 @@ def _idle(seconds: float) -> dict[str, Any]:
             sub.setsockopt(zmq.SUBSCRIBE, topic)
         sub.connect(cfg["publisher"]["pub"])
         daemon = subprocess.Popen([sys.executable, "-m", "fluidsense", "run", "--config", str(path)],
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=REPO)
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO)
         faults, beats, last = [], 0, None
         end = time.monotonic() + seconds
         try:
@@ -137,8 +139,7 @@ def _idle(seconds: float) -> dict[str, Any]:
                         beats += 1
                         last = msg
         finally:
-            daemon.terminate()
-            daemon.wait(60)
+            end_process(daemon, 60)
             sub.close()
             ctx.term()
     return {"seconds": seconds, "faults": faults, "heartbeats": beats,
@@ -182,8 +183,13 @@ def _empty_grips(kind: str, grips: int, align: bool) -> dict[str, Any]:
         cell = _gripper_cell(Path(d), kind, free_loopback(), align)
         box = EmulatorProcess(command=[sys.executable, "-m", "fluidsense", "simcell", "--config", str(cell)])
         box.start(timeout_s=60)
-        daemon = subprocess.Popen([sys.executable, "-m", "fluidsense", "run", "--config", str(cell)],
-                                  stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=REPO)
+        try:
+            daemon = subprocess.Popen([sys.executable, "-m", "fluidsense", "run", "--config", str(cell)],
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO)
+        except BaseException:
+            box.stop()
+            box.__exit__(None, None, None)
+            raise
         try:
             with Gripper(f"ipc://{d}/cmd", f"ipc://{d}/pub", timeout_s=120) as g:
                 while g.status()["state"] == "connecting":
@@ -196,9 +202,10 @@ def _empty_grips(kind: str, grips: int, align: bool) -> dict[str, Any]:
                     out["dp_max_kpa"].append(grasp.features["dp_max_kpa"])
                     g.release()
         finally:
-            daemon.terminate()
-            daemon.wait(60)
-            box.stop()
+            try:
+                end_process(daemon, 60)
+            finally:  # the box ends even if the daemon would not
+                box.stop()
             box.__exit__(None, None, None)
     dp = np.abs(np.array([v for v in out["dp_max_kpa"] if v is not None]))
     out["dp_max_kpa"] = {"p50": round(float(np.median(dp)), 3), "max": round(float(dp.max()), 3)} if len(dp) else None

@@ -85,7 +85,11 @@ class EmulatorProcess:
         """SIGKILL: the box vanishes without closing its sockets (peer-death tests)."""
         assert self.proc is not None
         self.proc.kill()
-        return self.proc.wait()
+        code = self.proc.wait()
+        for stream in (self.proc.stdin, self.proc.stdout):  # as stop() does: a dropped pipe is a ResourceWarning
+            if stream is not None:
+                stream.close()
+        return code
 
     def __enter__(self) -> EmulatorProcess:
         return self.start()

@@ -168,6 +168,8 @@ class Daemon:
     def stderr_now(self) -> str:
         if self.proc.poll() is None:
             return "(still running)"
+        if self.proc.stderr.closed:  # after close(): what it read last
+            return self.final_stderr
         return self.proc.stderr.read().decode(errors="replace")
 
     def close(self, timeout_s: float = 30.0) -> int:
@@ -178,6 +180,10 @@ class Daemon:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             rc = self.proc.wait()
+        # the rest of its log, kept for stderr_now: an open pipe is a ResourceWarning when collected
+        self.final_stderr = "" if self.proc.stderr.closed else self.stderr_now()
+        for pipe in (self.proc.stdout, self.proc.stderr):
+            pipe.close()
         self.sub.close()
         self.ctx.term()
         return rc

@@ -16,12 +16,23 @@ class RawPeer:
         if endpoint.startswith("ipc://"):
             self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
             self.sock.settimeout(timeout_s)
-            self.sock.connect(endpoint.removeprefix("ipc://"))
+            try:
+                self.sock.connect(endpoint.removeprefix("ipc://"))
+            except OSError:
+                self.sock.close()  # refused: not left to the collector
+                raise
         elif endpoint.startswith("tcp://"):
             host, port = endpoint.removeprefix("tcp://").rsplit(":", 1)
             self.sock = socket.create_connection((host, int(port)), timeout=timeout_s)
         else:
             raise ValueError(f"not an ipc or tcp endpoint: {endpoint}")
+        try:
+            self._handshake(socket_type)
+        except BaseException:
+            self.sock.close()  # refused or dropped (the outlet drops floods): not left to the collector
+            raise
+
+    def _handshake(self, socket_type: str) -> None:
         # greeting: signature, version 3.0, mechanism NULL, as-server 0, filler
         self.sock.sendall(b"\xff" + b"\x00" * 8 + b"\x7f" + b"\x03\x00" + b"NULL".ljust(20, b"\x00")
                           + b"\x00" * 32)

@@ -63,13 +63,28 @@ static void die(const char *what) {
 }
 
 /* ---------------------------------------------------------------- the plant link */
+static uint8_t state_flags(void) {
+    return (uint8_t)((core.armed ? FS_F_ARMED : 0) | (core.vented ? FS_F_VENTED : 0) |
+                     (core.streaming ? REC_STREAMING : 0));
+}
+
+static uint8_t told_flags, told_session; /* as the plant last heard them */
+
 static void to_plant(uint8_t kind, uint32_t tick, uint32_t extra, uint64_t t_ns, uint64_t next_ns) {
-    struct plant_out o = {kind, outputs,
-                          (uint8_t)((core.armed ? FS_F_ARMED : 0) | (core.vented ? FS_F_VENTED : 0) |
-                                    (core.streaming ? REC_STREAMING : 0)),
-                          core.session, {aout[0], aout[1]}, tick, extra, t_ns, next_ns};
+    struct plant_out o = {kind, outputs, state_flags(), core.session, {aout[0], aout[1]}, tick, extra, t_ns,
+                          next_ns};
+    told_flags = o.flags;
+    told_session = o.session;
     if (!plant_write(&o))
         stats.plant_dropped++;
+}
+
+/* After the host's bytes: a command that changed the session or the flags and no output
+ * (STOP ends the session after its ACK is built) is told to the plant now, before its ACK
+ * goes to the pty, not at the next tick: a host holding the ACK may ask the plant first. */
+static void tell_state(void) {
+    if (state_flags() != told_flags || core.session != told_session)
+        to_plant(REC_STATE, core.tick, 0, now_ns(), 0);
 }
 
 static void board_reset(void);
@@ -269,6 +284,7 @@ int main(int argc, char **argv) {
             ssize_t n = read(master, buf, sizeof buf);
             for (ssize_t i = 0; i < n; i++)
                 fs_core_rx(&core, buf[i]);
+            tell_state();
         }
         if (p[0].revents & POLLIN)
             on_timer();

@@ -19,6 +19,9 @@ enum {
                         next_ns: ns from the heartbeat frame's last byte to the pins (0: unknown) */
     REC_RESET = 4,   /* the board restarted (power-on state) at t_ns; extra: the reset cause
                         (firmware/README.md's reset_cause) */
+    REC_STATE = 5,   /* the flags or the session changed at t_ns without an output change (a
+                        command's effect): sent before the command's ACK reaches the pty, so a
+                        plant asked after the host has the ACK already knows it */
 };
 /* board flag bit beside the core's FS_F_* flags */
 #define REC_STREAMING 0x80

@@ -126,7 +126,7 @@ static void adc_trigger(avr_irq_t *irq, uint32_t value, void *param) {
 
 /* ---------------------------------------------------------------- the serial line */
 static void device_frame(const uint8_t *p, int n) {
-    uint8_t type = p[0], was_armed = S.dev_armed;
+    uint8_t type = p[0], was_armed = S.dev_armed, was_session = S.dev_session;
     uint16_t seq = fs_get_u16(p + 2);
     S.stats.seq_gaps += S.have_seq && seq != (uint16_t)(S.dev_seq + 1); /* every frame counts in seq */
     S.dev_seq = seq;
@@ -166,6 +166,12 @@ static void device_frame(const uint8_t *p, int n) {
         if (cmd == FS_SET_OUTPUTS)
             S.set_pending = 0; /* answered: a SET that moved no pin is not matched to a later change */
     }
+    /* A command's effect on the session or the watchdog shows only in the device's frames
+     * (STOP: its ACK). The plant hears of it now, before this frame's bytes reach the pty:
+     * waiting for the next tick's record let a host that had STOP's ACK ask the plant first
+     * and read `streaming` (the OUTPUTS record of STOP's safe outputs precedes the ACK). */
+    if (S.dev_session != was_session || S.dev_armed != was_armed)
+        to_plant(REC_STATE, S.dev_tick, 0, cycle_ns(S.avr->cycle), 0);
 }
 
 static void uart_out(avr_irq_t *irq, uint32_t value, void *param) {

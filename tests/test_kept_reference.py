@@ -73,7 +73,7 @@ def test_a_daemon_killed_and_restarted_grips_with_the_reference_it_kept(tmp_path
         _until(second, "released", lambda m: m["cycle_id"] == reply["cycle_id"])
     finally:
         assert second.close() == 0
-    assert "taken back from" in second.proc.stderr.read().decode()
+    assert "taken back from" in second.stderr_now()
 
 
 def test_a_changed_profile_refuses_the_kept_reference_and_the_grip_says_how_to_take_one(tmp_path):
@@ -98,7 +98,7 @@ def test_a_changed_profile_refuses_the_kept_reference_and_the_grip_says_how_to_t
         assert "measure with store_reference and nothing in the gripper" in grasp["note"]
     finally:
         assert second.close() == 0
-    assert "refused: the profile's actuator changed" in second.proc.stderr.read().decode()
+    assert "refused: the profile's actuator changed" in second.stderr_now()
 
 
 def test_a_changed_p0_has_no_reference_at_its_p0_and_other_parts_are_named(tmp_path):

@@ -46,7 +46,9 @@ def test_grip_a_60_mm_cylinder_let_it_slip_then_grip_nothing_through_the_box(kin
 
                 g.scene({"kind": "none"})
                 empty = g.grip()
-                assert empty.object is False and empty.contact is False and empty.in_range is None
+                aligned = empty.features["rise_shift_s"] is not None  # see grip_a_60_mm_cylinder
+                assert empty.object is False and empty.contact is (False if aligned else None)
+                assert empty.in_range is None
                 assert empty.size.status == "no_object" and empty.size.value_mm is None
                 assert g.release().reason == "release"
                 # nothing went wrong on the way: no slip, no fault among the events left
@@ -82,16 +84,23 @@ def test_the_sorting_gripper_reads_an_empty_grip_as_empty_whenever_its_valve_ope
                 for _ in range(3):
                     empty = g.grip()
                     g.release()
-                    assert empty.object is False and empty.contact is False, (empty.features, empty.note)
                     # the shift found is the lag taken away (give or take the PC's own timing);
-                    # a rise whose samples a busy PC missed is not aligned, and says so
-                    shift = empty.event.data["features"]["rise_shift_s"]
-                    assert (-0.012 < shift < 0.0) if shift is not None else "could not be aligned" in empty.note
+                    # a rise whose samples a busy PC missed is not aligned, and says so: contact
+                    # then cannot be told, and the object is the equilibrium's
+                    shift = empty.features["rise_shift_s"]
+                    assert empty.object is False, (empty.features, empty.note)
+                    if shift is not None:
+                        assert empty.contact is False and -0.012 < shift < 0.0, (shift, empty.note)
+                    else:
+                        assert empty.contact is None and "could not be aligned" in empty.note
                 g.scene({"kind": "cylinder", "diameter_mm": 60})
                 held = g.grip()
                 g.release()
-                assert held.object is True and held.contact is True, (held.features, held.note)
-                assert 0.1 < held.t_c_s < 1.0
+                assert held.object is True, (held.features, held.note)
+                if held.features["rise_shift_s"] is not None:
+                    assert held.contact is True and 0.1 < held.t_c_s < 1.0, (held.features, held.note)
+                else:  # the samples across the rise were missed: no contact time, and it says so
+                    assert held.contact is None and "could not be aligned" in held.note
                 left = []
                 while (ev := g.next_event(0.5)) is not None:
                     left.append(ev.topic)

@@ -194,7 +194,10 @@ class GripHandler(Sink):
     def _grasp(self, res: CycleResult) -> None:
         # a measure that stored the free-air reference was asked for with nothing in the
         # gripper: that is what it reports, never a size (its reading is the free level)
-        contact = False if self._storing_reference else None if not res.has_reference else \
+        # contact: None where it cannot be told (no reference, or a rise that could not be
+        # lined up with the reference's: dP on it would be the valve's timing)
+        unaligned = res.t_c_min is not None and res.rise_shift is None
+        contact = False if self._storing_reference else None if not res.has_reference or unaligned else \
             res.t_c_threshold is not None
         ests = E.of_result(self.calibrations, res)
         # object: the cycle's judgement (analysis.judge_object: the equilibrium dP and the

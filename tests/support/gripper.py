@@ -25,15 +25,23 @@ def drain(g: Gripper, until: str, cycle_id: int) -> list:
 
 
 def grip_a_60_mm_cylinder(g: Gripper, t_c_max_s: float) -> int:
-    """A free-air reference, then a grip on a 60 mm cylinder: contact within ``t_c_max_s``,
-    then the grasp, sized within 2 mm, and the gripper holding. Returns the grip's cycle."""
+    """A free-air reference, then a grip on a 60 mm cylinder: contact within ``t_c_max_s``
+    (where the rise could be lined up with the reference's), then the grasp, an object sized
+    within 2 mm, and the gripper holding. Returns the grip's cycle."""
     drain(g, "released", g.measure(store_reference=True, wait=False))
     g.scene({"kind": "cylinder", "diameter_mm": 60})
     cycle = g.grip(wait=False)
     events = drain(g, "grasp", cycle)
-    assert [e.topic for e in events] == ["contact", "grasp"]
-    contact, grasp = events
-    assert 0 < contact.data["t_c_s"] < t_c_max_s and contact.data["at_s"] < grasp.data["at_s"]
+    grasp = events[-1]
+    if grasp.data["features"]["rise_shift_s"] is None:
+        # a busy PC missed the samples across the first rise (the emulated box, a Python
+        # process, stalls there): no contact time can be told, and the grasp says so; the
+        # object is still the equilibrium's
+        assert [e.topic for e in events] == ["grasp"] and "could not be aligned" in grasp.data["note"]
+    else:
+        assert [e.topic for e in events] == ["contact", "grasp"]
+        contact = events[0]
+        assert 0 < contact.data["t_c_s"] < t_c_max_s and contact.data["at_s"] < grasp.data["at_s"]
     assert grasp.data["object"] is True and grasp.data["in_range"] is True
     (est,) = grasp.data["estimates"]
     assert est["quantity"] == "diameter" and est["status"] == "ok"

@@ -114,8 +114,28 @@ def alignment(cfg: SequenceConfig, reference: Reference, sign: float) -> Alignme
         hi = min(hi, AUTO_RISE_MAX * level)
     else:
         lo, hi = (v * KPA for v in spec)
-    t_min = F.crossing_time(reference.t_rel, ref, hi)
-    return None if t_min is None else Alignment(lo, hi, t_min)
+    t_hi = F.crossing_time(reference.t_rel, ref, hi)
+    if t_hi is None:
+        return None
+    return Alignment(lo, hi, _trusted_from(reference, ref, t_hi, cfg.contact_threshold_kpa * KPA))
+
+
+def _trusted_from(reference: Reference, ref: np.ndarray, t_hi: float, threshold: float) -> float:
+    """When dP first says something about contact: past the alignment's upper level, and
+    where the reference rises slowly enough that a timing error of one sample period (a
+    polled sample's place in its slot, which no alignment removes: seen through the emulated
+    box at 500 Hz as a 0.3 kPa "contact" 41-53 ms after opening on free air) is worth at most
+    half the contact threshold."""
+    t, n = reference.t_rel, len(reference.t_rel)
+    if n < 3:
+        return t_hi
+    period = float(np.median(np.diff(t[: min(n, 1000)])))
+    slope = np.gradient(F.smooth(ref, 21), t)
+    calm = (t >= t_hi) & (np.abs(slope) * period <= threshold / 2)
+    if not calm.any():
+        return t_hi
+    k = int(np.argmax(calm))
+    return float(t[k])
 
 
 def eq_sd(cfg: SequenceConfig, circuit: Circuit | None, level: float, p0: float) -> float:

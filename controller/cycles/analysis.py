@@ -117,10 +117,12 @@ def alignment(cfg: SequenceConfig, reference: Reference, sign: float) -> Alignme
     t_hi = F.crossing_time(reference.t_rel, ref, hi)
     if t_hi is None:
         return None
-    return Alignment(lo, hi, _trusted_from(reference, ref, t_hi, cfg.contact_threshold_kpa * KPA))
+    return Alignment(lo, hi, _trusted_from(reference, ref, t_hi, cfg.contact_threshold_kpa * KPA,
+                                           cfg.windows[0].start_s))
 
 
-def _trusted_from(reference: Reference, ref: np.ndarray, t_hi: float, threshold: float) -> float:
+def _trusted_from(reference: Reference, ref: np.ndarray, t_hi: float, threshold: float,
+                  first_window_s: float) -> float:
     """When dP first says something about contact: past the alignment's upper level, and
     where the reference rises slowly enough that a timing error of one sample period (a
     polled sample's place in its slot, which no alignment removes: seen through the emulated
@@ -131,11 +133,13 @@ def _trusted_from(reference: Reference, ref: np.ndarray, t_hi: float, threshold:
         return t_hi
     period = float(np.median(np.diff(t[: min(n, 1000)])))
     slope = np.gradient(F.smooth(ref, 21), t)
-    calm = (t >= t_hi) & (np.abs(slope) * period <= threshold / 2)
-    if not calm.any():
+    # after the last steep sample before the first window, not the first calm one: a
+    # reference read through a polled box has stalls whose smoothed slope dips on the rise
+    hot = (t >= t_hi) & (t < first_window_s) & (np.abs(slope) * period > threshold / 2)
+    if not hot.any():
         return t_hi
-    k = int(np.argmax(calm))
-    return float(t[k])
+    k = int(np.flatnonzero(hot)[-1]) + 1
+    return float(t[min(k, n - 1)])
 
 
 def eq_sd(cfg: SequenceConfig, circuit: Circuit | None, level: float, p0: float) -> float:

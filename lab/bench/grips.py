@@ -43,24 +43,6 @@ def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true")
 
 
-def _cell(tmp: Path, kind: str, host: str) -> Path:
-    """The shipped sorting cell of driver ``kind``, at ``host``, sockets in ``tmp``."""
-    import yaml
-
-    from lab import REPO
-
-    config = REPO / "config"
-    data = yaml.safe_load((config / f"cell-{kind}-sim.yaml").read_text())
-    data["driver"]["host"] = host
-    data["profile"] = str((config / data["profile"]).resolve())
-    data["publisher"] = {"pub": f"ipc://{tmp}/pub", "cmd": f"ipc://{tmp}/cmd"}
-    data["recording"] = {"enabled": False}
-    data["references"] = {"keep": False}
-    path = tmp / f"cell-{kind}.yaml"
-    path.write_text(yaml.safe_dump(data))
-    return path
-
-
 def _grips(kind: str, load: int, plan: list[float | None]) -> dict[str, Any]:
     """One box and daemon; a free-air reference, then the grips of ``plan`` (None: empty)."""
     from fluidsense.client import Gripper
@@ -69,6 +51,7 @@ def _grips(kind: str, load: int, plan: list[float | None]) -> dict[str, Any]:
 
     from lab import REPO
 
+    from .tasks import _cell
     from .timing import _burn
 
     out: dict[str, Any] = {"driver": kind, "load": load, "grips": [], "idle_faults": []}
@@ -76,7 +59,7 @@ def _grips(kind: str, load: int, plan: list[float | None]) -> dict[str, Any]:
                for _ in range(load)]
     t0 = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="fluidsense-bench-grips-") as d:
-        cell = _cell(Path(d), kind, free_loopback())
+        cell = _cell(Path(d), kind, free_loopback(), references={"keep": False})
         box = EmulatorProcess(command=[sys.executable, "-m", "fluidsense", "simcell", "--config", str(cell)])
         box.start(timeout_s=60)
         daemon = subprocess.Popen([sys.executable, "-m", "fluidsense", "run", "--config", str(cell)],
@@ -84,7 +67,7 @@ def _grips(kind: str, load: int, plan: list[float | None]) -> dict[str, Any]:
         try:
             for b in burners:
                 b.start()
-            with Gripper(f"ipc://{d}/cmd", f"ipc://{d}/pub", timeout_s=120) as g:
+            with Gripper(f"ipc://{d}/cmd-{kind}", f"ipc://{d}/pub-{kind}", timeout_s=120) as g:
                 while g.status()["state"] == "connecting":
                     time.sleep(0.5)  # a bench waiting for the daemon's connection, nothing measured
                 g.scene({"kind": "none"})

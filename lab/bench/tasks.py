@@ -46,7 +46,9 @@ def register(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true")
 
 
-def _cell(tmp: Path, kind: str, host: str) -> Path:
+def _cell(tmp: Path, kind: str, host: str, **sections: Any) -> Path:
+    """config/cell-{kind}-sim.yaml at ``host``, sockets in ``tmp``, no recording; ``sections``
+    replace whole sections."""
     import yaml
 
     from lab import REPO
@@ -57,6 +59,7 @@ def _cell(tmp: Path, kind: str, host: str) -> Path:
     data["profile"] = str((config / data["profile"]).resolve())
     data["publisher"] = {"pub": f"ipc://{tmp}/pub-{kind}", "cmd": f"ipc://{tmp}/cmd-{kind}"}
     data["recording"] = {"enabled": False}
+    data.update(sections)
     path = tmp / f"cell-{kind}.yaml"
     path.write_text(yaml.safe_dump(data))
     return path

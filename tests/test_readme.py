@@ -18,6 +18,7 @@ import json
 import shutil
 import signal
 import subprocess
+from pathlib import Path
 
 import pytest
 from support.docs import problems, run_as_written, shell_blocks, wait_for_ready
@@ -118,7 +119,7 @@ def _stop(background: list, tmp_path, block: int, shut_down: bool) -> None:
             proc.send_signal(signal.SIGTERM)
         code = proc.wait(60)
         log.close()
-        text = open(log.name).read()
+        text = Path(log.name).read_text()
         allowed = next((codes for word, codes in KILLED_OK.items() if f"fluidsense {word}" in proc.args[-1]), (0,))
         assert code in allowed and "Traceback" not in text, (block, proc.args[-1], code, text[-3000:])
 

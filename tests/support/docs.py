@@ -52,11 +52,11 @@ def run_as_written(lines: list[str], subs: dict[str, str], tmp_path: Path, timeo
 
 def wait_for_ready(proc, log, timeout_s: float = 60.0) -> None:
     """Until the box's log has its ready line (it exits or the time runs out: the test fails)."""
-    path = log.name
+    path = Path(log.name)
     deadline = time.monotonic() + timeout_s
-    while not any(line.startswith("ready") for line in open(path).read().splitlines()):
-        assert proc.poll() is None, open(path).read()
-        assert time.monotonic() < deadline, open(path).read()
+    while not any(line.startswith("ready") for line in path.read_text().splitlines()):
+        assert proc.poll() is None, path.read_text()
+        assert time.monotonic() < deadline, path.read_text()
         time.sleep(0.05)  # polling a file for an event, not pacing a timing
 
 

@@ -81,8 +81,9 @@ OBJECT_SIGMAS = 4.0
 @dataclass(frozen=True)
 class Alignment:
     """How a cycle is lined up with its reference: the rise's levels (Pa, oriented: the
-    rise upwards) and when the reference passes the upper one (``t_min``, s after its
-    opening): dP says nothing about contact before it."""
+    rise upwards), and ``t_min`` (s after the reference's opening), before which dP says
+    nothing about contact: the reference has passed the upper level, and rises slowly enough
+    there that a sample period of timing is worth at most half the contact threshold."""
 
     lo: float
     hi: float

@@ -98,7 +98,7 @@ def cmd_characterise(args: argparse.Namespace) -> int:
     total = len(levels) * args.cycles
     if journal.entries:
         print(f"resuming: {len(journal.entries)} of {total} cycles done ({journal.path})", file=sys.stderr)
-        if cfg.driver.kind == "sim":
+        if cfg.driver.samples_seed() is not None:
             # a simulated cell started again with the same seed draws what the cycles already
             # done drew: the resumed cycles would repeat them exactly and show no spread (the
             # fit refused a resumed run so). A real cell does not repeat itself.
@@ -161,9 +161,9 @@ def _config_profile_path(config: str) -> Path:
 
 
 def _rig_words(driver) -> str:
-    where = getattr(driver, "host", None)
+    where, seed = getattr(driver, "host", None), driver.samples_seed()
     return f"driver {driver.kind}" + (f" at {where}" if where else "") + (
-        f" (simulated, seed {driver.seed})" if driver.kind == "sim" else "")
+        f" (simulated, seed {seed})" if seed is not None else "")
 
 
 def _write(path: Path, data: dict, header: str) -> None:

@@ -33,11 +33,12 @@ def grip_a_60_mm_cylinder(g: Gripper, t_c_max_s: float) -> int:
     cycle = g.grip(wait=False)
     events = drain(g, "grasp", cycle)
     grasp = events[-1]
-    if grasp.data["features"]["rise_shift_s"] is None:
+    if "could not be aligned" in (grasp.data["note"] or ""):
         # a busy PC missed the samples across the first rise (the emulated box, a Python
         # process, stalls there): no contact time can be told, and the grasp says so; the
         # object is still the equilibrium's
-        assert [e.topic for e in events] == ["grasp"] and "could not be aligned" in grasp.data["note"]
+        assert [e.topic for e in events] == ["grasp"] and grasp.data["contact"] is None
+        assert grasp.data["features"]["rise_shift_s"] is None
     else:
         assert [e.topic for e in events] == ["contact", "grasp"]
         contact = events[0]

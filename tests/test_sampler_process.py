@@ -40,7 +40,7 @@ def test_real_process_at_1khz_accounts_for_every_slot_and_stops_cleanly():
         src = SampledSource(cfg)
         blocks = []
         async with src:
-            assert set(src.hello["realtime"]) == {"sched_fifo", "affinity", "gc", "timerslack"}
+            assert set(src.hello["realtime"]) == {"sched_fifo", "affinity", "gc", "timerslack", "poller_threads"}
             for _ in range(60):  # about 0.6 s
                 blocks.append(await src.read_block())
         return src, blocks

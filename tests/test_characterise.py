@@ -8,7 +8,6 @@ from __future__ import annotations
 import asyncio
 import math
 import re
-import signal
 import subprocess
 import sys
 
@@ -256,21 +255,14 @@ def test_sigterm_mid_cycle_vents_and_keeps_a_resumable_journal(tmp_path):
     """SIGTERM while a free-air cycle inflates the gripper (through the emulated box): the
     box's outputs safe within 0.5 s, the exit code docs/cli.md gives, the finished cycles
     in a journal that --resume accepts."""
-    from test_stop_signals import assert_vented, documented_exit, ended, job, stop_and_time, wait_actuating
+    from test_stop_signals import documented_exit, job, sigterm_after_a_journalled_cycle
 
     out = tmp_path / "mine.yaml"
     journal = journal_path(out)
     with free_simcell(tmp_path, "gripper-modbus") as (box, cell):
         proc = job("characterise", "--config", str(cell), "--yes", "--levels", "20,40,63", "--cycles", "2",
                    "--out", str(out))
-        try:
-            box.wait_for(lambda s: (journal.exists() and len(journal.read_text().splitlines()) >= 2)
-                         or proc.poll() is not None, 120, "the first cycle in the journal")
-            wait_actuating(box, proc)
-            took = stop_and_time(box, proc, signal.SIGTERM)
-        finally:
-            code, _, err = ended(proc)
-        assert_vented(box, cell, took)
+        code, err = sigterm_after_a_journalled_cycle(box, cell, proc, journal)
     assert code == documented_exit("characterise", "SIGTERM") == 143, err
     assert "characterisation stopped by SIGTERM; vented: every valve at its safe position, confirmed by read-back" \
         in err, err

@@ -91,6 +91,21 @@ def assert_vented(box, cell, took_s: float) -> None:
     assert state["digital_outputs"] & (SUPPLY | ACTUATE) == SAFE  # and nothing inflated it again
 
 
+def sigterm_after_a_journalled_cycle(box, cell, proc, journal) -> tuple[int, str]:
+    """Once one cycle is finished (on disk, in ``journal``) and the next inflates, SIGTERM to
+    the job; the box's outputs must be safe in time and the actuator back to atmosphere.
+    The job's exit code and stderr."""
+    try:
+        box.wait_for(lambda s: (journal.exists() and len(journal.read_text().splitlines()) >= 2)
+                     or proc.poll() is not None, 120, "the first cycle in the journal")
+        wait_actuating(box, proc)
+        took = stop_and_time(box, proc, signal.SIGTERM)
+    finally:
+        code, _, err = ended(proc)
+    assert_vented(box, cell, took)
+    return code, err
+
+
 def test_exit_codes_are_128_plus_the_signal():
     assert stopsignals.exit_code(signal.SIGTERM) == EXIT_TERMINATED == 143
     assert stopsignals.exit_code(signal.SIGHUP) == EXIT_HANGUP == 129
@@ -135,15 +150,7 @@ def test_sigterm_to_calibrate_mid_cycle_vents_and_keeps_a_resumable_journal(tmp_
     with free_simcell(tmp_path, "gripper-modbus") as (box, cell):
         proc = job("calibrate", "--config", str(cell), "--yes", "--values", "40,60", "--cycles", "2",
                    "--drop-first", "1", "--free-cycles", "0", "--out", str(out))
-        try:
-            # one cycle finished (on disk), the second inflating
-            box.wait_for(lambda s: (journal.exists() and len(journal.read_text().splitlines()) >= 2)
-                         or proc.poll() is not None, 120, "the first cycle in the journal")
-            wait_actuating(box, proc)
-            took = stop_and_time(box, proc, signal.SIGTERM)
-        finally:
-            code, _, err = ended(proc)
-        assert_vented(box, cell, took)
+        code, err = sigterm_after_a_journalled_cycle(box, cell, proc, journal)
     assert code == documented_exit("calibrate", "SIGTERM") == 143, err
     assert "calibration stopped by SIGTERM; vented: every valve at its safe position, confirmed by read-back" \
         in err, err

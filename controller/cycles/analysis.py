@@ -110,7 +110,7 @@ def alignment(cfg: SequenceConfig, reference: Reference, sign: float) -> Alignme
             return None
         t_lo = F.crossing_time(reference.t_rel, ref, lo)
         if t_lo is not None and len(reference.t_rel) > 1:
-            period = float(np.median(np.diff(reference.t_rel[: min(len(reference.t_rel), 1000)])))
+            period = F.sample_period(reference.t_rel)
             hi = max(hi, float(np.interp(t_lo + AUTO_RISE_SAMPLES * period, reference.t_rel, ref)))
         hi = min(hi, AUTO_RISE_MAX * level)
     else:
@@ -132,7 +132,7 @@ def _trusted_from(reference: Reference, ref: np.ndarray, t_hi: float, threshold:
     t, n = reference.t_rel, len(reference.t_rel)
     if n < 3:
         return t_hi
-    period = float(np.median(np.diff(t[: min(n, 1000)])))
+    period = F.sample_period(t)
     slope = np.gradient(F.smooth(ref, 21), t)
     # after the last steep sample before the first window, not the first calm one: a
     # reference read through a polled box has stalls whose smoothed slope dips on the rise

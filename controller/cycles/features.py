@@ -12,6 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 
+import math
+
 import numpy as np
 
 
@@ -125,16 +127,22 @@ def crossing_time(t: np.ndarray, y: np.ndarray, level: float) -> float | None:
     return float(t0 + (level - y0) * (t1 - t0) / (y1 - y0))
 
 
-def _bracketed_crossing(t: np.ndarray, y: np.ndarray, level: float, max_gap: float) -> float | None:
-    """crossing_time, or None where the two samples around the crossing are more than
+def sample_period(t: np.ndarray) -> float:
+    """The samples' nominal spacing: the median over the first thousand (a busy PC's missed
+    slots are gaps, not the period)."""
+    return float(np.median(np.diff(t[: min(len(t), 1000)])))
+
+
+def _bracketed(t: np.ndarray, y: np.ndarray, level: float, max_gap: float) -> float | None:
+    """crossing_time, or NaN where the two samples around the crossing are more than
     ``max_gap`` apart: across a gap (a busy PC's missed slots) the interpolated time is a
-    guess, and on a steep rise a ms of guess is tenths of a kPa of dP."""
+    guess, and on a steep rise a ms of guess is tenths of a kPa of dP. None: never reached."""
     above = np.isfinite(y) & (y >= level)
     if not above.any():
         return None
     k = int(np.argmax(above))
     if k == 0 or t[k] - t[k - 1] > max_gap:
-        return None
+        return math.nan
     return crossing_time(t[k - 1:k + 1], y[k - 1:k + 1], level)
 
 
@@ -147,15 +155,13 @@ def rise_shift(t_rel: np.ndarray, p: np.ndarray, ref_t_rel: np.ndarray, ref_p: n
     reach ``hi``, or fewer than ``min_levels`` levels are left."""
     if len(t_rel) < 2 or len(ref_t_rel) < 2:
         return None
-    gap = 2.5 * float(np.median(np.diff(t_rel[: min(len(t_rel), 1000)])))
-    ref_gap = 2.5 * float(np.median(np.diff(ref_t_rel[: min(len(ref_t_rel), 1000)])))
+    gap, ref_gap = 2.5 * sample_period(t_rel), 2.5 * sample_period(ref_t_rel)
     shifts = []
     for level in np.linspace(lo, hi, levels):
-        if crossing_time(t_rel, p, level) is None or crossing_time(ref_t_rel, ref_p, level) is None:
+        t_meas, t_ref = _bracketed(t_rel, p, level, gap), _bracketed(ref_t_rel, ref_p, level, ref_gap)
+        if t_meas is None or t_ref is None:
             return None
-        t_meas, t_ref = _bracketed_crossing(t_rel, p, level, gap), _bracketed_crossing(ref_t_rel, ref_p, level,
-                                                                                       ref_gap)
-        if t_meas is not None and t_ref is not None:
+        if not (math.isnan(t_meas) or math.isnan(t_ref)):
             shifts.append(t_meas - t_ref)
     return float(np.mean(shifts)) if len(shifts) >= min_levels else None
 

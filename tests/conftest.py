@@ -1,4 +1,5 @@
-"""Fixtures and collection order; the helpers themselves are in support/."""
+"""Fixtures, collection order and each tier's timeout for the three tiers (unit/, system/,
+accept/: tests/README.md); the helpers themselves are in support/."""
 
 from __future__ import annotations
 
@@ -37,16 +38,35 @@ LONGEST_FIRST = [
 ]
 
 
+#: each tier's per-test timeout (pytest-timeout), for a test that names none of its own. The
+#: unit tier runs in this process on the simulated cell's virtual time: a minute is far past
+#: any test of it, and a hang there costs a minute, not five. The system tier waits on real
+#: peers in real time (daemons, boxes, boards), slower on a loaded machine: five minutes. The
+#: acceptance tier walks the documents as written, in real time, each walk minutes long on a
+#: quiet machine and several times that beside other work (the README's walk: about 378 s
+#: quiet, issue 35): each of its files names its own (tests/accept/), and this is the bound
+#: for one that does not.
+TIER_TIMEOUT_S = {"unit": 60, "system": 300, "accept": 1800}
+
+
+def _tier_timeouts(items) -> None:
+    for item in items:
+        tier = item.path.parent.name
+        if tier in TIER_TIMEOUT_S and item.get_closest_marker("timeout") is None:
+            item.add_marker(pytest.mark.timeout(TIER_TIMEOUT_S[tier]))
+
+
 def _longest_first(items) -> None:
     rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: the rest keep their order
 
 
 def pytest_collection_modifyitems(config, items):
-    """Longest files first (above). ``hardware`` tests need a real robot cell: they run
+    """Longest files first and each tier's timeout (above). ``hardware`` tests need a real robot cell: they run
     only when selected with ``-m hardware`` (and FLUIDSENSE_HARDWARE_CONFIG names its
     cell config)."""
     _longest_first(items)
+    _tier_timeouts(items)
     if "hardware" in (config.getoption("-m") or ""):
         return
     skip = pytest.mark.skip(reason="needs a real robot cell: run with -m hardware")

@@ -21,6 +21,7 @@ from fluidsense.drivers.config import build_backend
 from fluidsense.tasks import characterise as ch
 from fluidsense.tasks.journal import journal_path
 from support.configs import cell_config, profile_config
+from support.cli import run_cli
 from support.harness import REPO, free_simcell, sim_config
 
 START = "pneunet-gripper-quick"  # the shipped profile a user starts from: 6 s cycles, laminar circuit
@@ -255,7 +256,8 @@ def test_sigterm_mid_cycle_vents_and_keeps_a_resumable_journal(tmp_path):
     """SIGTERM while a free-air cycle inflates the gripper (through the emulated box): the
     box's outputs safe within 0.5 s, the exit code docs/cli.md gives, the finished cycles
     in a journal that --resume accepts."""
-    from test_stop_signals import documented_exit, job, sigterm_after_a_journalled_cycle
+    from support.docs import documented_exit
+    from system.test_stop_signals import job, sigterm_after_a_journalled_cycle
 
     out = tmp_path / "mine.yaml"
     journal = journal_path(out)
@@ -272,16 +274,16 @@ def test_sigterm_mid_cycle_vents_and_keeps_a_resumable_journal(tmp_path):
     assert len(ch.CharacteriseJournal.open(journal, header["plan"], resume=True).entries) == kept
 
 
-def test_cli_refuses_a_leaking_actuator_and_writes_nothing(tmp_path):
+def test_cli_refuses_a_leaking_actuator_and_writes_nothing(tmp_path, capsys):
     """A cell whose actuator leaks (1e11 Pa s/m^3 to the air): the cycles run, the fit is
     refused naming the leak, the exit code is docs/cli.md's, no profile is written and the
     cycles are kept."""
-    from test_stop_signals import documented_exit
+    from support.docs import documented_exit
 
     leaky = profile_config(tmp_path, START, circuit={"leak_resistance_pa_s_per_m3": 1.0e11})
     cell = sim_config(tmp_path, profile=str(leaky))
     out = tmp_path / "mine.yaml"
-    run = _cli("characterise", "--config", str(cell), "--out", str(out), "--levels", "20,40,63", "--cycles", "2",
+    run = run_cli(capsys, "characterise", "--config", str(cell), "--out", str(out), "--levels", "20,40,63", "--cycles", "2",
                "--yes")
     assert run.returncode == documented_exit("characterise", "the cycles ran but the fit does not hold") == 1
     assert "a leak: the settled free-air pressure falls" in run.stderr and "no profile written" in run.stderr

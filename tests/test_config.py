@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -11,6 +9,7 @@ import yaml
 from fluidsense.common.errors import ConfigError
 from fluidsense.controller.config import load_cell_config, load_profile
 from support.configs import cell_data, profile_config, profile_data, whole
+from support.cli import Ran, run_cli
 from support.harness import CONFIG, REPO, sim_config
 
 
@@ -73,29 +72,28 @@ def test_profiles_and_calibrations_by_name_and_a_local_file_first(tmp_path):
         load_cell_config(write(tmp_path, "cell.yaml", data))
 
 
-def _init(cwd: Path, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "fluidsense", "init", *args], capture_output=True, text=True,
-                          cwd=cwd, timeout=120)
+def _init(capsys, cwd: Path, *args: str) -> Ran:
+    return run_cli(capsys, "init", *args, cwd=cwd)
 
 
 @pytest.mark.parametrize("driver", ["sim", "ur", "modbus", "serial", "nidaqmx"])
-def test_init_writes_a_config_that_loads_from_anywhere(tmp_path, driver):
-    r = _init(tmp_path, "--driver", driver, "--out", "cell.yaml")
+def test_init_writes_a_config_that_loads_from_anywhere(tmp_path, driver, capsys):
+    r = _init(capsys, tmp_path, "--driver", driver, "--out", "cell.yaml")
     assert r.returncode == 0, r.stderr
     cfg = load_cell_config(tmp_path / "cell.yaml")
     assert cfg.driver.kind == driver
     assert f"config/cell-" not in (tmp_path / "cell.yaml").read_text()  # its comments name the new file
 
 
-def test_init_never_overwrites_without_force(tmp_path):
+def test_init_never_overwrites_without_force(tmp_path, capsys):
     mine = write(tmp_path, "cell.yaml", "# my cell, hours of wiring\n")
-    r = _init(tmp_path, "--driver", "ur", "--out", "cell.yaml")
+    r = _init(capsys, tmp_path, "--driver", "ur", "--out", "cell.yaml")
     assert r.returncode == 2 and r.stderr.strip() == "fluidsense: error: --out: cell.yaml exists: pass --force to replace it"
     assert mine.read_text() == "# my cell, hours of wiring\n"
-    r = _init(tmp_path, "--driver", "ur", "--out", "cell.yaml", "--host", "10.0.0.7", "--force")
+    r = _init(capsys, tmp_path, "--driver", "ur", "--out", "cell.yaml", "--host", "10.0.0.7", "--force")
     assert r.returncode == 0, r.stderr
     assert load_cell_config(mine).driver.host == "10.0.0.7"
-    r = _init(tmp_path, "--driver", "modbus", "--out", "other.yaml", "--profile", "no-such-gripper")
+    r = _init(capsys, tmp_path, "--driver", "modbus", "--out", "other.yaml", "--profile", "no-such-gripper")
     assert r.returncode == 2 and "other.yaml: profile: " in r.stderr and not (tmp_path / "other.yaml").exists()
     assert not list(tmp_path.glob(".*"))  # no trial file left behind
 
@@ -174,11 +172,10 @@ def test_yaml_is_loaded_safely(tmp_path):
     assert not Path("pwned").exists()
 
 
-def test_run_with_a_bad_config_exits_before_binding_or_moving_anything(tmp_path):
+def test_run_with_a_bad_config_exits_before_binding_or_moving_anything(tmp_path, capsys):
     data = cell(tmp_path, **{"driver.block_size": -1})
     path = write(tmp_path, "bad.yaml", data)
-    out = subprocess.run([sys.executable, "-m", "fluidsense", "run", "--config", str(path)],
-                         cwd=REPO, capture_output=True, text=True, timeout=60)
+    out = run_cli(capsys, "run", "--config", path, cwd=REPO)  # a bind would fail it here (tests/unit's guard)
     assert out.returncode == 2
     assert f"{path}: driver.block_size: " in out.stderr
     pub_path = data["publisher"]["pub"].removeprefix("ipc://")
@@ -296,11 +293,10 @@ def test_files_a_config_names_must_exist(tmp_path):
     assert refused_at(tmp_path, rec) == "recording.dir: File name too long"
 
 
-def test_run_with_a_bad_port_binds_nothing_and_records_nothing(tmp_path):
+def test_run_with_a_bad_port_binds_nothing_and_records_nothing(tmp_path, capsys):
     data = cell(tmp_path, **{"publisher.cmd": "tcp://127.0.0.1:99999"})
     path = write(tmp_path, "bad-port.yaml", data)
-    out = subprocess.run([sys.executable, "-m", "fluidsense", "run", "--config", str(path)], cwd=tmp_path,
-                         capture_output=True, text=True, timeout=60)
+    out = run_cli(capsys, "run", "--config", path, cwd=tmp_path)
     assert out.returncode == 2
     assert out.stderr.splitlines() == [f"fluidsense: error: {path}: publisher.cmd: 'tcp://127.0.0.1:99999': the port "
                                        "must be a number in 1..65535, got '99999'"]

@@ -362,3 +362,18 @@ def test_the_script_port_splits_complete_programs():
     assert rest == "\ndef b():\n  pass\n"
     programs, rest = split_programs(rest + "end\n")
     assert [name for name, _ in programs] == ["b"] and rest.strip() == ""
+
+
+def test_bad_sim_control_commands_are_answered_not_fatal():
+    """The sim-control port's handler (what `fluidsense simcell`'s tests and benches send
+    lines to): a command it cannot parse or does not know is answered with the error, and
+    the box runs on as it was; a good one is answered with the box's state."""
+    from fluidsense.simulator.controlbox import simcontrol
+
+    box, clock = make_box()
+    cycle(box, clock, 5)
+    for line in ('{"cmd": "set", "protective_stop": "maybe"}', '{"cmd": "teleport"}', "not json"):
+        reply = simcontrol.handle(box, line)
+        assert reply["ok"] is False and reply["error"].startswith("bad command"), reply
+    state = simcontrol.handle(box, '{"cmd": "state", "id": 7}')
+    assert state["ok"] is True and state["id"] == 7 and state["state"]["robot_mode"] == "RUNNING", state

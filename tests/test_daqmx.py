@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import asyncio
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +36,7 @@ from nidaqmx.error_codes import DAQmxErrors
 from nidaqmx.errors import DaqNotFoundError
 from support.configs import cell_config, whole
 from support.daqmx_fake import FakeRig, daq_error
+from support.cli import run_cli
 from support.harness import CONFIG, REPO
 
 EXAMPLE = CONFIG / "cell-nidaqmx.yaml"
@@ -81,10 +80,9 @@ def test_a_config_the_driver_cannot_use_is_refused_at_load(tmp_path, driver, fie
     assert reason in text and "\n" not in text
 
 
-def test_the_cli_refuses_a_bad_nidaqmx_config_with_one_line_and_exit_2(tmp_path):
+def test_the_cli_refuses_a_bad_nidaqmx_config_with_one_line_and_exit_2(tmp_path, capsys):
     path = _config(tmp_path, check=False, rate_hz=0)
-    out = subprocess.run([sys.executable, "-m", "fluidsense", "run", "--config", str(path)], cwd=REPO,
-                         capture_output=True, text=True, timeout=60, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    out = run_cli(capsys, "run", "--config", path, cwd=REPO)
     assert out.returncode == 2, out.stderr
     assert f"{path}: driver.rate_hz:" in out.stderr and "Traceback" not in out.stderr
 

@@ -13,9 +13,7 @@ import importlib
 import json
 import os
 import signal
-import socket
-import subprocess
-import sys
+import stat
 import tempfile
 from pathlib import Path
 
@@ -31,6 +29,7 @@ from fluidsense.controller.sensing.calibration import MAX_FILE_BYTES, Calibratio
 from fluidsense.tasks.config import SortingTask, load_task
 from hypothesis import HealthCheck, given, settings
 from support.configs import read, task_config
+from support.cli import Ran, run_cli
 from support.harness import REPO, sim_config
 
 from lab.bench import fuzz_files
@@ -55,13 +54,17 @@ def refused(load, path: Path) -> str:
     return msg
 
 
-def fluidsense(*args: str, cwd: Path = REPO, timeout: float = 60) -> subprocess.CompletedProcess:
-    """The real CLI in a subprocess; a hang fails the test through the timeout."""
-    return subprocess.run([sys.executable, "-m", "fluidsense", *args], cwd=cwd, capture_output=True, text=True,
-                          timeout=timeout)
+@pytest.fixture
+def fluidsense(capsys):
+    """The CLI in this process (``fluidsense.cli.main``), from ``cwd``: what it prints and
+    returns; a hang fails the test through the tier's timeout, and anything it would start
+    (a socket, a process) fails it through the tier's guard."""
+    def run(*args: str, cwd: Path = REPO) -> Ran:
+        return run_cli(capsys, *args, cwd=cwd)
+    return run
 
 
-def one_error(out: subprocess.CompletedProcess, expected: str) -> None:
+def one_error(out: Ran, expected: str) -> None:
     """Exit code 2 and exactly one line on stderr, the expected one, nothing on stdout."""
     assert out.returncode == 2, (out.returncode, out.stderr)
     assert out.stderr.splitlines() == [f"fluidsense: error: {expected}"], out.stderr
@@ -69,12 +72,12 @@ def one_error(out: subprocess.CompletedProcess, expected: str) -> None:
 
 
 # ----------------------------------------------------------------- what a file is
-def test_a_fifo_is_refused_without_blocking(tmp_path):
+def test_a_fifo_is_refused_without_blocking(tmp_path, fluidsense):
     """Opening a FIFO for reading blocks until a writer comes: it is refused by type
-    first, so `run` exits at once (the subprocess timeout turns a hang into a failure)."""
+    first, so `run` exits at once (the tier's timeout turns a hang into a failure)."""
     fifo = tmp_path / "cell.yaml"
     os.mkfifo(fifo)
-    out = fluidsense("run", "--config", str(fifo), cwd=tmp_path, timeout=30)
+    out = fluidsense("run", "--config", str(fifo), cwd=tmp_path)
     one_error(out, f"{fifo}: cannot read: not a regular file (a FIFO)")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cell.yaml"]  # no recording dir, no socket
 
@@ -85,16 +88,10 @@ def test_a_profile_path_that_is_not_a_regular_file_names_the_cell_file(tmp_path,
         kind, tmp_path / kind)
     if kind == "fifo":
         os.mkfifo(target)
-    sock = None
-    if kind == "socket":
-        sock = socket.socket(socket.AF_UNIX)
-        sock.bind(str(target))
-    try:
-        path = sim_config(tmp_path, profile=str(target), check=False)
-        msg = refused(load_cell_config, path)
-    finally:
-        if sock is not None:
-            sock.close()
+    if kind == "socket":  # a socket's file, as a bound unix socket leaves it (nothing listens)
+        os.mknod(target, stat.S_IFSOCK | 0o600)
+    path = sim_config(tmp_path, profile=str(target), check=False)
+    msg = refused(load_cell_config, path)
     what = {"dev-zero": "a character device", "directory": "a directory", "socket": "a socket", "fifo": "a FIFO"}
     if kind == "missing":
         assert msg == f"{path}: profile: {target}: No such file or directory"
@@ -329,19 +326,19 @@ def test_a_truncated_calibration_and_a_valid_one(tmp_path):
     assert Calibration.load(ok).invert(21.8).estimate == pytest.approx(20.0)
 
 
-def test_sense_with_a_hostile_calibration_exits_2_before_anything_runs(tmp_path):
+def test_sense_with_a_hostile_calibration_exits_2_before_anything_runs(tmp_path, fluidsense):
     cal = write(tmp_path, "cal.json", json.dumps({**good_calibration(), "residual_sd": "0.1"}))
     out = fluidsense("sense", "-k", str(cal), "--profile", "linear-actuator", cwd=tmp_path)
     one_error(out, f"{cal}: residual_sd: Input should be a valid number")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["cal.json"]
     fifo = tmp_path / "fifo.json"
     os.mkfifo(fifo)
-    one_error(fluidsense("sense", "-k", str(fifo), cwd=tmp_path, timeout=30),
+    one_error(fluidsense("sense", "-k", str(fifo), cwd=tmp_path),
               f"{fifo}: cannot read: not a regular file (a FIFO)")
 
 
 # ----------------------------------------------------------------- through the CLI
-def test_run_with_a_duplicate_key_exits_2_and_starts_nothing(tmp_path):
+def test_run_with_a_duplicate_key_exits_2_and_starts_nothing(tmp_path, fluidsense):
     path = sim_config(tmp_path)
     data = yaml.safe_load(path.read_text())
     text = path.read_text() + "log_level: INFO\nlog_level: DEBUG\n"
@@ -354,7 +351,7 @@ def test_run_with_a_duplicate_key_exits_2_and_starts_nothing(tmp_path):
         assert not Path(endpoint.removeprefix("ipc://")).exists()  # no socket was bound
 
 
-def test_task_run_with_a_hostile_task_file_exits_2(tmp_path):
+def test_task_run_with_a_hostile_task_file_exits_2(tmp_path, fluidsense):
     path = task_config(tmp_path, "sorting", check=False, motion={"speed_m_s": "fast"})
     one_error(fluidsense("task", "run", str(path), cwd=tmp_path),
               f"{path}: motion.speed_m_s: Input should be a valid number")
@@ -364,7 +361,7 @@ def test_task_run_with_a_hostile_task_file_exits_2(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([path.name, other.name])
 
 
-def test_a_config_with_several_problems_gives_one_prefixed_line_each(tmp_path):
+def test_a_config_with_several_problems_gives_one_prefixed_line_each(tmp_path, fluidsense):
     path = sim_config(tmp_path, check=False, driver={"rate_hz": "fast", "seed": -1})
     out = fluidsense("run", "--config", str(path), cwd=tmp_path)
     assert out.returncode == 2
@@ -373,7 +370,7 @@ def test_a_config_with_several_problems_gives_one_prefixed_line_each(tmp_path):
                                        "equal to 0"]
 
 
-def test_help_shows_the_exit_codes():
+def test_help_shows_the_exit_codes(fluidsense):
     out = fluidsense("--help")
     assert out.returncode == 0
     lines = out.stdout[out.stdout.index("exit codes:"):].splitlines()[1:]

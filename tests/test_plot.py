@@ -3,14 +3,12 @@ recording's (read back independently with the recording reader)."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 from fluidsense.cli.plot import plot_cycles, read_cycles
 from fluidsense.common.scenes import CylinderScene
 from fluidsense.drivers.recording.reader import RecordingReader
+from support.cli import run_cli
 from support.harness import REPO
 from support.recording import record, the_file
 
@@ -60,14 +58,11 @@ def test_the_plotted_data_are_the_recordings(recorded, tmp_path):
     assert cycles[2]["has_reference"] and "dP" in obj.title()
 
 
-def test_plot_command_one_cycle_and_a_missing_one(recorded, tmp_path):
+def test_plot_command_one_cycle_and_a_missing_one(recorded, tmp_path, capsys):
     out = tmp_path / "c2.png"
-    ok = subprocess.run([sys.executable, "-m", "fluidsense", "plot", str(recorded), "--cycle", "2", "--out",
-                         str(out)], cwd=REPO, capture_output=True, text=True, timeout=300)
+    ok = run_cli(capsys, "plot", recorded, "--cycle", "2", "--out", out, cwd=REPO)
     assert ok.returncode == 0 and out.stat().st_size > 1000, ok.stderr
-    bad = subprocess.run([sys.executable, "-m", "fluidsense", "plot", str(recorded), "--cycle", "9", "--out",
-                          str(tmp_path / "x.png")], cwd=REPO, capture_output=True, text=True, timeout=300)
+    bad = run_cli(capsys, "plot", recorded, "--cycle", "9", "--out", tmp_path / "x.png", cwd=REPO)
     assert bad.returncode == 2 and "no cycle 9" in bad.stderr and not (tmp_path / "x.png").exists()
-    notfile = subprocess.run([sys.executable, "-m", "fluidsense", "plot", str(tmp_path / "none.mcap"), "--out",
-                              str(tmp_path / "y.png")], cwd=REPO, capture_output=True, text=True, timeout=300)
+    notfile = run_cli(capsys, "plot", tmp_path / "none.mcap", "--out", tmp_path / "y.png", cwd=REPO)
     assert notfile.returncode == 2 and "Traceback" not in notfile.stderr

@@ -39,6 +39,7 @@ from fluidsense.drivers.recording.writer import RecordingWriter
 from mcap.reader import make_reader
 from support.events import fast_profile
 from support.configs import whole
+from support.cli import run_cli
 from support.harness import REPO, sim_config
 from support.recording import cell, record, the_file
 
@@ -337,9 +338,8 @@ def _copy_with(src: Path, dst: Path, change) -> None:
         w.close()
 
 
-def test_cli_replay_json_and_exit_codes(tmp_path, good_file):
-    out = subprocess.run([sys.executable, "-m", "fluidsense", "replay", str(good_file), "--json"], cwd=REPO,
-                         capture_output=True, text=True, timeout=60)
+def test_cli_replay_json_and_exit_codes(tmp_path, good_file, capsys):
+    out = run_cli(capsys, "replay", good_file, "--json", cwd=REPO)
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout)
     assert doc["agree"] and doc["closed"] and [c["status"] for c in doc["cycles"]] == ["complete"] * 2
@@ -352,15 +352,13 @@ def test_cli_replay_json_and_exit_codes(tmp_path, good_file):
 
     tampered = tmp_path / "tampered.mcap"
     _copy_with(good_file, tampered, nudge)
-    out = subprocess.run([sys.executable, "-m", "fluidsense", "replay", str(tampered)], cwd=REPO,
-                         capture_output=True, text=True, timeout=60)
+    out = run_cli(capsys, "replay", tampered, cwd=REPO)
     assert out.returncode == 1, out.stderr
     assert "differs in: p_eq_kpa" in out.stdout and "cycles [2] differ" in out.stdout
 
     garbled = tmp_path / "garbled.mcap"
     _flip(garbled, good_file)
-    out = subprocess.run([sys.executable, "-m", "fluidsense", "replay", str(garbled)], cwd=REPO,
-                         capture_output=True, text=True, timeout=60)
+    out = run_cli(capsys, "replay", garbled, cwd=REPO)
     assert out.returncode == 2 and out.stdout == ""
     assert len(out.stderr.splitlines()) == 1 and out.stderr.startswith(f"fluidsense: error: {garbled}: garbled")
 
@@ -689,11 +687,10 @@ def test_deeply_nested_json_in_an_event_is_refused(tmp_path, good_file, depth, r
 
 
 @pytest.mark.parametrize("kind", ["fifo", "directory"])
-def test_replay_refuses_a_fifo_or_a_directory_without_blocking(tmp_path, kind):
+def test_replay_refuses_a_fifo_or_a_directory_without_blocking(tmp_path, kind, capsys):
     path = tmp_path / "run.mcap"
     os.mkfifo(path) if kind == "fifo" else path.mkdir()
-    out = subprocess.run([sys.executable, "-m", "fluidsense", "replay", str(path)], cwd=REPO,
-                         capture_output=True, text=True, timeout=30)
+    out = run_cli(capsys, "replay", path, cwd=REPO)  # a blocking open would hang it: the tier's timeout
     assert out.returncode == 2 and out.stdout == ""
     assert out.stderr.splitlines() == [f"fluidsense: error: {path}: cannot read: not a regular file "
                                        f"(a {'FIFO' if kind == 'fifo' else 'directory'})"]

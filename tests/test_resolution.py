@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -16,6 +14,7 @@ from fluidsense.simulator.equilibrium import eq2_resolution, equilibrium
 from fluidsense.simulator.gas import Network, Pipe, VolumeLaw
 from fluidsense.simulator.plant import Plant
 from fluidsense.simulator.resolution import linear_sweep, resolution_at, search
+from support.cli import run_cli
 from support.harness import REPO
 
 SWEEPS = {
@@ -79,9 +78,8 @@ def test_design_search_picks_the_best_feasible_and_the_plant_agrees():
     assert p_dyn / KPA == pytest.approx(best.p_eq_range_kpa[0], rel=1e-3)
 
 
-def test_design_command(tmp_path):
-    out = subprocess.run([sys.executable, "-m", "fluidsense", "design", "--profile", "pneunet-gripper", "--json"],
-                         cwd=REPO, capture_output=True, text=True, timeout=120)
+def test_design_command(tmp_path, capsys):
+    out = run_cli(capsys, "design", "--profile", "pneunet-gripper", "--json", cwd=REPO)
     assert out.returncode == 0, out.stderr
     data = json.loads(out.stdout)
     assert data["recommended"]["feasible"] and data["improvement"] >= 1.0
@@ -89,16 +87,15 @@ def test_design_command(tmp_path):
     assert data["resolution_unit"] == "kPa/mm"
 
 
-def test_design_for_a_requirement_takes_the_lowest_p0_that_meets_it_and_says_why_not():
+def test_design_for_a_requirement_takes_the_lowest_p0_that_meets_it_and_says_why_not(capsys):
     """--resolution-mm/--decide-by-s: a loose requirement is met below the P0 limit (not
     pushed to it); one the noise cannot reach, or a decision before the transient has
     settled, gets no design and a reason."""
     import json as _json
 
     def design(*extra):
-        out = subprocess.run([sys.executable, "-m", "fluidsense", "design", "--profile", "pneunet-gripper",
-                              "--tanks", "0.1,0.3,1.0", "--json", *extra], cwd=REPO, capture_output=True,
-                             text=True, timeout=120)
+        out = run_cli(capsys, "design", "--profile", "pneunet-gripper", "--tanks", "0.1,0.3,1.0", "--json", *extra,
+                      cwd=REPO)
         return out.returncode, _json.loads(out.stdout)
 
     rc, loose = design("--resolution-mm", "4", "--decide-by-s", "10")
@@ -109,6 +106,5 @@ def test_design_for_a_requirement_takes_the_lowest_p0_that_meets_it_and_says_why
     assert rc == 1 and tight["recommended"] is None and "noise" in tight["why_none"]
     rc, early = design("--resolution-mm", "4", "--decide-by-s", "0.05")
     assert rc == 1 and "settle" in early["why_none"]
-    bad = subprocess.run([sys.executable, "-m", "fluidsense", "design", "--profile", "pneunet-gripper",
-                          "--resolution-mm", "1"], cwd=REPO, capture_output=True, text=True, timeout=60)
+    bad = run_cli(capsys, "design", "--profile", "pneunet-gripper", "--resolution-mm", "1", cwd=REPO)
     assert bad.returncode == 2 and "together" in bad.stderr

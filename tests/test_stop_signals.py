@@ -27,21 +27,13 @@ import pytest
 from fluidsense.common import stopsignals
 from fluidsense.common.exitcodes import EXIT_HANGUP, EXIT_INTERRUPTED, EXIT_TERMINATED
 from fluidsense.controller.config import load_cell_config
+from support.docs import documented_exit
 from support.harness import CONFIG, REPO, Daemon, free_simcell
 
 SUPPLY, ACTUATE = 1 << 0, 1 << 1  # the gripper cells' valve outputs
 SAFE = SUPPLY  # supply closed (normally open: energised), actuate off (the actuator vented)
 VENTED_WITHIN_S = 0.5  # issue 34: from the signal to the box's outputs at their safe positions
 CALIBRATION = CONFIG / "calibrations" / "pneunet-gripper-quick-p_eq.json"
-
-
-def documented_exit(command: str, case_starts: str) -> int:
-    """docs/cli.md's per-command exit table: the code of ``command``'s row whose case
-    starts with ``case_starts``."""
-    text = (REPO / "docs" / "cli.md").read_text()
-    rows = re.findall(r"^\| `fluidsense (\w+)[^`]*` \| ([^|]+?) \| (\d+) \|$", text, flags=re.M)
-    (code,) = {int(c) for cmd, case, c in rows if cmd == command and case.startswith(case_starts)}
-    return code
 
 
 def job(*args: str) -> subprocess.Popen:

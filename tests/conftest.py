@@ -75,6 +75,15 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(skip)
 
 
+def pytest_collection_finish(session):
+    """What is alive once the tests are collected (the libraries, the test modules) is kept out
+    of the collector's walks from here on (gc.freeze): the full collection that the leak guard
+    below runs at every test's end then walks only what the tests made since. Walking
+    everything each time cost about 0.1 s a test, the most of a unit tier of 1200 tests."""
+    gc.collect()
+    gc.freeze()
+
+
 @pytest.hookimpl(wrapper=True, tryfirst=True)
 def pytest_runtest_makereport(item, call):
     """Each phase's report on its item: the leak guard below judges only a test that passed."""

@@ -8,7 +8,6 @@ import json
 import subprocess
 import sys
 
-import pytest
 from support.harness import REPO
 
 

@@ -1,0 +1,45 @@
+"""A driver is one registry entry (drivers/config.py): its config model names its backend
+and answers what the commands ask of a cell, so nothing outside drivers/ switches on
+``driver.kind``; the recording's format lives in one package (docs/architecture.md,
+"Adding a driver" and "Recording").
+
+(Its in-process tests: tests/unit/test_driver_registry.py.)
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+from fluidsense.drivers.config import ENTRIES
+from support.harness import CONFIG, PROFILE, REPO, write_cell
+
+
+def test_reading_a_config_imports_no_backend():
+    """The entries are pydantic only: loading a cell config (and building the CLI) imports
+    no backend module, so no ur_rtde, pymodbus, nidaqmx, MCAP or simulated plant."""
+    backends = [e.backend_module for e in ENTRIES]
+    code = ("import sys, fluidsense.controller.config, fluidsense.cli;"
+            f"bad = [m for m in sys.modules if m in {backends!r} or m.split('.')[0] in "
+            "('rtde_receive', 'rtde_io', 'rtde_control', 'pymodbus', 'nidaqmx', 'mcap', 'serial')"
+            " or m.startswith('fluidsense.simulator')]; print(bad); sys.exit(1 if bad else 0)")
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stdout + out.stderr
+
+
+@pytest.mark.parametrize("command, cell, says", [
+    ("watchdog", "sim", "driver.kind: the box watchdog is for a UR control box (ur or modbus), this config's "
+                        "driver is 'sim'"),
+    ("simcell", "sim", "driver.kind: simcell emulates the control box of a ur or modbus driver, this config's "
+                       "driver is 'sim'"),
+    ("check", "replay", "driver.kind: check looks at a live cell; a recording has nothing to connect to"),
+])
+def test_a_command_refuses_a_driver_it_cannot_use_in_one_line(tmp_path, command, cell, says):
+    """The entry decides (control_box(), live); the words are those the commands always said."""
+    (tmp_path / "run.mcap").write_bytes(b"")
+    path = CONFIG / "cell-sim.yaml" if cell == "sim" else write_cell(
+        tmp_path, {"driver": {"kind": "replay", "file": str(tmp_path / "run.mcap")}, "profile": str(PROFILE)})
+    out = subprocess.run([sys.executable, "-m", "fluidsense", command, "--config", str(path)], cwd=REPO,
+                         capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
+    assert out.returncode == 2 and out.stderr == f"fluidsense: error: {path}: {says}\n"

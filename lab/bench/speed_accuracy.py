@@ -171,7 +171,7 @@ def _sorting(pairs: list[tuple[float, float]], spacing: float) -> float | None:
     return ok / n if n else None
 
 
-#: the suite's check (tests/test_speed_stability.py): this pair's rows over its first
+#: the suite's check (tests/system/test_speed_stability.py): this pair's rows over its first
 #: CHECK_TRIALS trials are kept beside the full rows; a run of CHECK_TRIALS trials gives
 #: them again exactly (each pair has its own seeded cell, and its trials come in order),
 #: at a fifth of the cost of the whole pair

@@ -22,6 +22,10 @@ from support.harness import REPO, SIMCELL_PORTS, free_loopback, simcell_config
 
 EXAMPLES = REPO / "examples"
 
+# examples/README.md walked as written: a box, a daemon and the pick-and-place run in real
+# time, a few minutes beside other work
+pytestmark = pytest.mark.timeout(900)
+
 
 def test_examples_readme_pick_and_place_runs_as_written(tmp_path):
     """examples/README.md's block, as written, from the repository's folder: the emulated

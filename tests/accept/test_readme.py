@@ -30,12 +30,12 @@ pytestmark = [pytest.mark.timeout(1800)]
 
 SKIPPED = {
     "make test": "the whole suite, of which this test is a part",
-    "OPENBLAS_CORETYPE=Sandybridge .venv/bin/python -m pytest -n 0 tests/test_features.py tests/test_rise_alignment.py \\":
+    "OPENBLAS_CORETYPE=Sandybridge .venv/bin/python -m pytest -n 0 tests/unit/test_features.py tests/unit/test_rise_alignment.py \\":
         "five of the suite's own test files under another CPU kernel: the suite runs them",
-    "tests/test_physics.py tests/test_dynamics.py tests/test_resolution.py": "(the line above, continued)",
-    ".venv/bin/fluidsense monitor": "a screen for a person, until Ctrl-C (tests/test_monitor_screen.py)",
+    "tests/unit/test_physics.py tests/unit/test_dynamics.py tests/unit/test_resolution.py": "(the line above, continued)",
+    ".venv/bin/fluidsense monitor": "a screen for a person, until Ctrl-C (tests/system/test_monitor_screen.py)",
     ".venv/bin/fluidsense check --config config/cell-ur-sim.yaml --actuate":
-        "asks a person before it moves anything (tests/test_bringup_doc.py runs it with --yes)",
+        "asks a person before it moves anything (tests/accept/test_bringup_doc.py runs it with --yes)",
     ".venv/bin/python -m lab report --out docs/reproduction":
         "7 minutes of CPU (make report); docs/reproduction is its output",
     "docker build -t fluidsense .": "no container runtime here (make image-check builds and runs the image with podman)",

@@ -24,6 +24,11 @@ from fluidsense.controller.config import load_cell_config
 from support.harness import REPO
 from support.shipping import doc_block, dockerfile, stages, unit_entries
 
+# pip builds the wheel and installs it, with its dependencies from PyPI, into scratch venvs
+# (docs/deployment.md's install as written): minutes each on a loaded machine. The image's
+# test names its own, longer bound.
+pytestmark = pytest.mark.timeout(900)
+
 
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory):

@@ -84,7 +84,7 @@ def test_an_analog_input_domain_changed_mid_run_is_a_driver_fault_naming_the_reg
     expected, before the input's reading (0 mA: the sensor's rail) can be a pressure, and
     the valves are vented as the box reports. While the box stays so, reconnecting is
     refused by the set-up check; set back, the cell reconnects and ``reset`` works (the
-    set-up check's refusal: tests/test_drivers.py)."""
+    set-up check's refusal: tests/system/test_drivers.py)."""
     with free_simcell(tmp_path, "modbus", profile="sorting-gripper-quick.yaml", driver={**QUICK, "arm": None},
                       supervision=SUPERVISION) as (box, cell):
         d = Daemon(cell)

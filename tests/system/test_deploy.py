@@ -144,7 +144,7 @@ def test_pings_stop_when_the_loop_stops_progressing(tmp_path):
 
 
 # the unit installed from the wheel as docs/deployment.md says, systemd-analyze verify on it, the
-# Dockerfile and the wheel: tests/test_ship.py
+# Dockerfile and the wheel: tests/accept/test_ship.py
 
 
 def test_a_daemon_started_before_the_robot_is_connecting_then_ready_when_it_comes(tmp_path):

@@ -3,8 +3,8 @@
 Every hostile kind of config, profile, task and calibration file gives one line per
 problem, ``FILE: field: reason`` (``FILE:LINE:COLUMN: ...`` where the problem has a place),
 and exit code 2 through the real CLI, never a traceback and never a hang, before anything
-is started. Recordings are in tests/test_recording.py, the semantic checks at load in
-tests/test_config.py. A property-based fuzz of config files closes the file.
+is started. Recordings are in tests/unit/test_recording.py, the semantic checks at load in
+tests/unit/test_config.py. A property-based fuzz of config files closes the file.
 
 (Its in-process tests: tests/unit/test_hostile_files.py.)
 """

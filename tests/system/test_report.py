@@ -35,7 +35,7 @@ def _close(a, b, path=""):
 # The suite regenerates three quick sections (about 20 s) and compares them with the
 # committed report; `make report` regenerates all eleven (about nine minutes), and
 # `git diff docs/reproduction` then shows any change. (The shape section, another 20 s,
-# is left to `make report`; tests/test_scenes.py checks the rectangles' two contacts.)
+# is left to `make report`; tests/system/test_scenes.py checks the rectangles' two contacts.)
 QUICK = ["stiffness", "resolution", "timing"]
 
 

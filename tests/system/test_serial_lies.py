@@ -19,7 +19,7 @@ pytestmark = pytest.mark.timeout(600)
 
 #: what each lie's fault may name: a ten-times-fast timer is "rate", or "tick" when the proxy, starved on
 #: a loaded machine, lost the frames between two it sent (ticks then jump further than the time allows;
-#: tests/test_serial_protocol.py checks "rate" alone, without a proxy)
+#: tests/unit/test_serial_protocol.py checks "rate" alone, without a proxy)
 FIELDS = {"counts": ("counts:",), "tick": ("tick:",), "rate": ("rate:", "tick:")}
 
 

@@ -73,7 +73,7 @@ def test_over_pressure_faults_vents_and_latches(virtual_controller):
     """The supply sticks open into the actuator with the regulator far above P0 (fault
     injection in the simulated cell): the cycle must fault, vent, and refuse new cycles
     until reset. A P0 within the margin of the limits, where a cycle would cross the limit
-    on its own readings, is refused before anything moves (tests/test_config.py checks the
+    on its own readings, is refused before anything moves (tests/unit/test_config.py checks the
     margin in profiles)."""
 
     async def body(ctrl):

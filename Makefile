@@ -39,8 +39,10 @@ check: $(STAMP)
 # installed, the AVR image in simavr. CI (CI=true, a fresh machine) installs those packages
 # first (firmware-deps; firmware/README.md says why); elsewhere `make firmware-deps` does,
 # and without them the AVR tests are skipped, said in one line. --dist loadfile hands whole
-# files to the two workers, longest first (tests/conftest.py LONGEST_FIRST).
-PYTEST_XDIST := -n 2 --dist loadfile --no-loadscope-reorder --durations=30 --durations-min=5
+# files to the two workers, longest first (tests/conftest.py LONGEST_FIRST). A unit test past
+# its minute ends its worker (tests/conftest.py TIER_TIMEOUT_METHOD); xdist then gives that
+# file to a new worker, which meets the same test: two such restarts end the run.
+PYTEST_XDIST := -n 2 --dist loadfile --no-loadscope-reorder --max-worker-restart 2 --durations=30 --durations-min=5
 test: $(STAMP) firmware-host
 	@if [ "$$CI" = true ]; then $(MAKE) -s firmware-deps || echo "make test: installing $(AVR_DEBS) failed"; fi
 	@if $(AVR_READY); then $(MAKE) -s firmware-sim; else echo "make test: $(AVR_DEBS) not installed (make \

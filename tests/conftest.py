@@ -56,11 +56,21 @@ def _tier_path(item) -> str:
 TIER_TIMEOUT_S = {"unit": 60, "system": 300, "accept": 1800}
 
 
+#: how a tier's timeout stops a test. pytest-timeout's default (SIGALRM, raising in the main
+#: thread) can land inside an asyncio callback or a background task, which swallows it, and
+#: the test then waits for ever (seen: a unit test past its minute on a loaded machine, still
+#: waiting ten minutes later). The unit tier starts no process, so its worker may be ended
+#: outright ("thread": the stacks are printed, then the worker exits and the test fails as
+#: crashed); the system tier's workers have daemons and boxes to stop, so they keep SIGALRM.
+TIER_TIMEOUT_METHOD = {"unit": "thread"}
+
+
 def _tier_timeouts(items) -> None:
     for item in items:
         tier = item.path.parent.name
         if tier in TIER_TIMEOUT_S and item.get_closest_marker("timeout") is None:
-            item.add_marker(pytest.mark.timeout(TIER_TIMEOUT_S[tier]))
+            method = TIER_TIMEOUT_METHOD.get(tier)
+            item.add_marker(pytest.mark.timeout(TIER_TIMEOUT_S[tier], **({"method": method} if method else {})))
 
 
 def _longest_first(items) -> None:

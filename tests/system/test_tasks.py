@@ -12,6 +12,7 @@ import sys
 import jsonschema
 from support.events import SCHEMAS
 from support.harness import CONFIG, REPO, sim_config
+from unit import test_tasks as tasks_in_process
 
 TASKS = CONFIG / "tasks"
 
@@ -46,3 +47,16 @@ def test_task_started_through_the_command_socket(tmp_path, daemon_factory):
     summary = events[-1]["summary"]
     assert summary["success"] and summary["final_order_mm"] == [100, 80, 60, 40]
     assert d.request({"cmd": "status"})["task"] == {"file": "sorting.yaml", "running": False}
+
+
+# in this process (tests/unit/test_tasks.py's run_file), but a study: the ripeness task's
+# calibration and two rounds in virtual time, 28-38 s on the shared 2-core machine and past
+# the unit tier's minute on a loaded one
+def test_ripeness_picks_out_the_overripe_tomato_in_every_round():
+    s = tasks_in_process.run_file("ripeness.yaml", edit={"rounds": 2})  # the shipped file: 5 rounds
+    assert s["success_rate"] == 1.0 and len(s["rounds"]) == 2
+    for rnd in s["rounds"]:
+        assert rnd["flagged"] == ["overripe"]
+        dummy = next(o for o in rnd["objects"] if o["object"] == "dummy-50")
+        assert abs(dummy["mean_mm"]) < 2.0  # a rigid object is not squeezed
+    assert s["calibration"]["points"] == 15  # 5 dummies x 3 grips (the first only aligns)

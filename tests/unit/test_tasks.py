@@ -87,16 +87,6 @@ def test_a_tomato_too_heavy_for_every_step_is_not_picked():
     assert all(len(t["attempts"]) == 3 for t in s["tomatoes"])
 
 
-def test_ripeness_picks_out_the_overripe_tomato_in_every_round():
-    s = run_file("ripeness.yaml", edit={"rounds": 2})  # the shipped file: 5 rounds
-    assert s["success_rate"] == 1.0 and len(s["rounds"]) == 2
-    for rnd in s["rounds"]:
-        assert rnd["flagged"] == ["overripe"]
-        dummy = next(o for o in rnd["objects"] if o["object"] == "dummy-50")
-        assert abs(dummy["mean_mm"]) < 2.0  # a rigid object is not squeezed
-    assert s["calibration"]["points"] == 15  # 5 dummies x 3 grips (the first only aligns)
-
-
 def test_task_file_errors_name_file_and_field(tmp_path):
     bad = task_config(tmp_path, "sorting", check=False, input_slots=["in1", "nowhere"])
     with pytest.raises(ConfigError, match=rf"^{bad}: \(top level\): .*nowhere"):

@@ -1,12 +1,7 @@
-"""Contract every backend honours, then what only the simulated cell promises.
-
-The contract runs over every backend: the simulated cell in-process, the ur-rtde
-and Modbus drivers against ``fluidsense simcell`` (an emulated UR control box in its
-own process, backed by the simulated plant), and the serial driver against
-``python -m lab simserial`` (the firmware's host board on a pty, fed by the simulated plant).
-
-(Its tests with real peers: tests/system/test_backends.py.)
-"""
+"""What only the simulated cell promises, in this process: the same seed gives the same
+samples, the sensor model's noise, quantisation and offset, and a command inside a
+precomputed chunk acting at its time. (The contract every backend honours, over every
+backend, and the cycle-to-cycle variation study: tests/system/test_backends.py.)"""
 
 from __future__ import annotations
 

@@ -1,20 +1,6 @@
-"""A control box that lies on the wire: RTDE analog inputs that read NaN, infinity or a
-value no input can measure, a timestamp that jumps 1000 s ahead, runs back, runs ten times
-fast or stands still, a Modbus reply with one register too many or too few or an analog
-input domain register that reads no domain. Each lie is one
-``driver`` fault that names the field, the valves go to their safe state (read back from the
-box), the link is connected again, ``reset`` works once the box is sane, and the sample
-stream moves on. A timestamp that stands still is a silent robot, not a lie: a ``link_lost``
-fault, with the same recovery.
-
-The box is the emulator (``fluidsense simcell``) with its real RTDE and pymodbus servers,
-the daemon the real one with ur_rtde and pymodbus clients; the lie is the box's own (sim
-control ``lie``, simulator/controlbox/lies.py), told in a counted number of packages or
-replies. Nothing is mocked, and nothing waits on the wall clock: waits are for messages,
-for samples and for the box's state.
-
-(Its tests with real peers: tests/system/test_box_lies.py.)
-"""
+"""The driver's timestamp guard on its own: late and slightly slow or fast clocks pass, what no
+clock can do is refused. (A control box that lies on the wire, against the real drivers and
+daemon: tests/system/test_box_lies.py.)"""
 
 from __future__ import annotations
 

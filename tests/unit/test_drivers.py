@@ -1,13 +1,6 @@
-"""The production drivers (ur-rtde, Modbus) against ``fluidsense simcell``: an emulated UR
-control box backed by the simulated plant, in its own process, on its own 127.0.0.x
-address. The drivers run unmodified: ur_rtde in its worker and sampler processes,
-pymodbus in the daemon and the sampler. Nothing here is mocked.
-
-Real time: these tests wait for real samples, bounded by timeouts, never by sleeps
-that make timing pass.
-
-(Its tests with real peers: tests/system/test_drivers.py.)
-"""
+"""The production drivers' parts that need no box: the sensor wiring's transfer functions, the
+plant behind the box's outputs, and the configs the drivers refuse at load. (The drivers
+against ``fluidsense simcell``, unmodified and unmocked: tests/system/test_drivers.py.)"""
 
 from __future__ import annotations
 

@@ -1,10 +1,7 @@
-"""The daemon as a gripper: grip, hold, slip, release and measure over real sockets, driven
-through the client library (fluidsense.client), every event checked against
-docs/zmq-schema.md. Virtual time on the simulated cell with the pneunet gripper and the
-shipped calibration (config/calibrations/pneunet-gripper-p_eq.json).
-
-(Its tests with real peers: tests/system/test_gripper.py.)
-"""
+"""The gripper in this process: the slip watch on recorded block means (a stream that stalls
+included), and a calibration of another profile refused before the daemon starts. (The
+daemon as a gripper over real sockets, driven through the client library:
+tests/system/test_gripper.py.)"""
 
 from __future__ import annotations
 

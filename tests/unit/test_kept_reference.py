@@ -1,10 +1,7 @@
-"""The free-air reference survives a restart while it still belongs to the cell
-(controller/cycles/kept.py): a daemon killed with SIGKILL and started again grips with the
-reference it kept; one whose profile changed refuses it, saying why, and its grip says how
-to take a new one. Real daemon processes on the simulated cell, in virtual time.
-
-(Its tests with real peers: tests/system/test_kept_reference.py.)
-"""
+"""The kept free-air reference's file, read in this process: a changed P0 has no reference at
+its P0, and a garbled or foreign file is refused with the reason
+(controller/cycles/kept.py). (A daemon killed and started again with the reference it kept:
+tests/system/test_kept_reference.py.)"""
 
 from __future__ import annotations
 

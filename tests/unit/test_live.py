@@ -1,8 +1,6 @@
-"""The live view: a real daemon serving the Foxglove WebSocket protocol (foxglove-sdk) to
-real WebSocket clients (the websockets library) over loopback. Nothing is mocked.
-
-(Its tests with real peers: tests/system/test_live.py.)
-"""
+"""The live view's parts that need no daemon: the ``--live`` address and the WebSocket
+subprotocol names read from a handshake. (A real daemon serving real WebSocket clients:
+tests/system/test_live.py.)"""
 
 from __future__ import annotations
 

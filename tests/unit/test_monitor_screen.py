@@ -1,9 +1,7 @@
-"""``fluidsense monitor`` as a person sees it: a real daemon, the monitor in a real
-pseudo-terminal, the screen read back from what it drew. And what `cmd` and `monitor`
-say when nothing answers.
-
-(Its tests with real peers: tests/system/test_monitor_screen.py.)
-"""
+"""``fluidsense monitor``'s view drawn from messages in this process: pressure, results, a
+fault and what to do about it, another daemon, a stopped one. (The monitor in a real pseudo-
+terminal against a real daemon, and what `cmd` and `monitor` say when nothing answers:
+tests/system/test_monitor_screen.py.)"""
 
 from __future__ import annotations
 

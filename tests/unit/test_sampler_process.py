@@ -1,10 +1,5 @@
-"""The sampler process for real, at 1 kHz, with the synthetic poller. Only invariants are
-asserted (this machine is shared and noisy): strictly increasing timestamps, every slot
-accounted for once, a clean stop; and LinkLostError when the process dies or the link
-is lost. Timeouts here only bound how long a broken test can hang.
-
-(Its tests with real peers: tests/system/test_sampler_process.py.)
-"""
+"""The sampler's config and its accounting of blocks dropped on a full queue, in this process.
+(The sampler process for real, at 1 kHz: tests/system/test_sampler_process.py.)"""
 
 from __future__ import annotations
 

@@ -1,16 +1,6 @@
-"""Every process that can move a valve stops safely on SIGTERM and SIGHUP as on Ctrl-C
-(common/stopsignals.py): calibrate, sense, task run, check --actuate, the pick-and-place
-example and the daemon, each a real process against the emulated UR box (``fluidsense
-simcell``) while a cycle has the gripper's actuate output on. What is asserted is what the
-box says: the outputs back at their safe positions within 0.5 s of the signal and the
-actuator's pressure back to atmosphere; then the job's message, its exit code as
-docs/cli.md gives it and, for calibrate, a journal that resumes.
-
-The cells have no box watchdog (``watchdog: null``, as the shipped gripper config): a
-process that died by the signal would leave the actuate output on, which these tests see.
-
-(Its tests with real peers: tests/system/test_stop_signals.py.)
-"""
+"""The stop signals' exit codes (128 + the signal) and a second signal that does not cut the
+unwinding short, in this process (common/stopsignals.py). (Each process that can move a
+valve, stopped mid-cycle against the emulated box: tests/system/test_stop_signals.py.)"""
 
 from __future__ import annotations
 

@@ -1,10 +1,6 @@
-"""`fluidsense run` over real ZeroMQ sockets, checked against docs/zmq-schema.md.
-
-The subscriber here is written against the document: the JSON schemas are read out of
-docs/zmq-schema.md, not from the code.
-
-(Its tests with real peers: tests/system/test_zmq.py.)
-"""
+"""docs/zmq-schema.md holds a schema for every topic the daemon publishes. (`fluidsense run`
+over real ZeroMQ sockets, each message checked against those schemas:
+tests/system/test_zmq.py.)"""
 
 from __future__ import annotations
 

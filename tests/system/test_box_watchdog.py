@@ -192,24 +192,6 @@ def test_a_killed_daemon_is_vented_by_the_box_within_the_watchdog_timeout(kind, 
         assert down["digital_outputs"] & 0b11 == 0b01
 
 
-def test_fluidsense_watchdog_prints_what_the_driver_installs(tmp_path):
-    import subprocess
-    import sys
-
-    from support.configs import cell_config
-    from support.harness import REPO
-
-    cell = cell_config(tmp_path, "cell-modbus-sim", driver={"arm": None})
-    out = subprocess.run([sys.executable, "-m", "fluidsense", "watchdog", "--config", str(cell)],
-                         capture_output=True, text=True, timeout=60, cwd=REPO)
-    assert out.returncode == 0, out.stderr
-    program = WatchdogProgram.from_source(out.stdout)
-    assert program.vent == LEVELS and program.register == REGISTER and program.timeout_s == TIMEOUT_S
-    refused = subprocess.run([sys.executable, "-m", "fluidsense", "watchdog", "--config", str(CONFIG / "cell-sim.yaml")],
-                             capture_output=True, text=True, timeout=60, cwd=REPO)
-    assert refused.returncode == 2 and "driver.kind" in refused.stderr and "Traceback" not in refused.stderr
-
-
 def test_fluidsense_watchdog_prints_the_thread_for_the_integrators_program_and_it_vents(tmp_path):
     """watchdog: null without an arm (the shipped gripper config): the box's one program is
     the integrator's. ``fluidsense watchdog`` prints the same watchdog as a thread to paste

@@ -10,10 +10,8 @@ from __future__ import annotations
 
 import subprocess
 import sys
-
-import pytest
 from fluidsense.drivers.config import ENTRIES
-from support.harness import CONFIG, PROFILE, REPO, write_cell
+from support.harness import REPO
 
 
 def test_reading_a_config_imports_no_backend():
@@ -26,20 +24,3 @@ def test_reading_a_config_imports_no_backend():
             " or m.startswith('fluidsense.simulator')]; print(bad); sys.exit(1 if bad else 0)")
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stdout + out.stderr
-
-
-@pytest.mark.parametrize("command, cell, says", [
-    ("watchdog", "sim", "driver.kind: the box watchdog is for a UR control box (ur or modbus), this config's "
-                        "driver is 'sim'"),
-    ("simcell", "sim", "driver.kind: simcell emulates the control box of a ur or modbus driver, this config's "
-                       "driver is 'sim'"),
-    ("check", "replay", "driver.kind: check looks at a live cell; a recording has nothing to connect to"),
-])
-def test_a_command_refuses_a_driver_it_cannot_use_in_one_line(tmp_path, command, cell, says):
-    """The entry decides (control_box(), live); the words are those the commands always said."""
-    (tmp_path / "run.mcap").write_bytes(b"")
-    path = CONFIG / "cell-sim.yaml" if cell == "sim" else write_cell(
-        tmp_path, {"driver": {"kind": "replay", "file": str(tmp_path / "run.mcap")}, "profile": str(PROFILE)})
-    out = subprocess.run([sys.executable, "-m", "fluidsense", command, "--config", str(path)], cwd=REPO,
-                         capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
-    assert out.returncode == 2 and out.stderr == f"fluidsense: error: {path}: {says}\n"

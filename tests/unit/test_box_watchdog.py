@@ -117,3 +117,17 @@ def test_program_integrator_beats_the_register_and_sends_nothing_to_the_box(tmp_
     assert cfg.driver.dead_link_vent().by == "box_watchdog"
     with pytest.raises(Exception, match="program: integrator is for cells without an arm"):
         cell_config(tmp_path, "cell-modbus-sim", driver={"watchdog": {"program": "integrator"}})
+
+
+def test_fluidsense_watchdog_prints_what_the_driver_installs(tmp_path, capsys):
+    from support.cli import run_cli
+    from support.configs import cell_config
+    from support.harness import REPO
+
+    cell = cell_config(tmp_path, "cell-modbus-sim", driver={"arm": None})
+    out = run_cli(capsys, "watchdog", "--config", cell, cwd=REPO)
+    assert out.returncode == 0, out.stderr
+    program = WatchdogProgram.from_source(out.stdout)
+    assert program.vent == LEVELS and program.register == REGISTER and program.timeout_s == TIMEOUT_S
+    refused = run_cli(capsys, "watchdog", "--config", CONFIG / "cell-sim.yaml", cwd=REPO)
+    assert refused.returncode == 2 and "driver.kind" in refused.stderr and "Traceback" not in refused.stderr

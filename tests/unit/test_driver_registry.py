@@ -16,6 +16,7 @@ import pytest
 from fluidsense.controller.config import load_cell_config
 from fluidsense.drivers.config import ENTRIES, DriverEntry, kinds
 from fluidsense.drivers.ur.dashboard import Robot
+from support.cli import run_cli
 from support.harness import CONFIG, PROFILE, REPO, sim_config, write_cell
 
 # everything of ours outside drivers/: the product's other parts, the studies, the examples
@@ -142,3 +143,19 @@ def test_the_mcap_format_is_handled_in_one_package():
             if any(n == "mcap" or n.startswith("mcap.") for n in names):
                 users.append(str(path.relative_to(REPO)))
     assert users and all(Path(u).parts[:2] == ("drivers", "recording") for u in users), users
+
+
+@pytest.mark.parametrize("command, cell, says", [
+    ("watchdog", "sim", "driver.kind: the box watchdog is for a UR control box (ur or modbus), this config's "
+                        "driver is 'sim'"),
+    ("simcell", "sim", "driver.kind: simcell emulates the control box of a ur or modbus driver, this config's "
+                       "driver is 'sim'"),
+    ("check", "replay", "driver.kind: check looks at a live cell; a recording has nothing to connect to"),
+])
+def test_a_command_refuses_a_driver_it_cannot_use_in_one_line(tmp_path, command, cell, says, capsys):
+    """The entry decides (control_box(), live); the words are those the commands always said."""
+    (tmp_path / "run.mcap").write_bytes(b"")
+    path = CONFIG / "cell-sim.yaml" if cell == "sim" else write_cell(
+        tmp_path, {"driver": {"kind": "replay", "file": str(tmp_path / "run.mcap")}, "profile": str(PROFILE)})
+    out = run_cli(capsys, command, "--config", path, cwd=REPO)  # it refuses before it binds or asks anything
+    assert out.returncode == 2 and out.stderr == f"fluidsense: error: {path}: {says}\n"

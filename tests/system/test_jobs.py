@@ -10,10 +10,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-
-import pytest
-from fluidsense.tasks.journal import journal_path
-from support.configs import DELETE, cell_config, task_config
+from support.configs import task_config
 from support.harness import REPO, free_simcell
 
 
@@ -32,31 +29,3 @@ def test_a_task_run_stopped_by_a_fault_exits_4_with_the_partial_summary(tmp_path
     partial = json.loads(out)
     assert partial["completed"] is False and partial["fault"]["kind"] == "sensor_stuck"
     assert "task sorting stopped by fault sensor_stuck" in err and "Traceback" not in err
-
-
-def test_calibrating_a_real_cell_without_a_terminal_is_refused_before_anything_starts(tmp_path):
-    cell = cell_config(tmp_path, "cell-modbus-sim", driver={
-        "sim_control_port": DELETE,  # a real cell: nobody but the operator places targets
-        "host": "127.0.0.254"})  # nothing there: the refusal must come first
-    out = subprocess.run([sys.executable, "-m", "fluidsense", "calibrate", "--config", str(cell),
-                          "--out", str(tmp_path / "cal.json")], stdin=subprocess.DEVNULL, capture_output=True,
-                         text=True, timeout=60, cwd=REPO)
-    assert out.returncode == 2
-    assert "stdin is not a terminal" in out.stderr and "--targets-from" in out.stderr and "--yes" in out.stderr
-    assert not journal_path(tmp_path / "cal.json").exists()
-
-
-def test_calibrate_cli_keeps_its_journal_and_resumes(tmp_path):
-    """The CLI end to end on the simulated cell: a finished run leaves its journal; a
-    second run refuses to overwrite it; --resume with nothing left to run fits at once."""
-    out = tmp_path / "cal.json"
-    base = [sys.executable, "-m", "fluidsense", "calibrate", "--profile", "sorting-gripper-quick",
-            "--scene", "cylinder", "--set", "diameter_mm=40", "--target", "diameter_mm", "--values", "40,60,80", "--cycles", "2",
-            "--drop-first", "1", "--out", str(out), "--json"]
-    first = subprocess.run(base, capture_output=True, text=True, timeout=300, cwd=REPO)
-    assert first.returncode == 0, first.stderr
-    again = subprocess.run(base, capture_output=True, text=True, timeout=300, cwd=REPO)
-    assert again.returncode == 2 and "--resume" in again.stderr
-    resumed = subprocess.run([*base, "--resume"], capture_output=True, text=True, timeout=300, cwd=REPO)
-    assert resumed.returncode == 0, resumed.stderr
-    assert json.loads(resumed.stdout)["coeffs"] == pytest.approx(json.loads(first.stdout)["coeffs"])

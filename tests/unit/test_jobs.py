@@ -19,7 +19,9 @@ from fluidsense.daemon import app
 from fluidsense.drivers.config import SimDriverConfig
 from fluidsense.tasks.calibrate import calibrate
 from fluidsense.tasks.journal import CycleJournal, journal_path
-from support.harness import CONFIG
+from support.cli import run_cli
+from support.configs import DELETE, cell_config
+from support.harness import CONFIG, REPO
 
 
 def _cell(seed: int = 2) -> CellConfig:
@@ -169,3 +171,30 @@ def test_the_operator_is_asked_in_words_and_a_scripted_run_must_name_each_target
     with pytest.raises(CommandError, match="expected a line with 60.0"):
         asyncio.run(main())
     op.close()
+
+
+def test_calibrating_a_real_cell_without_a_terminal_is_refused_before_anything_starts(tmp_path, capsys):
+    cell = cell_config(tmp_path, "cell-modbus-sim", driver={
+        "sim_control_port": DELETE,  # a real cell: nobody but the operator places targets
+        "host": "127.0.0.254"})  # nothing there: the refusal must come first
+    # pytest's stdin is no terminal; a connection to the box would fail the unit tier's guard
+    out = run_cli(capsys, "calibrate", "--config", cell, "--out", tmp_path / "cal.json", cwd=REPO)
+    assert out.returncode == 2
+    assert "stdin is not a terminal" in out.stderr and "--targets-from" in out.stderr and "--yes" in out.stderr
+    assert not journal_path(tmp_path / "cal.json").exists()
+
+
+def test_calibrate_cli_keeps_its_journal_and_resumes(tmp_path, capsys):
+    """The CLI end to end on the simulated cell: a finished run leaves its journal; a
+    second run refuses to overwrite it; --resume with nothing left to run fits at once."""
+    out = tmp_path / "cal.json"
+    base = ["calibrate", "--profile", "sorting-gripper-quick",
+            "--scene", "cylinder", "--set", "diameter_mm=40", "--target", "diameter_mm", "--values", "40,60,80", "--cycles", "2",
+            "--drop-first", "1", "--out", out, "--json"]
+    first = run_cli(capsys, *base, cwd=REPO)
+    assert first.returncode == 0, first.stderr
+    again = run_cli(capsys, *base, cwd=REPO)
+    assert again.returncode == 2 and "--resume" in again.stderr
+    resumed = run_cli(capsys, *base, "--resume", cwd=REPO)
+    assert resumed.returncode == 0, resumed.stderr
+    assert json.loads(resumed.stdout)["coeffs"] == pytest.approx(json.loads(first.stdout)["coeffs"])

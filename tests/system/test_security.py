@@ -9,7 +9,6 @@ import asyncio
 import json
 import os
 import signal
-import stat
 import subprocess
 import sys
 
@@ -201,10 +200,6 @@ def _keys(path, umask: int | None = None, client: str = "client") -> subprocess.
                           capture_output=True, text=True, timeout=60, preexec_fn=set_umask)
 
 
-def _mode(path) -> int:
-    return stat.S_IMODE(path.stat().st_mode)
-
-
 @pytest.fixture
 def keys(tmp_path):
     out = _keys(tmp_path / "keys")
@@ -217,21 +212,6 @@ def _curve_config(tmp_path, curve: dict) -> tuple:
     path = sim_config(tmp_path, endpoints=(f"ipc://{tmp_path}/pub", f"tcp://0.0.0.0:{port}"), check=False,
                       publisher={"cmd_curve": curve})  # check=False: some set-ups are refused on purpose
     return path, port
-
-
-@pytest.mark.parametrize("umask", [0o000, 0o022, 0o077])
-def test_keys_writes_secret_keys_0600_whatever_the_umask_and_never_overwrites(tmp_path, umask):
-    out = _keys(tmp_path / "k", umask)
-    assert out.returncode == 0, out.stderr
-    k = tmp_path / "k"
-    assert _mode(k / "server.key_secret") == 0o600 and _mode(k / "client.key_secret") == 0o600
-    assert _mode(k / "server.key") == 0o644 and _mode(k / "clients" / "client.key") == 0o644
-    server = (k / "server.key_secret").read_bytes()
-    again = _keys(tmp_path / "k")
-    assert again.returncode == 2 and "client.key: exists; keys are never overwritten" in again.stderr
-    # another client for the same server: the server's keys stay as they were
-    assert _keys(tmp_path / "k", umask, client="other").returncode == 0
-    assert (k / "server.key_secret").read_bytes() == server and _mode(k / "other.key_secret") == 0o600
 
 
 def test_a_command_socket_off_loopback_needs_curve_keys(tmp_path):

@@ -31,7 +31,7 @@ demo: $(STAMP)
 #                  examples/README.md, docs/deployment.md's install), the production image,
 #                  the long runs of the AVR image; each test names its own timeout
 # `make check`: the unit tier, what a developer runs on every change (the goal: under 90 s on a
-# quiet 2-core machine; about 140-160 s of CPU in all, measured on a shared one).
+# quiet 2-core machine; about 115 s of CPU in all, measured on a shared one).
 check: $(STAMP)
 	$(BIN)/python -m pytest tests/unit -n 2
 

@@ -14,7 +14,12 @@ stamps the time, reads the poller and files the slot in exactly one of four bins
   (and at least ``max_consecutive_failures`` times) the loop reports link loss and ends.
 
 A read that raises ``NoNewSample`` (nothing new at the source since the last read) is
-a missed slot: no sample, and no step towards link loss.
+a missed slot: no sample, and no step towards link loss. So is a read that took longer
+than one period (a *slow* read, counted apart as well): the device answered with what it
+had at some moment during the read, and which moment is not known; stamped with the
+read's start, a sample on a steep rise was off by the whole read (an emulated box busy
+for 19 ms after a valve opened answered a read begun at 22 ms with its 41 ms value, and
+the rise alignment found 5 ms of shift that was not there).
 
 Each sample carries the time its read started (never its deadline, never an
 interpolation), so ``t - deadline == lateness`` exactly and a consumer can always
@@ -120,6 +125,8 @@ class Block:
     #: (slot served, ns) for each re-alignment: how late the loop woke for the slot it
     #: was waiting for, the first of those it then missed (a stall, always >= 1 period)
     stalls: list[tuple[int, int]] = field(default_factory=list)
+    #: reads that took longer than a period: among ``counts.missed``, no sample
+    slow: int = 0
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -147,6 +154,7 @@ class _Accumulator:
     read_max_ns: int = 0
     last_error: str | None = None
     stalls: list[tuple[int, int]] = field(default_factory=list)
+    slow: int = 0
 
 
 class SlotLoop:
@@ -216,7 +224,13 @@ class SlotLoop:
             except Exception as exc:  # noqa: BLE001 - any read failure is a failed slot
                 self._failed(k, t, exc)
             else:
-                self._sample(k, t, t - deadline, row, now() - t)
+                read_ns = now() - t
+                if read_ns > self.period_ns:
+                    self._acc.counts.missed += 1
+                    self._acc.slow += 1
+                    self._acc.read_max_ns = max(self._acc.read_max_ns, read_ns)
+                else:
+                    self._sample(k, t, t - deadline, row, read_ns)
             k += 1
             self.next_slot = k
             # a block is block_size slots, not block_size samples: slots without a sample
@@ -290,6 +304,6 @@ class SlotLoop:
         self._acc = _Accumulator(slot_end)
         self.totals.add(acc.counts)
         block = Block(self._seq, acc.slot_begin, slot_end, acc.counts, acc.t_s, acc.values,
-                      acc.lateness_s, acc.read_max_ns / 1e9, acc.last_error, acc.stalls)
+                      acc.lateness_s, acc.read_max_ns / 1e9, acc.last_error, acc.stalls, acc.slow)
         self._seq += 1
         self.emit(block)

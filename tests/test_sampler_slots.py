@@ -158,6 +158,19 @@ def test_a_slow_read_makes_the_following_slots_missed_or_late():
     assert blocks[0].stalls == [(5, 1_500_000)]  # waiting for slot 4 ended at 5.5 ms
 
 
+def test_reads_that_stay_slower_than_a_period_are_a_lost_link_that_says_why():
+    """A device that cannot answer within a period cannot be sampled at this rate: every
+    slot missed, then link lost naming the read time, not a silent stream of nothing."""
+    slow = {n: 1_200_000 for n in range(100)}
+    result, blocks, _, _ = run_loop(100, durations=slow, max_failures=5, link_timeout_ns=20 * P)
+    assert result.reason == "link_lost"
+    assert "took longer than the 1 ms period (last 1.2 ms)" in result.detail
+    assert sum(len(b) for b in blocks) == 0 and result.totals.on_time == 0
+    # one slow read among quick ones is only a missed slot
+    result, blocks, _, _ = run_loop(100, durations={40: 1_200_000}, max_failures=5, link_timeout_ns=20 * P)
+    assert result.reason == "stopped" and sum(b.slow for b in blocks) == 1
+
+
 def test_block_boundaries_carry_the_counts_of_their_own_slots():
     # block_size 4; slot 3 late, slots 6-8 missed (woke 3.2 ms after slot 6's deadline), read 11 fails
     delays = {d(3): 70_000, d(6): 3_200_000}

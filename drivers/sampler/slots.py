@@ -180,6 +180,8 @@ class SlotLoop:
         self.max_failures = max_consecutive_failures
         self.link_timeout_ns = link_timeout_ns
         self._failing_since_ns = 0
+        self._consecutive_slow = 0
+        self._slow_since_ns = 0
         self.t0_ns = 0
         self.next_slot = 0
         self.totals = Counts()
@@ -226,9 +228,7 @@ class SlotLoop:
             else:
                 read_ns = now() - t
                 if read_ns > self.period_ns:
-                    self._acc.counts.missed += 1
-                    self._acc.slow += 1
-                    self._acc.read_max_ns = max(self._acc.read_max_ns, read_ns)
+                    self._slow_read(k, t, read_ns)
                 else:
                     self._sample(k, t, t - deadline, row, read_ns)
             k += 1
@@ -257,10 +257,29 @@ class SlotLoop:
         self._acc.stalls.append((j, t - self.deadline_ns(k)))
         return j
 
+    def _slow_read(self, k: int, t: int, read_ns: int) -> None:
+        """A read longer than a period: missed. Reads that stay that slow for the link's
+        timeout mean this device cannot be sampled at this rate: link lost, saying so."""
+        acc = self._acc
+        acc.counts.missed += 1
+        acc.slow += 1
+        acc.read_max_ns = max(acc.read_max_ns, read_ns)
+        self._consecutive_slow += 1
+        if self._consecutive_slow == 1:
+            self._slow_since_ns = t
+            log.debug("slot %d: a read took %.2f ms, longer than the %.2f ms period: no sample", k, read_ns / 1e6,
+                     self.period_ns / 1e6)
+        slow_ns = t - self._slow_since_ns
+        if self._consecutive_slow >= self.max_failures and slow_ns >= self.link_timeout_ns:
+            self._lost = (f"every read for {slow_ns / 1e9:.3f} s took longer than the {self.period_ns / 1e6:.3g} ms "
+                          f"period (last {read_ns / 1e6:.3g} ms): their samples cannot be timed; lower the rate")
+            log.error("link lost at slot %d: %s", k, self._lost)
+
     def _sample(self, k: int, t: int, lateness_ns: int, row: list[float], read_ns: int) -> None:
         if len(row) != self.n_channels:
             raise ConfigError(f"poller {type(self.poller).__name__} returned {len(row)} values, "
                               f"the config names {self.n_channels} channel(s)")
+        self._consecutive_slow = 0
         if self._consecutive_failures:
             log.info("reads recovered at slot %d after %d failed", k, self._consecutive_failures)
             self._consecutive_failures = 0

@@ -32,7 +32,8 @@ from .cell import ArmAccess, SceneAccess
 from .config import CellConfig
 from .cycles.analysis import CycleResult, Reference
 from .cycles.kept import ReferenceKeeper, identity
-from .cycles.runner import CycleRunner, reference_key
+from .cycles.analysis import reference_key
+from .cycles.runner import CycleRunner
 from .safety.latch import SafetyLatch, vented_word
 from .safety.outputs import OutputWatch
 from .safety.supervisor import Supervisor

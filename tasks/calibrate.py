@@ -13,6 +13,8 @@ from typing import Any
 
 from fluidsense.common.errors import FluidsenseError, JobStopped
 from fluidsense.common.scenes import TARGETS, EmptyScene, Scene
+from fluidsense.common.units import KPA
+from fluidsense.controller.cycles.analysis import reference_key
 from fluidsense.controller.sensing.calibration import (
     FEATURES,
     NEEDS_REFERENCE,
@@ -39,7 +41,7 @@ def scene_with(scene: Any, target: str, value: float) -> Any:
 async def ensure_reference(ctrl: Controller, place: Place, p0_kpa: float | None = None) -> None:
     """A free-air reference cycle at this P0 unless one is stored."""
     p0 = ctrl.profile.sequence.p0_kpa if p0_kpa is None else p0_kpa
-    if round(p0, 3) in ctrl.cycles.references:
+    if reference_key(p0 * KPA) in ctrl.cycles.references:
         return
     await place(EmptyScene())
     res = await ctrl.run_cycle(p0_kpa=p0, label="reference", store_reference=True)

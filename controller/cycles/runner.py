@@ -31,6 +31,7 @@ from .analysis import (
     Reference,
     analyse,
     make_reference,
+    reference_key,
     transition_dict,
 )
 from .sequencer import (
@@ -52,11 +53,6 @@ def freeze_for(profile: Profile, freeze_s: float | None) -> float | None:
     profile declares noise-free and unquantised (the supervisor's stuck check skips it too)."""
     sensor = profile.sensor
     return freeze_s if sensor.noise_sd_kpa > 0 or sensor.quantum_kpa > 0 else None
-
-
-def reference_key(p0_pa: float) -> float:
-    """References are kept per P0, to the Pa."""
-    return round(p0_pa / KPA, 3)
 
 
 def _action_dict(action: Action) -> dict[str, Any]:

@@ -14,6 +14,7 @@ from fluidsense.common.scenes import (
 )
 from fluidsense.common.units import KPA
 from fluidsense.controller.cycles import features as F
+from fluidsense.controller.cycles.analysis import reference_key
 from fluidsense.tasks.experiments import reference, sweep
 from scipy import stats
 
@@ -120,7 +121,7 @@ def shape(out: Path, seed: int) -> Section:
                           drop_first=1)
         rect_cal = await sweep(ctrl, RectangleScene(width_mm=40), "width_mm", cal_w, cycles=3, drop_first=1)
         rect_test = await sweep(ctrl, RectangleScene(width_mm=40), "width_mm", test_w + [100], cycles=1)
-        ref_trace = ctrl.cycles.references[round(prof.sequence.p0_kpa, 3)]
+        ref_trace = ctrl.cycles.references[reference_key(prof.sequence.p0_kpa * KPA)]
         return cyl, rect_cal, rect_test, ref_trace
 
     cyl, rect_cal, rect_test, ref = run_on(prof, body, seed)
@@ -176,7 +177,7 @@ def stiffness(out: Path, seed: int) -> Section:
         await reference(ctrl)
         cal = await sweep(ctrl, PlateScene(height_mm=0), "height_mm", [0, 5, 10, 15, 20], cycles=3, drop_first=1)
         runs = await sweep(ctrl, None, None, plates, cycles=1)
-        return cal, runs, ctrl.cycles.references[round(prof.sequence.p0_kpa, 3)]
+        return cal, runs, ctrl.cycles.references[reference_key(prof.sequence.p0_kpa * KPA)]
 
     cal_runs, runs, ref = run_on(prof, body, seed)
     tc_cal = fit(cal_runs, "t_c_slope", "poly2", target="height_mm", target_unit="mm")
@@ -228,7 +229,7 @@ def profile_scan(out: Path, seed: int) -> Section:
         cal = await sweep(ctrl, PlateScene(height_mm=0), "height_mm", [0, 2, 4, 6, 8, 10, 12, 14], cycles=2,
                           drop_first=1)
         scans = await sweep(ctrl, None, None, shapes, cycles=1)
-        return cal, scans, ctrl.cycles.references[round(seq.p0_kpa, 3)]
+        return cal, scans, ctrl.cycles.references[reference_key(seq.p0_kpa * KPA)]
 
     cal_runs, scans, ref = run_on(prof, body, seed)
     cal = fit(cal_runs, "dp_eq", "poly2", target="height_mm", target_unit="mm")

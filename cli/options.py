@@ -47,7 +47,7 @@ def cell_config(args: argparse.Namespace, default_profile: str | None = None):
     """The cell for a job. Simulated cells run in virtual time with ``--seed``."""
     from fluidsense.common.errors import ConfigError
     from fluidsense.controller.config import CellConfig, load_cell_config, load_profile
-    from fluidsense.drivers.config import SimDriverConfig
+    from fluidsense.drivers.registry import SimDriverConfig
 
     if args.config:
         cfg = load_cell_config(args.config)

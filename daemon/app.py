@@ -26,7 +26,7 @@ from fluidsense.controller.requests.wiring import wire
 from fluidsense.controller.safety.latch import vented_word
 from fluidsense.controller.service import Controller
 from fluidsense.controller.telemetry.publisher import Publisher
-from fluidsense.drivers.config import build_backend
+from fluidsense.drivers.registry import build_backend
 
 from .notify import LoopWatchdog, Notifier, keep_alive
 

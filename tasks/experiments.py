@@ -12,7 +12,7 @@ from fluidsense.common.scenes import EmptyScene
 from fluidsense.controller.config import CellConfig, Profile
 from fluidsense.controller.cycles.analysis import CycleResult
 from fluidsense.controller.service import Controller
-from fluidsense.drivers.config import SimDriverConfig, build_backend
+from fluidsense.drivers.registry import SimDriverConfig, build_backend
 
 from .calibrate import scene_with
 

@@ -17,7 +17,7 @@ from fluidsense.common.errors import CommandError, DriverError, SafetyError
 from fluidsense.common.hardware import Hardware
 from fluidsense.common.scenes import CylinderScene
 from fluidsense.controller.config import load_cell_config
-from fluidsense.drivers.config import SimDriverConfig, build_backend
+from fluidsense.drivers.registry import SimDriverConfig, build_backend
 from support.harness import free_simcell, sim_config
 
 BACKENDS = ["sim", "ur", "modbus", "serial"]

@@ -17,7 +17,7 @@ import yaml
 from fluidsense.common.units import KPA, ML
 from fluidsense.controller.config import load_cell_config, load_profile
 from fluidsense.controller.service import Controller
-from fluidsense.drivers.config import build_backend
+from fluidsense.drivers.registry import build_backend
 from fluidsense.tasks import characterise as ch
 from fluidsense.tasks.journal import journal_path
 from support.configs import cell_config, profile_config

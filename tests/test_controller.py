@@ -126,7 +126,7 @@ def test_pressure_batches_hold_as_many_samples_as_their_length_says(tmp_path, ba
     """At 1 kHz in blocks of 10, a 10 ms batch is one block: n samples cover n periods."""
     from fluidsense.controller.config import load_cell_config
     from fluidsense.controller.service import Controller
-    from fluidsense.drivers.config import build_backend
+    from fluidsense.drivers.registry import build_backend
     from support.harness import sim_config
 
     cfg = load_cell_config(sim_config(tmp_path))

@@ -25,7 +25,7 @@ from fluidsense.common.errors import ConfigError, DeviceProtocolError, DriverErr
 from fluidsense.common.wiring import Linear, Mpx, Ratiometric, RegulatorWiring
 from fluidsense.controller.config import load_cell_config
 from fluidsense.controller.service import Controller
-from fluidsense.drivers.config import build_backend
+from fluidsense.drivers.registry import build_backend
 from fluidsense.simulator.controlbox.model import AnalogDomain
 from fluidsense.simulator.controlbox.plant import PlantModel
 from support.configs import DELETE, cell_config, task_config, whole

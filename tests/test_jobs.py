@@ -15,7 +15,7 @@ from fluidsense.common.errors import CommandError, ConfigError, JobStopped
 from fluidsense.common.scenes import CylinderScene
 from fluidsense.controller.config import CellConfig, load_profile
 from fluidsense.daemon import app
-from fluidsense.drivers.config import SimDriverConfig
+from fluidsense.drivers.registry import SimDriverConfig
 from fluidsense.tasks.calibrate import calibrate
 from fluidsense.tasks.journal import CycleJournal, journal_path
 from support.configs import DELETE, cell_config, task_config

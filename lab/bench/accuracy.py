@@ -89,7 +89,7 @@ class Study:
 def _cell(profile_name: str, seed: int):
     from fluidsense.cli.options import profile_path
     from fluidsense.controller.config import CellConfig, load_profile
-    from fluidsense.drivers.config import SimDriverConfig
+    from fluidsense.drivers.registry import SimDriverConfig
 
     prof = load_profile(profile_path(profile_name))
     return CellConfig(driver=SimDriverConfig(clock="virtual", seed=seed), profile=prof)

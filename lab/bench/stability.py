@@ -60,7 +60,7 @@ def _gripper(**circuit):
 
 def _variant(name: str, strength: float):
     """(profile, perturbations, scene kwargs) for one perturbation at one strength."""
-    from fluidsense.drivers.config import Perturbations
+    from fluidsense.drivers.registry import Perturbations
 
     prof, pert, scene = _gripper(), Perturbations(), {}
     if name == "off-centre":
@@ -87,7 +87,7 @@ async def _run_cell(prof, pert, scene_kw, targets, seed, cycles=1, drop=0):
     from fluidsense.common.scenes import CylinderScene
     from fluidsense.controller.config import CellConfig
     from fluidsense.controller.service import Controller
-    from fluidsense.drivers.config import SimDriverConfig, build_backend
+    from fluidsense.drivers.registry import SimDriverConfig, build_backend
     from fluidsense.tasks.experiments import reference, sweep
 
     cfg = CellConfig(driver=SimDriverConfig(clock="virtual", seed=seed, perturb=pert), profile=prof)
@@ -118,7 +118,7 @@ def size_part(name: str, trials: int, seed: int) -> list[dict[str, Any]]:
     from fluidsense.controller.sensing.calibration import Calibration, CalibrationError
 
     nominal = _gripper()
-    from fluidsense.drivers.config import Perturbations
+    from fluidsense.drivers.registry import Perturbations
 
     ref_cal, cal_runs = asyncio.run(_run_cell(nominal, Perturbations(), {}, CAL_TARGETS, seed, cycles=5, drop=1))
     cal = _features(ref_cal, cal_runs)

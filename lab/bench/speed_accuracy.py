@@ -50,7 +50,7 @@ DESCRIPTION = __doc__
 
 EARLY_HALF_WIDTH_MM = 2.0  # the early estimator decides once its 95 % half-width is this narrow
 SEED = 1
-SETTLED_KPA = 0.07  # settled: within one sample's noise sd of the final pressure
+SETTLED_KPA = core.SETTLED_KPA  # settled: within one sample's noise sd (0.07 kPa) of the final pressure
 
 
 def register(p: argparse.ArgumentParser) -> None:

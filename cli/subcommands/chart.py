@@ -51,35 +51,48 @@ def _floats(text: str, name: str) -> list[float]:
 
 
 def chart_scene(args: argparse.Namespace, prof):
-    """The scene the chart varies: --scene/--set over the profile's calibration scene, its
-    target field (common/scenes.TARGETS), the range and the calibration targets."""
+    """The scene the chart varies: the profile's calibration scene, or --scene KIND, with
+    --set fields over it; its target field (common/scenes.TARGETS), the range (--range, or
+    the profile's calibration values) and the calibration targets."""
     import numpy as np
-    from fluidsense.common.scenes import TARGETS
+    from fluidsense.common.models import first_error
+    from fluidsense.common.scenes import TARGETS, Scene
     from fluidsense.tasks.speed_accuracy import ChartScene
+    from pydantic import TypeAdapter, ValidationError
 
-    from ..options import scene_from_args
+    from ..options import _value
 
     plan = prof.calibration
-    base = scene_from_args(args, plan.scene if plan is not None else None)
-    if base is None:
+    kind = args.scene or (plan.scene.kind if plan is not None else None)
+    if kind is None:
         raise ConfigError(f"profile {prof.name} has no calibration section naming its scene: give --scene KIND "
-                          "(and --range lo,hi)")
-    if base.kind not in TARGETS:
-        raise ConfigError(f"--scene {base.kind}: no sensing target to chart (scenes with one: "
-                          f"{', '.join(sorted(TARGETS))})")
-    target, unit = TARGETS[base.kind]
+                          "and --range lo,hi")
+    if kind not in TARGETS:
+        raise ConfigError(f"--scene {kind}: no sensing target to chart (scenes with one: {', '.join(sorted(TARGETS))})")
+    target, unit = TARGETS[kind]
+    own = plan is not None and plan.scene.kind == kind and plan.target == target
     if args.range:
         rng = _floats(args.range, "--range")
         if len(rng) != 2:
             raise ConfigError(f"--range: expected lo,hi, got {args.range!r}")
         lo, hi = rng
-    elif plan is not None and plan.scene.kind == base.kind and plan.target == target:
+    elif own:
         lo, hi = min(plan.values), max(plan.values)
     else:
         raise ConfigError(f"give --range lo,hi for {target}: the profile's calibration values are not for a "
-                          f"{base.kind} scene")
+                          f"{kind} scene")
     if not hi > lo:
         raise ConfigError(f"--range needs lo < hi, got {lo:g},{hi:g}")
+    data = {**(plan.scene.model_dump() if own else {}), "kind": kind, target: lo}
+    for item in args.set:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"--set {item!r}: expected KEY=VALUE")
+        data[key.strip()] = _value(value.strip())
+    try:
+        base = TypeAdapter(Scene).validate_python(data)
+    except ValidationError as exc:
+        raise ConfigError(f"--scene/--set: {first_error(exc, 'scene', skip=1)}") from None
     cal = _floats(args.targets, "--targets") if args.targets else [round(float(x), 6) for x in np.linspace(lo, hi, 5)]
     if len(set(cal)) < 3:
         raise ConfigError("--targets: at least 3 distinct calibration targets (a curve and its spread)")

@@ -103,7 +103,8 @@ def source_words(prof, path: Path) -> str:
     """Where the profile's numbers come from: characterised on a rig, or shipped."""
     prov = prof.provenance
     if prov is None:
-        return f"profile {path.name}: not characterised, no provenance (a shipped profile's numbers come from the paper)"
+        return (f"profile {path.name}: not characterised, no provenance (a shipped profile's numbers come from the "
+                "paper)")
     fitted = ", ".join(f.field.split(".")[-1] for f in prov.fitted)
     return f"characterised on {prov.rig}, {prov.date[:10]} (fitted: {fitted})"
 

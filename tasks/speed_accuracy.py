@@ -28,7 +28,7 @@ import asyncio
 import logging
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from itertools import combinations
 from typing import Any
 
@@ -104,7 +104,6 @@ class Measured:
     times: tuple[float, ...]
     floor: dict[str, float]
     wall_s: float = 0.0
-    extra: dict[str, Any] = field(default_factory=dict)
 
 
 # ------------------------------------------------------------------ a profile's own chart
@@ -153,7 +152,7 @@ def decision_times(floor: dict[str, float], coarse: Sequence[float] = DECISION_T
     seconds rounded to the ms."""
     last_s = coarse[-1] if last_s is None else last_s
     step = fine_step(floor)
-    first = np.ceil(floor["contact_s"] / step - 1e-9) * step
+    first = max(np.ceil(floor["contact_s"] / step - 1e-9) * step, step)  # (touching from the start: not at 0 s)
     last = min(FINE_UP_TO_FLOORS * floor["settled_s"], last_s)
     fine = [t for t in np.arange(first, last + step / 2, step) if t <= last + 1e-9]
     return tuple(sorted({round(float(t), 3) for t in (*coarse, *fine) if t <= last_s + 1e-9}))

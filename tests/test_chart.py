@@ -183,9 +183,9 @@ def test_a_paper_scene_charted_by_the_command_gives_the_labs_figures(tmp_path):
     path.write_text(yaml.safe_dump(prof.model_dump(mode="json"), sort_keys=False))
     out = tmp_path / "chart"
     assert cli_main(["chart", "--profile", str(path), "--scene", "cylinder", "--range", "40,100", "--trials", "12",
-                     "--early-half-width", "2", "--out", str(out)]) == 0
+                     "--cal-cycles", "3", "--early-half-width", "2", "--out", str(out)]) == 0
     res = json.loads((out / sa_json()).read_text())
-    lab = SA.run_bench(trials=12, only=SA.CHECK_PAIR)
+    lab = SA.run_bench(trials=12, cal_cycles=3, only=SA.CHECK_PAIR)
     assert res["floor"]["contact_s"] == lab["floors"][f"{scene} {circuit}"]["contact_s"]
     mine = {(r["method"], r["decision_time_s"]): r for r in res["rows"]}
     shared = [r for r in SA._round(lab["rows"]) if (r["method"], r["decision_time_s"]) in mine]

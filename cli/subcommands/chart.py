@@ -23,10 +23,11 @@ def register(sub) -> None:
         description="How early can this actuator decide, and how well? From virtual-time cycles of the profile "
         "(shipped, or your own from `fluidsense characterise`) on the simulated cell: every method calibrated on "
         "fixed targets and tested on held-out cycles at each decision time, up to the end of the profile's first "
-        "window (its window mean there is the reference). Draws each method's 95 %% error and decided fraction "
+        "window (its window mean there is the reference). Draws each method's 95 % error and decided fraction "
         "against decision time, with the floor: when the farthest target is touched and when the pressure has "
         "settled (noise-free step responses). Writes DIR/" + PNG + " and DIR/" + JSON + ".")
-    p.add_argument("--profile", "-p", required=True, help="profile YAML or name in config/profiles/")
+    p.add_argument("--profile", "-p", required=True, help="profile YAML, or a name: shipped (config/profiles/) or "
+                   "NAME.yaml here (yours, e.g. from `fluidsense characterise`)")
     add_scene_options(p)
     p.add_argument("--range", help="target range lo,hi (default: the profile's calibration values)")
     p.add_argument("--targets", help="comma-separated calibration targets (default: 5 evenly over the range)")

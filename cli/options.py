@@ -14,8 +14,8 @@ PROFILES = Path(__file__).resolve().parent.parent / "config" / "profiles"
 def add_cell_options(p: argparse.ArgumentParser) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--config", "-c", help="cell config YAML (default: a simulated cell for --profile)")
-    g.add_argument("--profile", "-p", help="actuator profile YAML or name in config/profiles/ "
-                   "(runs on a simulated cell in virtual time)")
+    g.add_argument("--profile", "-p", help="actuator profile YAML, or a name: shipped (config/profiles/) or "
+                   "NAME.yaml here (runs on a simulated cell in virtual time)")
     p.add_argument("--seed", type=int, default=1, help="seed of the simulated cell (default 1)")
 
 

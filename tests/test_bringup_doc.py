@@ -45,6 +45,8 @@ def test_bringup_runs_as_written_from_the_integrators_folder(tmp_path):
             _, results = run_as_written([line], subs, tmp_path, timeout_s=900, cwd=home, background=background)
             if "fluidsense simcell" in line:  # the doc says to wait for the box's ready line, as a person does
                 wait_for_ready(*background[-1])
+            if line.startswith("fluidsense run "):  # ... and for the daemon's 'fluidsense running' line
+                wait_for_ready(*background[-1], timeout_s=120, marker="fluidsense running")
             if "fluidsense init" in line:
                 cell = home / "my-cell.yaml"
                 data = yaml.safe_load(cell.read_text())
@@ -58,8 +60,23 @@ def test_bringup_runs_as_written_from_the_integrators_folder(tmp_path):
                 is_check = line.startswith("fluidsense check ")
                 ok = r.returncode == 0 or (is_check and r.returncode == 4
                                            and all(p.startswith("sampling") for p in problems(r.stdout)))
-                assert ok, (line, r.returncode, r.stdout[-3000:], r.stderr[-3000:])
+                assert ok, f"{line}: exit {r.returncode}\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}"
         by_command = {line.split("#")[0].strip(): r for line, r in ran}
+        # step 4: the actuator measured, a profile of its own with where each number came from,
+        # and design and chart on it
+        mine = yaml.safe_load((home / "mine.yaml").read_text())
+        assert mine["provenance"]["levels_kpa"] and mine["provenance"]["fitted"], mine.get("provenance")
+        design = by_command["fluidsense design --profile mine"].stdout
+        assert "mine" in design, design
+        chart = json.loads((home / "chart" / "speed_accuracy.json").read_text())
+        assert (home / "chart" / "speed_accuracy.png").stat().st_size > 0 and chart["rows"], sorted(chart)
+        # step 6: a free-air reference, then a grip of nothing: never an object
+        grip = by_command["fluidsense cmd grip --config my-cell.yaml --wait 120"].stdout
+        decoder = json.JSONDecoder()
+        reply, end = decoder.raw_decode(grip)
+        grasp, _ = decoder.raw_decode(grip[end:].lstrip())
+        assert grasp["topic"] == "grasp" and grasp["cycle_id"] == reply["cycle_id"] and grasp["object"] is not True, grasp
+        assert json.loads(by_command["fluidsense cmd release --config my-cell.yaml"].stdout)["ok"]
         summary = json.loads(by_command["fluidsense task run sorting --config my-cell.yaml --json"].stdout)
         assert summary["success"] is True and None not in summary["final_order_mm"], summary
         assert "sec fluidsense" in by_command["fluidsense watchdog --config my-cell.yaml"].stdout
@@ -73,7 +90,8 @@ def test_bringup_runs_as_written_from_the_integrators_folder(tmp_path):
             codes.append(proc.wait(60))
             log.close()
     logs = "\n".join((tmp_path / f"bg{i}.log").read_text() for i in range(len(background)))
-    assert len(background) == 2 and codes == [0, 0], logs
+    # the box, the daemon of step 3 and the one of step 6 (each shut down by the doc's own line)
+    assert len(background) == 3 and codes == [0, 0, 0], logs
     assert "Traceback" not in logs, logs
 
 

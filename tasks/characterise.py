@@ -260,6 +260,7 @@ class Characterisation:
     residual_kpa: float
     pure_error_kpa: float
     levels: list[dict[str, float]] = field(default_factory=list)  # per level: P0, mean, sd, n, fitted
+    pv_cov: list[list[float]] | None = None  # covariance of (v0 ml, c ml/kPa): the contact fit carries it
 
     def value(self, name: str) -> float | None:
         for f in self.fitted:
@@ -546,7 +547,8 @@ def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
         kept.setdefault(name, why)
     level_rows = [{"p0_kpa": lv, "mean_kpa": float(m / KPA), "sd_kpa": float(y.std(ddof=1) / KPA), "n": int(k),
                    "fitted_kpa": float(f / KPA)} for lv, m, y, k, f in zip(levels, means, ys, counts, fitted_eq)]
-    result = Characterisation(fitted, measured, kept, notes, residual, s_pure / KPA, level_rows)
+    result = Characterisation(fitted, measured, kept, notes, residual, s_pure / KPA, level_rows,
+                              pv_cov=[[float(x) for x in row] for row in cov])
     if refused:
         raise FitRefused(refused, result)
     return result

@@ -541,7 +541,7 @@ def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
         "circuit.hose": "as the config states it (bore and length)",
         "circuit.regulator_repeatability_kpa": "not separable from the other causes of the spread; "
                                                "sequence.eq_sd_kpa holds the spread itself",
-        "actuator (other fields)": "contact and closing need objects (issue 36 item 2): kept",
+        "actuator (other fields)": "the contact law needs objects of known size (--targets): kept",
         "sensor.offset_kpa": "removed per cycle before the valve opens; not a property of the actuator",
     }.items():
         kept.setdefault(name, why)
@@ -555,18 +555,28 @@ def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
 
 
 # ------------------------------------------------------------------ the profile
+CONTACT_OTHERS = "neither free air nor rigid, centred targets show them: kept"
 FIELD_UNITS = {"actuator.v0_ml": "ml", "actuator.compliance_ml_per_kpa": "ml/kPa"}
 
 
 def characterised_profile(start_data: dict[str, Any], start: Profile, result: Characterisation, *, name: str,
                           rig: str, config: str, from_profile: str, levels: Sequence[float], cycles: int,
-                          cycle_ids: Sequence[int], date: datetime.datetime | None = None) -> dict[str, Any]:
+                          cycle_ids: Sequence[int], date: datetime.datetime | None = None,
+                          contact: Any = None, contact_block: dict[str, Any] | None = None) -> dict[str, Any]:
     """The starting profile's document with the fitted fields set and the provenance
-    block added; checked by the Profile model before it is returned."""
+    block added; checked by the Profile model before it is returned. ``contact`` (a
+    tasks.contact.ContactFit) adds the contact law's fitted fields, ``contact_block`` its
+    provenance (tasks.contact.provenance)."""
     data = {**start_data}
     for key in ("circuit", "actuator", "sensor", "sequence"):
         data[key] = dict(data.get(key) or {})
-    for f in result.fitted:
+    fitted, kept, notes = list(result.fitted), dict(result.kept), list(result.notes)
+    if contact is not None:
+        fitted += contact.fitted
+        kept.update(contact.kept)
+        kept["actuator (other fields)"] = CONTACT_OTHERS
+        notes += contact.notes
+    for f in fitted:
         section, _, key = f.field.partition(".")
         data[section][key] = float(f"{f.value:.6g}")
     data["name"] = name
@@ -575,24 +585,32 @@ def characterised_profile(start_data: dict[str, Any], start: Profile, result: Ch
     when = (date or datetime.datetime.now(datetime.UTC)).isoformat(timespec="seconds")
     prov = Provenance(date=when, rig=rig, config=config, from_profile=from_profile, levels_kpa=list(levels),
                       cycles_per_level=cycles, cycle_ids=list(cycle_ids), residual_kpa=result.residual_kpa,
-                      pure_error_kpa=result.pure_error_kpa, fitted=result.fitted, measured=result.measured,
-                      kept=result.kept, notes=result.notes)
+                      pure_error_kpa=result.pure_error_kpa, fitted=fitted, measured=result.measured,
+                      kept=kept, notes=notes, contact=contact_block)
     data["provenance"] = prov.model_dump(mode="json")
     Profile.model_validate(data)  # a profile nobody can load is never written
     return data
 
 
-def profile_comments(result: Characterisation, prov_line: str) -> str:
+def profile_comments(result: Characterisation, prov_line: str, contact: Any = None) -> str:
     """The header a characterised profile carries: every fitted number with its interval,
     and what was kept, in words (the provenance block holds the same, for programs)."""
+    fitted, kept = list(result.fitted), dict(result.kept)
+    if contact is not None:
+        fitted += contact.fitted
+        kept.update(contact.kept)
+        kept["actuator (other fields)"] = CONTACT_OTHERS
     lines = [f"# Characterised by fluidsense characterise: {prov_line}", "# Fitted on the rig (95 % intervals):"]
-    for f in result.fitted:
+    for f in fitted:
         lines.append(f"#   {f.field} = {f.value:.6g} {f.unit} [{f.lo95:.6g}, {f.hi95:.6g}]")
     lines.append("# Kept from the starting profile:")
-    for k, why in result.kept.items():
+    for k, why in kept.items():
         lines.append(f"#   {k}: {why}")
     lines.append(f"# P-V fit residual {result.residual_kpa:.3g} kPa rms over the levels' means; the cycles' own "
                  f"spread {result.pure_error_kpa:.3g} kPa")
+    if contact is not None:
+        lines.append(f"# Contact law from {len(contact.targets)} targets at P0 (provenance.contact: the readings, "
+                     "the fitted law's and the simulated cell's)")
     return "\n".join(lines) + "\n"
 
 

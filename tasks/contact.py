@@ -322,8 +322,11 @@ class TargetReading:
     p_c_n: int = 0
     p_c_why: str | None = None
     t_c_threshold_s: float | None = None
+    t_c_threshold_sd_s: float | None = None
+    t_c_threshold_n: int = 0
     t_c_onset_s: float | None = None
     cycle_ids: list[int] = field(default_factory=list)
+    rise_s_per_kpa: float | None = None  # the free rise's dt/dp at this target's contact pressure
 
 
 def readings(entries: Sequence[dict[str, Any]], profile: Profile) -> tuple[TargetReading, list[TargetReading]]:
@@ -354,10 +357,11 @@ def readings(entries: Sequence[dict[str, Any]], profile: Profile) -> tuple[Targe
 
     def group(value, es) -> TargetReading:
         pe = np.array([sign * e["p_eq_kpa"] for e in es])
+        tcs = [e["t_c_threshold_s"] for e in es if e["t_c_threshold_s"] is not None]
         r = TargetReading(value, len(es), float(pe.mean()), float(pe.std(ddof=1)) if pe.size > 1 else 0.0,
-                          t_c_threshold_s=mean_of([e["t_c_threshold_s"] for e in es]),
-                          t_c_onset_s=mean_of([e["t_c_onset_s"] for e in es]),
-                          cycle_ids=[e["cycle_id"] for e in es])
+                          t_c_threshold_s=mean_of(tcs), t_c_onset_s=mean_of([e["t_c_onset_s"] for e in es]),
+                          t_c_threshold_sd_s=float(np.std(tcs, ddof=1)) if len(tcs) > 1 else None,
+                          t_c_threshold_n=len(tcs), cycle_ids=[e["cycle_id"] for e in es])
         return r
 
     free_r = group(None, free)
@@ -370,6 +374,9 @@ def readings(entries: Sequence[dict[str, Any]], profile: Profile) -> tuple[Targe
         pcs = [d.p_c_kpa for d in deps if d.p_c_kpa is not None]
         if len(pcs) >= MIN_CYCLES and len(pcs) * 2 > len(deps):
             r.p_c_kpa, r.p_c_sd_kpa, r.p_c_n = float(np.mean(pcs)), float(np.std(pcs, ddof=1)), len(pcs)
+            ok = np.isfinite(free_mean)
+            slope = np.gradient(free_mean[ok], grid[ok])
+            r.rise_s_per_kpa = float(np.interp(r.p_c_kpa, grid[ok], slope))
         else:
             whys = sorted({d.why for d in deps if d.why})
             r.p_c_why = (f"read in {len(pcs)} of {len(deps)} cycles" + (f" ({'; '.join(whys)})" if whys else ""))
@@ -570,7 +577,9 @@ def fit(entries: Sequence[dict[str, Any]], profile: Profile, v0_ml: float, c_ml_
         fitted.append(FittedNumber(field=f"actuator.{name}", value=v, lo95=v - h, hi95=v + h, unit=units[name],
                                    how=f"the simulator's contact law fitted to {readings_words} at P0 "
                                    f"{profile.sequence.p0_kpa:g} kPa (eq. 1 solved with the law; weighted by the "
-                                   "readings' spread), with the fitted v0 and c and their uncertainty"))
+                                   "readings' spread), with the fitted v0 and c and their uncertainty"
+                                   + (": the contact pressures fix it times c, so its interval carries c's"
+                                      if name == spec.rate else "")))
         if h > MAX_REL_HALF_WIDTH * abs(v):
             refused.append(f"{name} is not told apart by these targets ({v:.4g} +- {h:.2g}): targets farther apart "
                            "(or more cycles)")
@@ -600,3 +609,118 @@ def fit(entries: Sequence[dict[str, Any]], profile: Profile, v0_ml: float, c_ml_
     if refused:
         raise ContactRefused(refused, result)
     return result
+
+
+# ------------------------------------------------------------------ the check: the written profile's simulated cell
+class _Memory:
+    """A journal that keeps its cycles in memory (the simulated check's)."""
+
+    path = "(memory)"
+
+    def __init__(self) -> None:
+        self.entries: list[dict[str, Any]] = []
+
+    def add(self, entry: dict[str, Any]) -> None:
+        self.entries.append(entry)
+
+
+async def simulate(profile: Profile, values: Sequence[float], cycles: int, seed: int) -> list[dict[str, Any]]:
+    """The contact step's cycles on the simulated cell of ``profile`` (virtual time), each
+    target laid out by the cell itself."""
+    from .experiments import sim_cell
+
+    cfg, backend = sim_cell(profile, seed)
+    ctrl = Controller(cfg, backend)
+    await ctrl.start()
+    try:
+        return await measure(ctrl, values, cycles, _Memory(), place=ctrl.scene.place)  # type: ignore[arg-type]
+    finally:
+        await ctrl.stop()
+
+
+@dataclass
+class Check:
+    free: TargetReading
+    targets: list[TargetReading]
+    lines: list[str]  # per reading, in words
+    disagree: list[str]  # the readings the simulated cell does not reproduce
+
+    @property
+    def ok(self) -> bool:
+        return not self.disagree
+
+
+def compare(rig: ContactFit, sim_entries: Sequence[dict[str, Any]], profile: Profile, timing_fitted: bool) -> Check:
+    """The simulated cell's readings against the rig's: dP_eq and the contact pressure
+    judged (they differ when beyond SEPARATE_Z standard errors of their difference, the
+    contact pressure's own error CONTACT_MODEL_SD_KPA included), and the controller's
+    contact time where the rise's timing was fitted (``timing_fitted``: a laminar circuit;
+    its error includes the contact pressure's, over the free rise's slope there); the
+    absolute P_eq reported (the free equilibrium is the free fit's, and a regulator that
+    lands anew only when its setpoint changes shifts every P_eq of a session alike)."""
+    free, targets = readings(sim_entries, profile)
+    spec = spec_of(profile)
+
+    def pooled(groups: list[TargetReading]) -> float:
+        dof = sum(r.n - 1 for r in groups)
+        return math.sqrt(sum((r.n - 1) * r.p_eq_sd_kpa**2 for r in groups) / dof) if dof else 0.0
+
+    s_rig, s_sim = pooled([rig.free, *rig.targets]), pooled([free, *targets])
+    lines = [f"free air: P_eq rig {rig.free.p_eq_kpa:.4g} kPa (sd {rig.free.p_eq_sd_kpa:.2g}), simulated "
+             f"{free.p_eq_kpa:.4g} ({free.p_eq_kpa - rig.free.p_eq_kpa:+.2g})"]
+    disagree: list[str] = []
+    sims = {r.value: r for r in targets}
+    for r in rig.targets:
+        s = sims[r.value]
+        name = f"{r.value:g} {spec.unit}"
+        d = s.dp_eq_kpa - r.dp_eq_kpa
+        se = math.sqrt(s_rig**2 * (1 / r.n + 1 / rig.free.n) + s_sim**2 * (1 / s.n + 1 / free.n))
+        words = (f"{name}: dP_eq rig {r.dp_eq_kpa:.4g} kPa, simulated {s.dp_eq_kpa:.4g} ({d:+.2g}, {d / se:+.1f} se; "
+                 f"P_eq {r.p_eq_kpa:.4g} and {s.p_eq_kpa:.4g}, the rig's spread {r.p_eq_sd_kpa:.2g})")
+        if abs(d) > SEPARATE_Z * se:
+            disagree.append(f"dP_eq at {name}")
+        if r.p_c_kpa is not None and s.p_c_kpa is not None:
+            dc = s.p_c_kpa - r.p_c_kpa
+            sec = math.sqrt(r.p_c_sd_kpa**2 / r.p_c_n + s.p_c_sd_kpa**2 / s.p_c_n)
+            words += (f"; contact at {r.p_c_kpa:.4g} and {s.p_c_kpa:.4g} kPa ({dc:+.2g}, {dc / max(sec, 1e-9):+.1f} "
+                      "se)")
+            if abs(dc) > SEPARATE_Z * math.hypot(sec, CONTACT_MODEL_SD_KPA):
+                disagree.append(f"the contact pressure at {name}")
+        elif (r.p_c_kpa is None) != (s.p_c_kpa is None):
+            words += f"; contact pressure read on {'the rig' if s.p_c_kpa is None else 'the simulated cell'} only"
+        if r.t_c_threshold_s is not None and s.t_c_threshold_s is not None:
+            dt = s.t_c_threshold_s - r.t_c_threshold_s
+            words += f"; contact time {1e3 * r.t_c_threshold_s:.1f} and {1e3 * s.t_c_threshold_s:.1f} ms ({1e3 * dt:+.1f}"
+            if r.t_c_threshold_sd_s is not None and s.t_c_threshold_sd_s is not None:
+                own = CONTACT_MODEL_SD_KPA * (r.rise_s_per_kpa or 0.0)
+                se_t = math.sqrt(r.t_c_threshold_sd_s**2 / r.t_c_threshold_n
+                                 + s.t_c_threshold_sd_s**2 / s.t_c_threshold_n + own**2)
+                words += f", {dt / max(se_t, 1e-9):+.1f} se"
+                if timing_fitted and abs(dt) > SEPARATE_Z * se_t:
+                    disagree.append(f"the contact time at {name}")
+            words += ")" if timing_fitted else "; the rise's timing is the starting profile's: not judged)"
+        lines.append(words)
+    return Check(free, targets, lines, disagree)
+
+
+def provenance(fit_: ContactFit, profile: Profile, cycles: int, check: Check | None) -> dict[str, Any]:
+    """The ``provenance.contact`` block (controller/config/profile.py ContactProvenance)."""
+    from fluidsense.controller.config.profile import ContactProvenance, ContactReading
+
+    spec = spec_of(profile)
+
+    def row(r: TargetReading, law: dict | None = None) -> ContactReading:
+        return ContactReading(size=r.value, cycles=r.n, cycle_ids=r.cycle_ids, p_eq_kpa=r.p_eq_kpa,
+                              p_eq_sd_kpa=r.p_eq_sd_kpa, dp_eq_kpa=r.dp_eq_kpa, p_contact_kpa=r.p_c_kpa,
+                              p_contact_sd_kpa=r.p_c_sd_kpa, p_contact_note=r.p_c_why,
+                              t_c_threshold_s=r.t_c_threshold_s,
+                              law_dp_eq_kpa=None if law is None else law["dp_eq_kpa"],
+                              law_p_contact_kpa=None if law is None else law["p_c_kpa"])
+
+    block = ContactProvenance(
+        scene=spec.scene, target=spec.target, unit=spec.unit, p0_kpa=profile.sequence.p0_kpa,
+        cycles_per_target=cycles, free=row(fit_.free), readings=[row(r, fit_.model[r.value]) for r in fit_.targets],
+        chi2=fit_.chi2, dof=fit_.dof,
+        simulated=[] if check is None else [row(check.free), *(row(r) for r in check.targets)],
+        check=[] if check is None else check.lines)
+    return block.model_dump(mode="json")

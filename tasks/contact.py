@@ -75,6 +75,7 @@ SEPARATE_Z = 4.0  # two readings differ when their difference is beyond this man
 LACK_OF_FIT_P = 0.001
 MAX_REL_HALF_WIDTH = 0.5  # a parameter known no better than this is not told apart by the targets
 CONTACT_MODEL_SD_KPA = 0.25  # the contact pressure's reading against the law's (departure())
+FLOOR_S = 0.002  # a contact time this close to the controller's t_c_min is that floor, not the contact's
 DRAWS = 40  # draws of the free line (v0, c) carried into the contact fit
 
 
@@ -164,7 +165,8 @@ class ContactJournal(CycleJournal):
         return {"value": None if e["value"] is None else float(e["value"]), "k": int(e["k"]),
                 "cycle_id": int(e["cycle_id"]), "p_eq_kpa": float(e["p_eq_kpa"]), "noise_kpa": float(e["noise_kpa"]),
                 "t_c_threshold_s": None if e["t_c_threshold_s"] is None else float(e["t_c_threshold_s"]),
-                "t_c_onset_s": None if e["t_c_onset_s"] is None else float(e["t_c_onset_s"]), "cross_s": cross}
+                "t_c_onset_s": None if e["t_c_onset_s"] is None else float(e["t_c_onset_s"]),
+                "t_c_min_s": None if e["t_c_min_s"] is None else float(e["t_c_min_s"]), "cross_s": cross}
 
     @staticmethod
     def check_entry(entry: dict[str, Any], plan: dict[str, Any]) -> str | None:
@@ -203,7 +205,7 @@ def reading(res, value: float | None, k: int, grid: Sequence[float]) -> dict[str
     sign = 1.0 if res.p0 >= 0 else -1.0
     return {"value": None if value is None else float(value), "k": k, "cycle_id": res.cycle_id,
             "p_eq_kpa": res.p_eq / KPA, "noise_kpa": res.p_sd / KPA, "t_c_threshold_s": res.t_c_threshold,
-            "t_c_onset_s": res.t_c_onset, "cross_s": crossings(t, p, sign, grid)}
+            "t_c_onset_s": res.t_c_onset, "t_c_min_s": res.t_c_min, "cross_s": crossings(t, p, sign, grid)}
 
 
 # ------------------------------------------------------------------ the cycles
@@ -324,6 +326,7 @@ class TargetReading:
     t_c_threshold_s: float | None = None
     t_c_threshold_sd_s: float | None = None
     t_c_threshold_n: int = 0
+    t_c_floored: int = 0  # cycles whose contact time is the controller's floor (t_c_min), not the contact's
     t_c_onset_s: float | None = None
     cycle_ids: list[int] = field(default_factory=list)
     rise_s_per_kpa: float | None = None  # the free rise's dt/dp at this target's contact pressure
@@ -362,6 +365,8 @@ def readings(entries: Sequence[dict[str, Any]], profile: Profile) -> tuple[Targe
                           t_c_threshold_s=mean_of(tcs), t_c_onset_s=mean_of([e["t_c_onset_s"] for e in es]),
                           t_c_threshold_sd_s=float(np.std(tcs, ddof=1)) if len(tcs) > 1 else None,
                           t_c_threshold_n=len(tcs), cycle_ids=[e["cycle_id"] for e in es])
+        r.t_c_floored = sum(1 for e in es if e["t_c_threshold_s"] is not None and e["t_c_min_s"] is not None
+                            and e["t_c_threshold_s"] <= e["t_c_min_s"] + FLOOR_S)
         return r
 
     free_r = group(None, free)
@@ -688,7 +693,12 @@ def compare(rig: ContactFit, sim_entries: Sequence[dict[str, Any]], profile: Pro
                 disagree.append(f"the contact pressure at {name}")
         elif (r.p_c_kpa is None) != (s.p_c_kpa is None):
             words += f"; contact pressure read on {'the rig' if s.p_c_kpa is None else 'the simulated cell'} only"
-        if r.t_c_threshold_s is not None and s.t_c_threshold_s is not None:
+        if r.t_c_floored or s.t_c_floored:
+            who = " and ".join(x for x, y in (("the rig's", r), ("the simulated cell's", s)) if y.t_c_floored)
+            words += (f"; contact time {_ms(r.t_c_threshold_s)} and {_ms(s.t_c_threshold_s)} ms, {who} at the "
+                      "controller's floor (no contact time before the reference's rise has passed its alignment "
+                      "levels, t_c_min): not judged")
+        elif r.t_c_threshold_s is not None and s.t_c_threshold_s is not None:
             dt = s.t_c_threshold_s - r.t_c_threshold_s
             words += f"; contact time {1e3 * r.t_c_threshold_s:.1f} and {1e3 * s.t_c_threshold_s:.1f} ms ({1e3 * dt:+.1f}"
             if r.t_c_threshold_sd_s is not None and s.t_c_threshold_sd_s is not None:
@@ -701,6 +711,10 @@ def compare(rig: ContactFit, sim_entries: Sequence[dict[str, Any]], profile: Pro
             words += ")" if timing_fitted else "; the rise's timing is the starting profile's: not judged)"
         lines.append(words)
     return Check(free, targets, lines, disagree)
+
+
+def _ms(t: float | None) -> str:
+    return "none" if t is None else f"{1e3 * t:.1f}"
 
 
 def provenance(fit_: ContactFit, profile: Profile, cycles: int, check: Check | None) -> dict[str, Any]:

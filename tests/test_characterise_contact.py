@@ -289,7 +289,7 @@ def test_the_box_stopped_by_sigterm_resumes_and_recovers_a_hidden_contact_law(tm
     hidden_path = profile_config(tmp_path, START, actuator=FIXED)
     out = tmp_path / "mine.yaml"
     contact_journal = tmp_path / "mine.yaml.contact.jsonl"
-    args = ["characterise", "--levels", "20,40,63", "--cycles", "2", "--targets", "60,100", "--target-cycles", "3",
+    args = ["characterise", "--levels", "20,40,63", "--cycles", "3", "--targets", "60,100", "--target-cycles", "3",
             "--yes", "--out", str(out)]
     with free_simcell(tmp_path, "gripper-modbus", profile=str(hidden_path)) as (box, box_cell):
         data = yaml.safe_load(box_cell.read_text())
@@ -299,12 +299,12 @@ def test_the_box_stopped_by_sigterm_resumes_and_recovers_a_hidden_contact_law(tm
         proc = job(*args, "--config", str(cell))
         code, err = sigterm_after_a_journalled_cycle(box, box_cell, proc, contact_journal)
         assert code == documented_exit("characterise", "SIGTERM") == 143, err
-        assert re.search(r"\d+ of 15 cycles are kept in .*mine\.yaml\.cycles\.jsonl and .*mine\.yaml\.contact\.jsonl",
+        assert re.search(r"\d+ of 18 cycles are kept in .*mine\.yaml\.cycles\.jsonl and .*mine\.yaml\.contact\.jsonl",
                          err), err
         assert not out.exists()
         run = _cli(*args, "--config", str(cell), "--resume", "--json", timeout=1200)
     assert run.returncode == 0, run.stderr + run.stdout
-    assert re.search(r"resuming: (\d+) of 15 cycles done", run.stderr), run.stderr
+    assert re.search(r"resuming: (\d+) of 18 cycles done", run.stderr), run.stderr
     prof = load_profile(out)
     for name in CONTACT:
         f = next(x for x in prof.provenance.fitted if x.field == f"actuator.{name}")

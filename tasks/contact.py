@@ -274,8 +274,9 @@ def departure(grid: np.ndarray, cross: np.ndarray, free_mean: np.ndarray, free_s
     timing) and falls after it, at first linearly (the compliance steps down: dt/dp steps
     down). The baseline is taken below the first run of DEPART_RUN pressures DEPART_K sd
     ahead of it; a hinge (constant, then a line in p - p_c) is fitted from lo_kpa to the
-    end of that run, p_c where it fits best. Against the simulated plant (16 hidden quick
-    PneuNet grippers, three sizes each, four cycles) the mean reading came -0.37 to +0.69 kPa
+    end of that run, p_c where it fits best. Against the simulated plant (measured once
+    while building it, not by the tests: 16 hidden quick PneuNet grippers, three sizes
+    each, four cycles) the mean reading came -0.37 to +0.69 kPa
     from the law's contact pressure, sd 0.20 (smoothing, noise, the curvature after contact):
     the fit takes CONTACT_MODEL_SD_KPA as the reading's own error. A hinge at the start of the baseline is no reading (the
     rise was touched before it was read)."""

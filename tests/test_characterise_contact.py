@@ -275,6 +275,43 @@ def test_cli_writes_the_contact_law_with_its_provenance(tmp_path):
     assert not journal_path(tmp_path / "b.yaml").exists() and not journal_path(tmp_path / "c.yaml").exists()
 
 
+def test_cli_refuses_targets_it_cannot_use_and_writes_nothing(tmp_path):
+    """A 15 mm target (not touched at P0) beside a 100 mm one: the cycles run, the contact
+    fit is refused naming the target, the exit code is docs/cli.md's, no profile is
+    written and both journals are kept."""
+    from test_stop_signals import documented_exit
+
+    cell = sim_config(tmp_path, profile=str(REPO / "config" / "profiles" / f"{START}.yaml"))
+    out = tmp_path / "mine.yaml"
+    run = _cli("characterise", "--config", str(cell), "--out", str(out), "--levels", "20,40,63", "--cycles", "2",
+               "--targets", "15,100", "--target-cycles", "3", "--yes")
+    assert run.returncode == documented_exit("characterise", "the cycles ran but the fit does not hold") == 1
+    assert "contact fit refused: the 15 mm target reads as free air" in run.stderr, run.stderr
+    assert "no profile written" in run.stderr and not out.exists()
+    assert len(journal_path(out).read_text().splitlines()) == 1 + 6
+    assert len((tmp_path / "mine.yaml.contact.jsonl").read_text().splitlines()) == 1 + 3 * 3
+
+
+def test_a_real_cell_without_a_terminal_is_refused_before_anything_starts(tmp_path):
+    """A real cell (no sim-control port: only an operator can place the targets) and no
+    terminal, no --targets-from, no --yes: exit 2 naming the ways out, nothing opened."""
+    from support.configs import DELETE, cell_config
+
+    cell = cell_config(tmp_path, "cell-modbus-sim", driver={"sim_control_port": DELETE, "host": "127.0.0.254"})
+    out = tmp_path / "mine.yaml"
+    run = _cli("characterise", "--config", str(cell), "--out", str(out), "--targets", "60,100")
+    assert run.returncode == 2, run.stderr
+    assert "characterising a real cell asks the operator to place each target" in run.stderr
+    assert "--targets-from" in run.stderr and "--yes" in run.stderr
+    assert not journal_path(out).exists() and not (tmp_path / "mine.yaml.contact.jsonl").exists()
+    placed = tmp_path / "placed.txt"
+    placed.write_text("60\n100\n")
+    empty = _cli("characterise", "--config", str(cell), "--out", str(out), "--targets", "60,100", "--targets-from",
+                 str(placed))
+    assert empty.returncode == 2 and "asks that the gripper be empty" in empty.stderr, empty.stderr
+    assert not journal_path(out).exists()
+
+
 @pytest.mark.timeout(900)
 def test_the_box_stopped_by_sigterm_resumes_and_recovers_a_hidden_contact_law(tmp_path):
     """``fluidsense simcell`` with the fixed hidden gripper (FIXED), characterised by the CLI

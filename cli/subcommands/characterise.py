@@ -68,13 +68,18 @@ def contact_path(out: Path) -> Path:
     return Path(f"{out}.contact.jsonl")
 
 
-def _ask_empty(yes: bool, needs_operator: bool) -> None:
-    """Before any valve moves: the gripper must hold nothing (its free-air law is measured)."""
-    if yes or not needs_operator:
-        return
-    if not sys.stdin.isatty():
+def _can_ask_empty(yes: bool, needs_operator: bool) -> None:
+    """Before anything is opened: the question below can be asked."""
+    if not yes and needs_operator and not sys.stdin.isatty():
         raise CommandError("characterise asks that the gripper be empty before any valve moves, and stdin is not a "
                            "terminal: run it in one, or pass --yes once the gripper is empty")
+
+
+def _ask_empty(yes: bool, needs_operator: bool) -> None:
+    """Before any valve moves: the gripper must hold nothing (its free-air law is measured)."""
+    _can_ask_empty(yes, needs_operator)
+    if yes or not needs_operator:
+        return
     print(">>> clear the actuator: nothing may touch it while it inflates in free air; press Enter when it is "
           "clear (Ctrl-C to stop)", file=sys.stderr, flush=True)
     if not sys.stdin.readline():
@@ -117,15 +122,29 @@ def cmd_characterise(args: argparse.Namespace) -> int:
         targets = ct.check_plan(start, _levels(args.targets, "--targets", spec.unit), tcycles)
     elif args.target_cycles is not None or args.targets_from is not None:
         raise ConfigError("--target-cycles and --targets-from go with --targets")
-    plan = {"profile": start.name, "levels_kpa": levels, "cycles": args.cycles,
-            "sequence": start.sequence.model_dump(mode="json"), "config": str(Path(args.config).resolve())}
-    journal = ch.CharacteriseJournal.open(journal_path(out), plan, resume=args.resume)
-    cjournal = None
-    if targets is not None:
-        cplan = {**plan, "scene": spec.scene, "target": spec.target, "values": targets, "cycles": tcycles,
-                 "p0_kpa": start.sequence.p0_kpa, "grid_kpa": ct.grid_kpa(start)}
-        cpath = contact_path(out)
-        cjournal = ct.ContactJournal.open(cpath, cplan, resume=args.resume and cpath.exists())
+    real = cfg.driver.needs_operator()
+    operator = None
+    if targets is not None and real:  # before anything is opened or moves: who places the targets
+        from .calibrate import Operator
+
+        operator = Operator(spec.target, args.targets_from, args.yes and args.targets_from is None,
+                            job="characterising")
+    try:
+        _can_ask_empty(args.yes, real)
+        plan = {"profile": start.name, "levels_kpa": levels, "cycles": args.cycles,
+                "sequence": start.sequence.model_dump(mode="json"), "config": str(Path(args.config).resolve())}
+        journal = ch.CharacteriseJournal.open(journal_path(out), plan, resume=args.resume)
+        cjournal = None
+        if targets is not None:
+            cplan = {**plan, "scene": spec.scene, "target": spec.target, "values": targets, "cycles": tcycles,
+                     "p0_kpa": start.sequence.p0_kpa, "grid_kpa": ct.grid_kpa(start)}
+            cpath = contact_path(out)
+            cjournal = ct.ContactJournal.open(cpath, cplan, resume=args.resume and cpath.exists())
+        _ask_empty(args.yes, real)
+    except BaseException:
+        if operator is not None:
+            operator.close()
+        raise
     total = len(levels) * args.cycles + (0 if targets is None else (len(targets) + 1) * tcycles)
     done = len(journal.entries) + (len(cjournal.entries) if cjournal is not None else 0)
     if done:
@@ -136,18 +155,6 @@ def cmd_characterise(args: argparse.Namespace) -> int:
             # done drew: the resumed cycles would repeat them exactly and show no spread (the
             # fit refused a resumed run so). A real cell does not repeat itself.
             cfg = cfg.model_copy(update={"driver": cfg.driver.for_job(args.seed + done)})
-    real = cfg.driver.needs_operator()
-    operator = None
-    if targets is not None and real:
-        from .calibrate import Operator
-
-        operator = Operator(spec.target, args.targets_from, args.yes and args.targets_from is None)
-    try:
-        _ask_empty(args.yes, real)
-    except BaseException:
-        if operator is not None:
-            operator.close()
-        raise
     valves = []
 
     async def nobody_places(_scene) -> None:

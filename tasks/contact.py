@@ -54,9 +54,6 @@ from fluidsense.common.scenes import TARGETS, CylinderScene, EmptyScene, PlateSc
 from fluidsense.common.units import KPA, ML
 from fluidsense.controller.config.profile import FittedNumber, Profile
 from fluidsense.controller.service import Controller
-from fluidsense.simulator.actuators import volume_law
-from fluidsense.simulator.equilibrium import equilibrium
-from fluidsense.simulator.gas import VolumeLaw
 from scipy import optimize, stats
 
 from .journal import CycleJournal
@@ -278,8 +275,8 @@ def departure(grid: np.ndarray, cross: np.ndarray, free_mean: np.ndarray, free_s
     while building it, not by the tests: 16 hidden quick PneuNet grippers, three sizes
     each, four cycles) the mean reading came -0.37 to +0.69 kPa
     from the law's contact pressure, sd 0.20 (smoothing, noise, the curvature after contact):
-    the fit takes CONTACT_MODEL_SD_KPA as the reading's own error. A hinge at the start of the baseline is no reading (the
-    rise was touched before it was read)."""
+    the fit takes CONTACT_MODEL_SD_KPA as the reading's own error. A hinge at the start of
+    the baseline is no reading (the rise was touched before it was read)."""
     d = cross - free_mean
     ok = np.isfinite(d) & np.isfinite(free_sd) & (grid >= lo_kpa)
     g, y, s = grid[ok], d[ok], free_sd[ok]
@@ -417,6 +414,29 @@ class ContactFit:
                 "chi2": self.chi2, "dof": self.dof}
 
 
+def law_equilibrium(p0: float, v_tank: float, v_side0: float, c: float, p_contact: float | None, ratio: float,
+                    p_atm: float) -> float:
+    """Gauge pressure (Pa) at which a tank of ``v_tank`` at gauge ``p0`` and an actuator side
+    starting at atmosphere settle (eq. 1), the side on the contact law of
+    simulator/actuators.py: ``v_side0 + c p`` up to ``p_contact`` (signed as p0; None: never
+    touched; 0: touching from the start), then ``ratio`` of c. On a segment ``v = a + b p``
+    eq. 1 is ``b p^2 + (Vt + a + b Pa) p + Pa (Vt + a) - M = 0``, solved in closed form (the
+    root that goes to the linear one as b goes to zero); the free segment's root stands if it
+    stops short of contact. tests/test_characterise_contact.py checks it against the
+    simulator's own root search on its law."""
+    m = (p0 + p_atm) * v_tank + p_atm * v_side0
+
+    def root(a: float, b: float) -> float:
+        big = v_tank + a + b * p_atm
+        small = p_atm * (v_tank + a) - m
+        return -2.0 * small / (big + math.sqrt(max(big * big - 4.0 * b * small, 0.0)))
+
+    free = root(v_side0, c)
+    if p_contact is None or abs(free) <= abs(p_contact):
+        return free
+    return root(v_side0 + (1.0 - ratio) * c * p_contact, ratio * c)
+
+
 class LawModel:
     """The readings the simulator's contact law gives, for the profile's circuit and P0 and
     the free line (v_side = v0 + the stated hose and ports, c)."""
@@ -430,24 +450,28 @@ class LawModel:
         self.fixed = hose + port
         self.sign = 1.0 if self.p0 >= 0 else -1.0
         self.v0, self.c = v0_ml, c_ml_per_kpa
-        self.p_free = self._eq(self.actuator({}), EmptyScene())
+        self.p_free = self._eq(None, 1.0)
 
-    def actuator(self, params: dict[str, float]):
-        return self.profile.actuator.model_copy(update={"v0_ml": self.v0, "compliance_ml_per_kpa": self.c, **params})
+    def _param(self, params: dict[str, float], name: str | None) -> float:
+        if name is None:
+            return 0.0
+        return float(params[name]) if name in params else float(getattr(self.profile.actuator, name))
 
-    def _eq(self, act, scene) -> float:
-        law = volume_law(act, scene, self.p_atm)
-        if self.fixed:
-            law = VolumeLaw(law.p_gauge, law.volume + self.fixed, self.p_atm)
-        return self.sign * equilibrium(self.p0, self.v_tank, law, self.p_atm) / KPA
+    def growth_ml(self, value: float, params: dict[str, float]) -> float:
+        return self.spec.growth_ml(value, self._param(params, self.spec.offset), self._param(params, self.spec.rate))
+
+    def _eq(self, p_contact_kpa: float | None, ratio: float) -> float:
+        p_c = None if p_contact_kpa is None else self.sign * p_contact_kpa * KPA
+        p = law_equilibrium(self.p0, self.v_tank, self.v0 * ML + self.fixed, self.c * ML / KPA, p_c, ratio,
+                            self.p_atm)
+        return self.sign * p / KPA
 
     def dp_eq(self, value: float, params: dict[str, float]) -> float:
-        return self._eq(self.actuator(params), self.spec.scene_at(value)) - self.p_free
+        growth = self.growth_ml(value, params)
+        return self._eq(max(growth, 0.0) / self.c, self._param(params, self.spec.ratio)) - self.p_free
 
     def p_c(self, value: float, params: dict[str, float]) -> float | None:
-        act = self.actuator(params)
-        offset = params.get(self.spec.offset, getattr(act, self.spec.offset)) if self.spec.offset else 0.0
-        growth = self.spec.growth_ml(value, offset, params.get(self.spec.rate, getattr(act, self.spec.rate)))
+        growth = self.growth_ml(value, params)
         return growth / self.c if growth > 0 else None
 
 
@@ -537,7 +561,7 @@ def fit(entries: Sequence[dict[str, Any]], profile: Profile, v0_ml: float, c_ml_
                                      bounds=(lo, hi), x_scale=np.abs(x_start) + 1e-3)
         return sol, predict
 
-    sol, predict = solve(v0_ml, c_ml_per_kpa, x0)
+    sol, _ = solve(v0_ml, c_ml_per_kpa, x0)
     jac = sol.jac
     m_read = len(sol.fun)
     dof = m_read - len(names)
@@ -597,11 +621,11 @@ def fit(entries: Sequence[dict[str, Any]], profile: Profile, v0_ml: float, c_ml_
                            "would be touched from the start")
     kept: dict[str, str] = {}
     if spec.offset and spec.offset not in names:
-        why = ("no contact pressure was read at two targets" if len(with_pc) < 2 else "")
         kept[f"actuator.{spec.offset}"] = (
-            f"{why}: the equilibria alone show (1 - {spec.ratio}) ({spec.offset} - D) / {spec.rate} and "
+            "no contact pressure was read at two targets: the equilibria alone show (1 - {spec.ratio}) ({spec.offset} - D) / {spec.rate} and "
             f"{spec.ratio}, so {spec.offset} is kept as the starting profile's and {spec.rate} and {spec.ratio} "
-            f"absorb an error in it (the equilibria at these targets are reproduced, the contact pressures need not be)")
+            f"absorb an error in it (the equilibria at these targets are reproduced, the contact pressures need "
+            "not be)")
     for extra in ("push_ratio", "force_area_mm2"):
         if hasattr(act, extra):
             kept[f"actuator.{extra}"] = "rigid, centred targets do not show it: kept"
@@ -701,7 +725,8 @@ def compare(rig: ContactFit, sim_entries: Sequence[dict[str, Any]], profile: Pro
                       "levels, t_c_min): not judged")
         elif r.t_c_threshold_s is not None and s.t_c_threshold_s is not None:
             dt = s.t_c_threshold_s - r.t_c_threshold_s
-            words += f"; contact time {1e3 * r.t_c_threshold_s:.1f} and {1e3 * s.t_c_threshold_s:.1f} ms ({1e3 * dt:+.1f}"
+            words += (f"; contact time {1e3 * r.t_c_threshold_s:.1f} and {1e3 * s.t_c_threshold_s:.1f} ms "
+                      f"({1e3 * dt:+.1f}")
             if r.t_c_threshold_sd_s is not None and s.t_c_threshold_sd_s is not None:
                 own = CONTACT_MODEL_SD_KPA * (r.rise_s_per_kpa or 0.0)
                 se_t = math.sqrt(r.t_c_threshold_sd_s**2 / r.t_c_threshold_n

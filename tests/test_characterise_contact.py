@@ -23,7 +23,8 @@ from fluidsense.controller.config import load_cell_config, load_profile
 from fluidsense.controller.config.profile import Profile
 from fluidsense.controller.service import Controller
 from fluidsense.drivers.config import build_backend
-from fluidsense.simulator.actuators import contact_pressure
+from fluidsense.common.scenes import EmptyScene
+from fluidsense.simulator.actuators import contact_pressure, volume_law
 from fluidsense.tasks import characterise as ch
 from fluidsense.tasks import contact as ct
 from fluidsense.tasks.journal import journal_path
@@ -90,21 +91,37 @@ def fit_both(start, e1, e2):
 
 
 # ------------------------------------------------------------------ the model
-@pytest.mark.parametrize("profile, scene", [("pneunet-gripper", CylinderScene(diameter_mm=70)),
-                                            ("pneunet-bending", PlateScene(height_mm=30)),
-                                            ("mckibben-muscle", StopperScene(angle_deg=20))])
-def test_the_fits_contact_pressure_is_the_simulators(profile, scene):
-    """The fit's growth at contact (per kind, tasks/contact.py KINDS) against the
-    simulator's own law (simulator/actuators.py contact_pressure), for each kind."""
+@pytest.mark.parametrize("profile, scenes", [
+    # 10 mm: not touched; 130 mm: touched from the start
+    ("pneunet-gripper", [CylinderScene(diameter_mm=d) for d in (10, 40, 70, 100, 130)]),
+    ("piab-vacuum-gripper", [CylinderScene(diameter_mm=d) for d in (30, 60, 90)]),
+    ("pneunet-bending", [PlateScene(height_mm=h) for h in (0, 30, 60, 200)]),
+    ("mckibben-muscle", [StopperScene(angle_deg=a) for a in (0, 10, 20, 180)])])
+def test_the_fits_contact_law_is_the_simulators(profile, scenes):
+    """The fit's model of the readings (tasks/contact.py, which may not import the
+    simulator) against the simulator's own law and root search (simulator/actuators.py,
+    simulator/equilibrium.py), per kind: the equilibrium to 1 mPa, the contact pressure
+    exactly; untouched targets and targets touched from the start included."""
+    from fluidsense.simulator.equilibrium import equilibrium
+
     prof = load_profile(REPO / "config" / "profiles" / f"{profile}.yaml")
     spec = ct.spec_of(prof)
     model = ct.LawModel(prof, prof.actuator.v0_ml, prof.actuator.compliance_ml_per_kpa)
-    size = getattr(scene, spec.target)
-    assert spec.scene_at(size) == scene
-    ours = model.p_c(size, {})
-    theirs = contact_pressure(prof.actuator, scene, prof.circuit.p_atm) / 1e3
-    assert ours == pytest.approx(theirs, rel=1e-9), (profile, ours, theirs)
-    assert model.dp_eq(size, {}) > 0  # touched before the free equilibrium: the equilibrium rises
+    p0, vt, p_atm = prof.sequence.p0_pa, prof.circuit.tank_m3, prof.circuit.p_atm
+    sign = 1.0 if p0 > 0 else -1.0
+    free = equilibrium(p0, vt, volume_law(prof.actuator, EmptyScene(), p_atm), p_atm)
+    assert sign * free / 1e3 == pytest.approx(model.p_free, abs=1e-6)
+    for scene in scenes:
+        size = getattr(scene, spec.target)
+        assert spec.scene_at(size) == scene
+        theirs = equilibrium(p0, vt, volume_law(prof.actuator, scene, p_atm), p_atm)
+        assert model.dp_eq(size, {}) == pytest.approx(sign * (theirs - free) / 1e3, abs=1e-6), (profile, size)
+        ours_pc = model.p_c(size, {})
+        law = volume_law(prof.actuator, scene, p_atm)
+        if ours_pc is None:  # touching from the start: the law's slope is already the contact's
+            assert abs(law.volume_at(sign * 1e3) - law.volume_at(0.0)) < prof.actuator.compliance * 1e3 * 0.999
+        else:
+            assert ours_pc == pytest.approx(abs(contact_pressure(prof.actuator, scene, p_atm)) / 1e3, rel=1e-9)
 
 
 def test_plans_are_refused_before_any_valve_moves():

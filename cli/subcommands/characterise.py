@@ -216,12 +216,17 @@ def cmd_characterise(args: argparse.Namespace) -> int:
     data = ch.characterised_profile(start_data, start, result, **common, contact=contact)
     if contact is not None:
         # the check: the written profile's simulated cell at the same targets (virtual time)
-        import asyncio
-
         from fluidsense.controller.config.profile import Profile
 
         mine = Profile.model_validate(data)
-        sim_entries = asyncio.run(ct.simulate(mine, targets, tcycles, seed=args.seed + 7919))
+        try:
+            sim_entries = stopsignals.run(ct.simulate(mine, targets, tcycles, seed=args.seed + 7919))
+        except KeyboardInterrupt as exc:  # the rig's valves were vented when its cycles ended
+            sig = stopsignals.interruption(exc)
+            print(f"fluidsense: characterisation stopped by {sig.name} during the simulated check (the rig's cycles "
+                  f"had ended and vented); no profile written; the cycles are kept in {kept_words}: run again with "
+                  "--resume", file=sys.stderr, flush=True)
+            return sig.exit_code
         try:
             check = ct.compare(contact, sim_entries, mine,
                                timing_fitted=result.value("circuit.valve_delay_s") is not None)

@@ -22,7 +22,7 @@ from fluidsense.common.scenes import CylinderScene, PlateScene, StopperScene
 from fluidsense.controller.config import load_cell_config, load_profile
 from fluidsense.controller.config.profile import Profile
 from fluidsense.controller.service import Controller
-from fluidsense.drivers.config import build_backend
+from fluidsense.drivers.registry import build_backend
 from fluidsense.common.scenes import EmptyScene
 from fluidsense.simulator.actuators import contact_pressure, volume_law
 from fluidsense.tasks import characterise as ch

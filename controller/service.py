@@ -18,7 +18,10 @@ from __future__ import annotations
 
 import asyncio
 import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 from concurrent.futures import ThreadPoolExecutor
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +37,7 @@ from .cycles.analysis import CycleResult, Reference
 from .cycles.kept import ReferenceKeeper, identity
 from .cycles.analysis import reference_key
 from .cycles.runner import CycleRunner
+from .ports import TaskPort
 from .safety.latch import SafetyLatch, vented_word
 from .safety.outputs import OutputWatch
 from .safety.supervisor import Supervisor
@@ -265,6 +269,17 @@ class Controller:
         if seq.t_open + seconds > self.now:
             await self.wait(seq.t_open + seconds - self.now)
 
+    @cached_property
+    def task_port(self) -> TaskPort:
+        """What a task may ask of this controller (ports.py): tasks/ are handed this, never
+        the controller."""
+        arm, scene = self.arm, self.scene
+        return TaskPort(profile=self.profile, now=lambda: self.now, run_cycle=self.run_cycle,
+                        start_cycle=self.start_cycle, measured=self.measured, release=self.release,
+                        wait_after_open=self.wait_after_open, reference=self.reference, fault=lambda: self.fault,
+                        emit=self.emit, simulated=scene.available, place=scene.place, lay_out=scene.lay_out,
+                        truth=scene.truth, move_l=arm.move_l, tcp_pose=lambda: arm.tcp_pose)
+
     def add_sink(self, sink: Sink) -> None:
         self.telemetry.sinks.append(sink)
 
@@ -339,3 +354,11 @@ class Controller:
 
     def _internal(self, detail: str) -> None:
         self.latch.defer(detail, FaultKind.INTERNAL, self.now)
+
+
+@asynccontextmanager
+async def open_cell(cfg: CellConfig, backend: Backend) -> AsyncIterator[TaskPort]:
+    """A controller started on ``backend`` for one job, as its task port (ports.OpenCell);
+    stopped (vented, the devices closed) when the job leaves it."""
+    async with Controller(cfg, backend) as ctrl:
+        yield ctrl.task_port

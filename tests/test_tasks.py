@@ -29,7 +29,7 @@ def run_file(name: str, **kw):
 
     async def main():
         async with app.controller(cfg) as ctrl:
-            return await run_task(ctrl, task, **kw)
+            return await run_task(ctrl.task_port, task, **kw)
 
     return run(main())
 
@@ -51,7 +51,7 @@ def test_every_cylinder_in_every_input_slot_sorts_correctly():
         results = []
         async with app.controller(cfg) as ctrl:
             for order in ORDERS:
-                results.append((order, await run_task(ctrl, task, order_mm=list(order))))
+                results.append((order, await run_task(ctrl.task_port, task, order_mm=list(order))))
         return results
 
     results = run(main())

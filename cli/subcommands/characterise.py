@@ -111,7 +111,7 @@ def cmd_characterise(args: argparse.Namespace) -> int:
             valves.append(ctrl.backend.valves)
             with tqdm(total=total, initial=len(journal.entries), desc=f"characterising {start.name}",
                       unit="cycle", file=sys.stderr, disable=args.json) as bar:
-                return await ch.measure(ctrl, levels, args.cycles, journal, progress=bar.update)
+                return await ch.measure(ctrl.task_port, levels, args.cycles, journal, progress=bar.update)
 
     try:
         entries = stopsignals.run(job())

@@ -13,7 +13,10 @@ Events, on their own topics (docs/zmq-schema.md):
 
 Requests reply at once (the socket answers one request at a time: a reply that waited for
 the grasp would keep ``abort`` out); the client library waits for the events. The handler
-reads and asks the controller through its port (ports.GripPort) and nothing else.
+reads and asks the controller through its port (ports.GripPort) and nothing else. It
+follows a cycle it started through the cycle's futures (the features, then the end: done
+callbacks, no task of its own) and block by block as one of the controller's block
+watchers (controller/path.py BlockWatcher: ``on_block``, wired by wiring.py).
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Callable
+from functools import partial
 from types import SimpleNamespace
 from typing import Any, Literal
 
@@ -34,7 +38,6 @@ from ..config import Profile
 from ..config.gripper import GripperConfig
 from ..cycles.analysis import CycleResult, alignment, object_bound
 from ..cycles.sequencer import State
-from ..telemetry.fanout import Sink
 from . import estimates as E
 from .grip_watch import ContactWatch, SlipWatch
 from .ports import GripPort
@@ -70,8 +73,9 @@ class MeasureRequest(StrictModel):
     store_reference: bool = False
 
 
-class GripHandler(Sink):
-    """The gripper's requests, and a telemetry sink that watches every block of a grip."""
+class GripHandler:
+    """The gripper's requests, and the watch over every block of a grip (a block watcher:
+    controller/path.py BlockWatcher)."""
 
     def __init__(self, port: GripPort, cfg: GripperConfig, profile: Profile,
                  running_task: Callable[[], str | None] = lambda: None):
@@ -91,7 +95,6 @@ class GripHandler(Sink):
         self._offset = 0.0
         self._t_opened: float | None = None  # a held grip left HOLD (released, aborted, faulted)
         self._slip: SlipWatch | None = None
-        self._follow: asyncio.Task[None] | None = None
         self._storing_reference = False  # the cycle that runs measures the free-air reference
 
     # ------------------------------------------------------------------ state
@@ -172,24 +175,40 @@ class GripHandler(Sink):
                                      max(w.end_s for w in plan.windows), align)
         self._slip = None
         measured = asyncio.ensure_future(port.measured())
-        self._follow = asyncio.get_running_loop().create_task(self._follow_cycle(measured, fut),
-                                                              name=f"{op} {cycle.cycle_id}")
+        measured.add_done_callback(partial(self._on_measured, fut))
         return {"cycle_id": cycle.cycle_id, "p0_kpa": cycle.p0_pa / KPA, "reference": reference is not None}
 
     # ------------------------------------------------------------------ the cycle's course
-    async def _follow_cycle(self, measured: asyncio.Future[CycleResult], done: asyncio.Future[CycleResult]) -> None:
+    def _on_measured(self, done: asyncio.Future[CycleResult], measured: asyncio.Future[CycleResult]) -> None:
+        """The cycle's features are in (its windows closed): the grasp; then its end."""
+        if measured.cancelled() or not self._follow(self._measured, measured):
+            return
+        if done.done():  # as awaiting a finished future would: at once
+            self._on_done(done)
+        else:
+            done.add_done_callback(self._on_done)
+
+    def _on_done(self, done: asyncio.Future[CycleResult]) -> None:
+        """The cycle is over: the gripper is open."""
+        if not done.cancelled():
+            self._follow(self._released, done)
+
+    def _follow(self, step: Callable[[CycleResult], None], fut: asyncio.Future[CycleResult]) -> bool:
+        """``step`` on the future's result; False when the course ends here instead."""
         try:
-            res = await measured
-            if res.ok and res.cycle_id == self.cycle_id:
-                self._grasp(res)
-            final = await done
-            self._released(final)
+            step(fut.result())
+            return True
         except FluidsenseError:  # the controller stopped under the cycle: nothing to report
             self.op = None
         except Exception as exc:  # noqa: BLE001 - a bug here must not leave the gripper closed
             log.exception("following %s %s failed", self.op, self.cycle_id)
             self.op = None
-            await self.port.fail(f"gripper: {type(exc).__name__}: {exc}")
+            self._spawn(self.port.fail(f"gripper: {type(exc).__name__}: {exc}"))
+        return False
+
+    def _measured(self, res: CycleResult) -> None:
+        if res.ok and res.cycle_id == self.cycle_id:
+            self._grasp(res)
 
     def _grasp(self, res: CycleResult) -> None:
         # a measure that stored the free-air reference was asked for with nothing in the
@@ -240,8 +259,10 @@ class GripHandler(Sink):
                                     "reason": reason, "held_s": held, "ok": final.aborted is None})
         self.op, self.t_grasp, self._slip, self._contact, self._t_opened = None, None, None, None, None
 
-    # ------------------------------------------------------------------ the samples (a telemetry sink)
+    # ------------------------------------------------------------------ the samples (a block watcher)
     def on_block(self, block: SampleBlock) -> None:
+        """A block of samples, after its telemetry (controller/path.py BlockWatcher): a
+        grip's contact, its timeout, a slip while held, max_hold_s."""
         if self.op is None or "p_act" not in block.channels:
             return
         port, seq = self.port, self.port.cycle

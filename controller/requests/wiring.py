@@ -31,7 +31,8 @@ def assemble(dispatch: DispatchPort, grip: GripPort, jobs: JobPort, gripper: Gri
 
 def wire(ctrl: Controller, *, tasks: TaskRunner | None = None, socket_stats: Callable[[], dict[str, int]] | None = None,
          shutdown: Callable[[], None] | None = None) -> Dispatcher:
-    """The dispatcher that answers requests on ``ctrl``; its gripper watches the blocks.
+    """The dispatcher that answers requests on ``ctrl``; its gripper watches the blocks
+    (one of the controller's block watchers: path.py BlockWatcher, beside the telemetry).
     Use it as ``async with``: a task it started is stopped before the controller is."""
     cycle = ctrl.cycles.sequencer
     requests = assemble(
@@ -43,5 +44,5 @@ def wire(ctrl: Controller, *, tasks: TaskRunner | None = None, socket_stats: Cal
                  wait=ctrl.wait, fail=ctrl.fail, emit=ctrl.emit),
         JobPort(cycle=cycle, abort=ctrl.abort, fail=ctrl.fail, emit=ctrl.emit),
         ctrl.cfg.gripper, ctrl.profile, tasks=tasks, socket_stats=socket_stats, shutdown=shutdown)
-    ctrl.add_sink(requests.grip)
+    ctrl.watch(requests.grip)
     return requests

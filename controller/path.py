@@ -1,30 +1,33 @@
 """The sample path: one block from the driver to the published ``pressure`` event, hop by
 hop, and the port each hop is wired through (service.py wires them; every part names what
-it is handed, none gets a bare callable).
+it is handed, none gets a bare callable). docs/architecture.md "The sample path" says the
+same in a table.
 
-    drivers/base.py         SampleSource.read_block()   the driver's block: 10 samples at 1 kHz
-    sampling/loop.py        SampleLoop._read, ._run      the only reader; each block on to its
+    drivers/base.py          SampleSource.read_block     the driver's block: 10 samples at 1 kHz
+    sampling/loop.py         SampleLoop._read, ._run     the only reader: the block on to its
                                                          ``pipeline`` (BlockPipeline)
-    service.py              Controller.on_block          every block, in this order:
-      sampling/clock.py       SampleClock.advance          now = the newest sample's time (SampleTime)
-      cycles/runner.py        CycleRunner.trace            the running cycle keeps the samples
-      safety/supervisor.py    Supervisor.check             limits, NaN, rail, stuck, leak -> a Fault,
-      safety/latch.py         SafetyLatch.trip             latched (Faults): vent, confirm, publish
-      cycles/runner.py        CycleRunner.on_block         the sequencer's actions; a cycle's result
-      safety/outputs.py       OutputWatch.on_block         valve read-back, the box watchdog's kick
-      telemetry/fanout.py     Telemetry.on_block           the block into the pressure batch (Stream);
-                              Telemetry.flush_pressure     a full batch is the ``pressure`` event,
-      telemetry/publisher.py  Publisher.send               (Outlet) encoded and pushed to the outlet
-                                                           process, which publishes it (XPUB)
-                              Telemetry.on_block           then every sink: the recording, the live view
-      requests/grip.py        GripHandler.on_block         the watchers (BlockWatcher): a grip's contact,
-                                                           slip, timeout and max hold
-                              Telemetry.heartbeat          when due
-      safety/latch.py         SafetyLatch.trip_deferred    a fault found off the path (Faults)
+    service.py               Controller.on_block         every block, through these in order:
+      sampling/clock.py        SampleClock.advance         now = the newest sample's time
+                                                           (SampleTime, to every other part)
+      cycles/runner.py         CycleRunner.trace           the running cycle keeps the samples
+      safety/supervisor.py     Supervisor.check            limits, NaN, rail, stuck, leak: a Fault
+      safety/latch.py          SafetyLatch.trip            latched (Faults): vent, confirm, publish
+      cycles/runner.py         CycleRunner.on_block        the sequencer's actions (Events)
+      safety/outputs.py        OutputWatch.on_block        valve read-back, the box watchdog's kick
+      telemetry/fanout.py      Telemetry.on_block          the block into the pressure batch;
+                               Telemetry.flush_pressure    a full batch (Stream: rate, clock
+                                                           origin) is the ``pressure`` event:
+      telemetry/publisher.py   Publisher.send              (EventPublisher) encoded, pushed to
+      telemetry/outlet.py      Outlet.run                  the outlet process, which publishes it
+      telemetry/fanout.py      Telemetry.on_block          then every sink (recording, live view)
+      requests/grip.py         GripHandler.on_block        the block watchers (BlockWatcher): a
+                                                           grip's contact, slip, timeout, max hold
+      telemetry/fanout.py      Telemetry.heartbeat         when due
+      safety/latch.py          SafetyLatch.trip_deferred   a fault found off the path (Faults)
 
 Events other than ``pressure`` (a cycle's ``state`` and ``cycle``, a ``fault``, the
-gripper's) go out the same way: ``Events.emit`` (Telemetry.emit) -> ``Outlet.send``, and
-to every sink.
+gripper's) leave the same way: ``Events.emit`` (Telemetry.emit) -> ``EventPublisher.send``,
+and to every sink.
 """
 
 from __future__ import annotations
@@ -82,7 +85,7 @@ class Stream(Protocol):
         ...
 
 
-class Outlet(Protocol):
+class EventPublisher(Protocol):
     """Where published events leave the controller (telemetry/publisher.py Publisher; its
     NullPublisher stand-in for a job that publishes nothing)."""
 

@@ -7,9 +7,10 @@
     telemetry/fanout.py  events to the publisher and the recording
     sampling/clock.py    sample time: waits released by samples
 
-Each part is handed the others through a named port (path.py: SampleTime, Events, Faults,
-Stream, Outlet; the loop's BlockPipeline is this controller), never a bare callable; path.py
-follows one sample from the driver's block to the published ``pressure`` event.
+Each part is handed the others through a named port (path.py: SampleTime, Events,
+Faults, Stream, EventPublisher; the loop's BlockPipeline is this controller), never a bare
+callable; path.py follows one sample from the driver's block to the published
+``pressure`` event.
 
 The command socket's requests (requests/) are wired onto this interface by the daemon;
 the controller knows nothing of them. Tasks get its task port (ports.py TaskPort).
@@ -42,7 +43,7 @@ from .cycles.analysis import CycleResult, Reference
 from .cycles.kept import ReferenceKeeper, identity
 from .cycles.analysis import reference_key
 from .cycles.runner import CycleRunner
-from .path import BlockWatcher, Outlet
+from .path import BlockWatcher, EventPublisher
 from .ports import TaskPort
 from .safety.latch import SafetyLatch, vented_word
 from .safety.outputs import OutputWatch
@@ -59,9 +60,9 @@ log = logging.getLogger(__name__)
 class Controller:
     """The parts wired (each is handed the others through a path.py port: the clock as
     SampleTime, the latch as Faults, the telemetry as Events, the source as Stream, the
-    publisher as Outlet), and the sample loop's BlockPipeline itself."""
+    publisher as EventPublisher), and the sample loop's BlockPipeline itself."""
 
-    def __init__(self, cfg: CellConfig, backend: Backend, publisher: Outlet | None = None):
+    def __init__(self, cfg: CellConfig, backend: Backend, publisher: EventPublisher | None = None):
         self.cfg, self.profile, self.backend = cfg, cfg.profile, backend
         self.clock = SampleClock()
         self.latch = SafetyLatch(backend, self.clock.demand)

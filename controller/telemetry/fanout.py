@@ -23,7 +23,7 @@ from fluidsense.common.samples import SampleBlock
 from fluidsense.common.units import KPA, SLPM
 
 from ..config import PublisherConfig
-from ..path import Faults, Outlet, SampleTime, Stream
+from ..path import EventPublisher, Faults, SampleTime, Stream
 
 log = logging.getLogger(__name__)
 
@@ -49,7 +49,8 @@ class Sink:
 
 
 class Telemetry:
-    def __init__(self, publisher: Outlet, cfg: PublisherConfig, *, clock: SampleTime, stream: Stream, faults: Faults):
+    def __init__(self, publisher: EventPublisher, cfg: PublisherConfig, *, clock: SampleTime, stream: Stream,
+                 faults: Faults):
         """``publisher``: where events leave; ``clock``: sample time, each event's stamp;
         ``stream``: the samples' source, its rate and clock origin asked at each batch;
         ``faults``: where a failing publisher or sink is deferred as an internal fault."""

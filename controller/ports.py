@@ -27,13 +27,21 @@ from .cycles.analysis import CycleResult, Reference
 
 
 class RunCycle(Protocol):
+    """How ``TaskPort.run_cycle`` is called (service.Controller.run_cycle)."""
+
     def __call__(self, *, p0_kpa: float | None = None, label: str | None = None,
-                 store_reference: bool = False) -> Awaitable[CycleResult]: ...
+                 store_reference: bool = False) -> Awaitable[CycleResult]:
+        """One cycle at ``p0_kpa`` (None: the profile's), to its end: its result."""
+        ...
 
 
 class StartCycle(Protocol):
+    """How ``TaskPort.start_cycle`` is called (service.Controller.start_cycle)."""
+
     def __call__(self, *, p0_kpa: float | None = None, label: str | None = None, store_reference: bool = False,
-                 hold: bool = False) -> Awaitable[asyncio.Future[CycleResult]]: ...
+                 hold: bool = False) -> Awaitable[asyncio.Future[CycleResult]]:
+        """A cycle started: the future of its result (``hold``: it stays inflated)."""
+        ...
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ from fluidsense.common.hardware import PORT_VOLUME_M3
 from fluidsense.common.scenes import EmptyScene
 from fluidsense.common.units import KPA, LITRE, ML
 from fluidsense.controller.config.profile import FittedNumber, Profile, Provenance
-from fluidsense.controller.service import Controller
+from fluidsense.controller.ports import TaskPort
 from scipy import integrate, optimize, stats
 
 from .journal import CycleJournal
@@ -201,13 +201,14 @@ def reading(res, level_kpa: float, k: int, window: tuple[float, float]) -> dict[
 
 
 # ------------------------------------------------------------------ the cycles
-async def measure(ctrl: Controller, levels: Sequence[float], cycles: int, journal: CharacteriseJournal,
+async def measure(port: TaskPort, levels: Sequence[float], cycles: int, journal: CharacteriseJournal,
                   place: Place | None = None, progress: Callable[[int], None] | None = None) -> list[dict]:
     """``cycles`` free-air cycles at each level; each finished one goes into ``journal`` as
     it completes (those already there are not run again). A run that cannot finish raises
     JobStopped with what it had done."""
-    place = place or ctrl.scene.place
-    seq = ctrl.profile.sequence
+    place = place or port.place
+    profile = port.profile
+    seq = profile.sequence
     window = (seq.windows[0].start_s, seq.windows[0].end_s)
     entries = journal.entries
     total = len(levels) * cycles
@@ -222,7 +223,7 @@ async def measure(ctrl: Controller, levels: Sequence[float], cycles: int, journa
             for level in levels:
                 if any(e["level_kpa"] == level and e["k"] == k for e in entries):
                     continue
-                res = await ctrl.run_cycle(p0_kpa=level, label=f"characterise P0={level:g}")
+                res = await port.run_cycle(p0_kpa=level, label=f"characterise P0={level:g}")
                 if not res.ok or res.trace is None or res.p_eq is None:
                     raise FluidsenseError(f"free-air cycle {res.cycle_id} at {level:g} kPa ended: {res.aborted}")
                 # off the event loop: the sampler shares it, and a real-time loop held up by a
@@ -235,8 +236,8 @@ async def measure(ctrl: Controller, levels: Sequence[float], cycles: int, journa
         raise
     except FluidsenseError as exc:
         partial = {"completed": False, "cycles_done": len(entries), "cycles_total": total,
-                   "journal": str(journal.path), "fault": fault_dict(ctrl), "error": f"{type(exc).__name__}: {exc}"}
-        raise JobStopped(stopped_message("characterisation", ctrl, exc, f"{len(entries)} of {total} cycles")
+                   "journal": str(journal.path), "fault": fault_dict(port), "error": f"{type(exc).__name__}: {exc}"}
+        raise JobStopped(stopped_message("characterisation", port, exc, f"{len(entries)} of {total} cycles")
                          + f"; finished cycles are kept in {journal.path}: run again with --resume", partial,
                          partial["fault"]) from exc
     return entries

@@ -53,7 +53,7 @@ from fluidsense.common.hardware import PORT_VOLUME_M3
 from fluidsense.common.scenes import TARGETS, CylinderScene, EmptyScene, PlateScene, StopperScene
 from fluidsense.common.units import KPA, ML
 from fluidsense.controller.config.profile import FittedNumber, Profile
-from fluidsense.controller.service import Controller
+from fluidsense.controller.ports import OpenCell, TaskPort
 from scipy import optimize, stats
 
 from .journal import CycleJournal
@@ -206,7 +206,7 @@ def reading(res, value: float | None, k: int, grid: Sequence[float]) -> dict[str
 
 
 # ------------------------------------------------------------------ the cycles
-async def measure(ctrl: Controller, values: Sequence[float], cycles: int, journal: ContactJournal,
+async def measure(port: TaskPort, values: Sequence[float], cycles: int, journal: ContactJournal,
                   place: Place, place_free: Place | None = None,
                   progress: Callable[[int], None] | None = None) -> list[dict]:
     """At the profile's P0: ``cycles`` free cycles (nothing there; the first is the
@@ -214,9 +214,10 @@ async def measure(ctrl: Controller, values: Sequence[float], cycles: int, journa
     target, placed through ``place`` (the operator's prompts, or the simulated cell's
     scene). Each finished cycle goes into ``journal``; those already there are not run
     again. A run that cannot finish raises JobStopped with what it had done."""
-    spec = spec_of(ctrl.profile)
-    grid = grid_kpa(ctrl.profile)
-    p0 = ctrl.profile.sequence.p0_kpa
+    profile = port.profile
+    spec = spec_of(profile)
+    grid = grid_kpa(profile)
+    p0 = profile.sequence.p0_kpa
     entries = journal.entries
     total = (len(values) + 1) * cycles
     place_free = place_free or place
@@ -228,17 +229,17 @@ async def measure(ctrl: Controller, values: Sequence[float], cycles: int, journa
                 continue
             if value is None:
                 await place_free(EmptyScene())
-            elif round(p0, 3) not in ctrl.cycles.references:  # resumed after the free cycles
+            elif port.reference(p0 * KPA) is None:  # resumed after the free cycles
                 await place_free(EmptyScene())
-                res = await ctrl.run_cycle(p0_kpa=p0, label="reference", store_reference=True)
+                res = await port.run_cycle(p0_kpa=p0, label="reference", store_reference=True)
                 if not res.ok:
                     raise FluidsenseError(f"free-air reference cycle {res.cycle_id} ended: {res.aborted}")
             if value is not None:
                 await place(spec.scene_at(value))
             for k in range(done, cycles):
-                ref = value is None and round(p0, 3) not in ctrl.cycles.references
+                ref = value is None and port.reference(p0 * KPA) is None
                 label = "free" if value is None else f"{spec.target}={value:g}"
-                res = await ctrl.run_cycle(p0_kpa=p0, label=f"characterise contact {label}", store_reference=ref)
+                res = await port.run_cycle(p0_kpa=p0, label=f"characterise contact {label}", store_reference=ref)
                 if not res.ok or res.trace is None or res.p_eq is None:
                     raise FluidsenseError(f"contact cycle {res.cycle_id} ({label}) ended: {res.aborted}")
                 line = await asyncio.to_thread(reading, res, value, k, grid)
@@ -249,8 +250,8 @@ async def measure(ctrl: Controller, values: Sequence[float], cycles: int, journa
         raise
     except FluidsenseError as exc:
         partial = {"completed": False, "cycles_done": len(entries), "cycles_total": total,
-                   "journal": str(journal.path), "fault": fault_dict(ctrl), "error": f"{type(exc).__name__}: {exc}"}
-        raise JobStopped(stopped_message("contact characterisation", ctrl, exc, f"{len(entries)} of {total} contact "
+                   "journal": str(journal.path), "fault": fault_dict(port), "error": f"{type(exc).__name__}: {exc}"}
+        raise JobStopped(stopped_message("contact characterisation", port, exc, f"{len(entries)} of {total} contact "
                                          "cycles") + f"; finished cycles are kept in {journal.path}: run again with "
                          "--resume", partial, partial["fault"]) from exc
     return entries
@@ -654,18 +655,16 @@ class _Memory:
         self.entries.append(entry)
 
 
-async def simulate(profile: Profile, values: Sequence[float], cycles: int, seed: int) -> list[dict[str, Any]]:
+async def simulate(profile: Profile, values: Sequence[float], cycles: int, seed: int,
+                   open_cell: OpenCell) -> list[dict[str, Any]]:
     """The contact step's cycles on the simulated cell of ``profile`` (virtual time), each
-    target laid out by the cell itself."""
+    target laid out by the cell itself. ``open_cell`` starts a controller on that cell
+    (service.open_cell: tasks do not import the service)."""
     from .experiments import sim_cell
 
     cfg, backend = sim_cell(profile, seed)
-    ctrl = Controller(cfg, backend)
-    await ctrl.start()
-    try:
-        return await measure(ctrl, values, cycles, _Memory(), place=ctrl.scene.place)  # type: ignore[arg-type]
-    finally:
-        await ctrl.stop()
+    async with open_cell(cfg, backend) as port:
+        return await measure(port, values, cycles, _Memory(), place=port.place)  # type: ignore[arg-type]
 
 
 @dataclass

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from fluidsense.common.errors import ConfigError, FluidsenseError
 from fluidsense.controller.config import Profile
+from fluidsense.controller.ports import OpenCell
 from fluidsense.controller.sensing.decision import METHODS
 
 from .calibrate import scene_with
@@ -188,9 +189,8 @@ def steps(scene: ChartScene, plan: Plan) -> int:
 
 
 async def _collect(prof: Profile, scene: ChartScene, targets: Sequence[float], cal_cycles: int, seed: int,
-                   times: Sequence[float], progress: Progress):
+                   times: Sequence[float], progress: Progress, open_cell: OpenCell):
     from fluidsense.controller.sensing.decision import features_at
-    from fluidsense.controller.service import Controller
 
     from .experiments import reference, sim_cell, sweep
 
@@ -198,13 +198,13 @@ async def _collect(prof: Profile, scene: ChartScene, targets: Sequence[float], c
         progress("running cycles", 1)
 
     cfg, backend = sim_cell(prof, seed)
-    async with Controller(cfg, backend) as ctrl:
-        ref = await reference(ctrl)
+    async with open_cell(cfg, backend) as port:
+        ref = await reference(port)
         ran()
         rt, rp = ref.trace
-        cal = await sweep(ctrl, scene.base, scene.target, scene.calibration, cycles=cal_cycles, drop_first=1,
+        cal = await sweep(port, scene.base, scene.target, scene.calibration, cycles=cal_cycles, drop_first=1,
                           on_cycle=ran)
-        test = await sweep(ctrl, scene.base, scene.target, targets, cycles=1, on_cycle=ran)
+        test = await sweep(port, scene.base, scene.target, targets, cycles=1, on_cycle=ran)
     thr = prof.sequence.contact_threshold_kpa
     sign = 1.0 if prof.sequence.p0_kpa >= 0 else -1.0
 
@@ -218,9 +218,11 @@ async def _collect(prof: Profile, scene: ChartScene, targets: Sequence[float], c
     return feats(cal), feats(test)
 
 
-def measure(profile: Profile, scene: ChartScene, plan: Plan, progress: Progress | None = None) -> Measured:
+def measure(profile: Profile, scene: ChartScene, plan: Plan, progress: Progress | None = None, *,
+            open_cell: OpenCell) -> Measured:
     """The floor, the grid and every kept cycle's features (virtual time, one seeded cell:
-    the same figures every run)."""
+    the same figures every run). ``open_cell`` starts a controller on that cell
+    (service.open_cell)."""
     progress = progress or (lambda stage, n: None)
     t0 = time.perf_counter()
     fl = floor(profile, scene, plan.settled_kpa, plan.step_end_s)
@@ -228,7 +230,8 @@ def measure(profile: Profile, scene: ChartScene, plan: Plan, progress: Progress 
              fl["settled_s"])
     times = decision_times(fl, plan.coarse, plan.last_s)
     targets = test_targets(scene, plan.trials, plan.seed)
-    cal, test = asyncio.run(_collect(profile, scene, targets, plan.cal_cycles, plan.seed, times, progress))
+    cal, test = asyncio.run(_collect(profile, scene, targets, plan.cal_cycles, plan.seed, times, progress,
+                                     open_cell))
     return Measured(cal, test, times, fl, time.perf_counter() - t0)
 
 
@@ -331,10 +334,12 @@ def round_rows(rows: Sequence[dict]) -> list[dict]:
 
 
 # ------------------------------------------------------------------ one chart
-def chart(profile: Profile, scene: ChartScene, plan: Plan, progress: Progress | None = None) -> dict[str, Any]:
+def chart(profile: Profile, scene: ChartScene, plan: Plan, progress: Progress | None = None, *,
+          open_cell: OpenCell) -> dict[str, Any]:
     """The chart's figures for a prepared profile (``for_profile``) and a scene: what the
-    JSON of ``fluidsense chart`` holds, but for the provenance and the file names."""
-    m = measure(profile, scene, plan, progress)
+    JSON of ``fluidsense chart`` holds, but for the provenance and the file names.
+    ``open_cell``: see ``measure``."""
+    m = measure(profile, scene, plan, progress, open_cell=open_cell)
     t0 = time.perf_counter()
     rows = score(m, plan, progress=progress)
     for r in rows:

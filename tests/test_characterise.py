@@ -58,7 +58,7 @@ def characterise_in_process(tmp_path, seed: int, plant_profile_path, levels=None
         ctrl = Controller(cfg, build_backend(cfg.driver, hidden_cfg.profile.hardware))
         await ctrl.start()
         try:
-            return await ch.measure(ctrl, levels, cycles, journal)
+            return await ch.measure(ctrl.task_port, levels, cycles, journal)
         finally:
             await ctrl.stop()
 

@@ -21,7 +21,7 @@ from fluidsense.common.errors import ConfigError
 from fluidsense.common.scenes import CylinderScene, PlateScene, StopperScene
 from fluidsense.controller.config import load_cell_config, load_profile
 from fluidsense.controller.config.profile import Profile
-from fluidsense.controller.service import Controller
+from fluidsense.controller.service import Controller, open_cell
 from fluidsense.drivers.registry import build_backend
 from fluidsense.common.scenes import EmptyScene
 from fluidsense.simulator.actuators import contact_pressure, volume_law
@@ -73,8 +73,8 @@ def characterise_in_process(tmp_path, seed: int, actuator: dict | None, targets=
         ctrl = Controller(cfg, build_backend(cfg.driver, hidden_cfg.profile.hardware))
         await ctrl.start()
         try:
-            e1 = await ch.measure(ctrl, lv, cycles, sweep)
-            e2 = await ct.measure(ctrl, values, cycles, contact, place=ctrl.scene.place)
+            e1 = await ch.measure(ctrl.task_port, lv, cycles, sweep)
+            e2 = await ct.measure(ctrl.task_port, values, cycles, contact, place=ctrl.task_port.place)
             return e1, e2
         finally:
             await ctrl.stop()
@@ -199,7 +199,7 @@ def test_the_written_profiles_simulated_cell_reads_what_the_hidden_cell_read(fix
         name = f.field.split(".")[1]
         assert f.lo95 <= FIXED[name] <= f.hi95, f
     mine = _profile_with(start, free, contact)
-    sim = asyncio.run(ct.simulate(mine, TARGETS, 4, seed=23))
+    sim = asyncio.run(ct.simulate(mine, TARGETS, 4, seed=23, open_cell=open_cell))
     check = ct.compare(contact, sim, mine, timing_fitted=True)
     print("\n" + "\n".join(check.lines))  # docs/cli.md quotes these (-s)
     assert check.ok, check.lines
@@ -209,7 +209,7 @@ def test_the_written_profiles_simulated_cell_reads_what_the_hidden_cell_read(fix
         se = math.sqrt(rig.p_eq_sd_kpa**2 / rig.n + s.p_eq_sd_kpa**2 / s.n + eq_sd**2 / 4)
         assert abs(s.p_eq_kpa - rig.p_eq_kpa) < 4 * se, (rig.value, rig.p_eq_kpa, s.p_eq_kpa, se)
     shipped = load_profile(REPO / "config" / "profiles" / f"{START}.yaml")
-    theirs = ct.compare(contact, asyncio.run(ct.simulate(shipped, TARGETS, 4, seed=23)), shipped, timing_fitted=True)
+    theirs = ct.compare(contact, asyncio.run(ct.simulate(shipped, TARGETS, 4, seed=23, open_cell=open_cell)), shipped, timing_fitted=True)
     assert not theirs.ok and any("dP_eq" in x for x in theirs.disagree), theirs.lines
 
 

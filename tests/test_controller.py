@@ -178,13 +178,25 @@ def test_a_polled_sources_jitter_does_not_hold_a_batch_for_a_second_block(tmp_pa
         def close(self):
             pass
 
-    clock = {"now": 0.0}
-    telemetry = Telemetry(Capture(), PublisherConfig(pressure_batch_s=0.01), now=lambda: clock["now"], rate_hz=lambda: 1000.0,
-                          clock_origin=lambda: None, on_failure=lambda detail: None)
+    class Clock:  # path.SampleTime
+        now = 0.0
+
+    class Source:  # path.Stream
+        rate_hz, clock_origin_s = 1000.0, None
+
+    faults = []
+
+    class Latch:  # path.Faults
+        def defer(self, detail, kind, now):
+            faults.append(detail)
+
+    clock = Clock()
+    telemetry = Telemetry(Capture(), PublisherConfig(pressure_batch_s=0.01), clock=clock, stream=Source(),
+                          faults=Latch())
     slots = np.arange(30) / 1000.0
     lateness = np.tile(np.r_[5e-6, np.zeros(9)], 3)  # each block's first read 5 us late
     for i in range(3):
         t = slots[10 * i:10 * i + 10] + lateness[10 * i:10 * i + 10]
-        clock["now"] = float(t[-1])
+        clock.now = float(t[-1])
         telemetry.on_block(SampleBlock(seq=i, t=t, values=np.zeros((10, 1)), channels=("p",)))
-    assert sent == [10, 10, 10]
+    assert sent == [10, 10, 10] and faults == []

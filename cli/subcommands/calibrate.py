@@ -175,7 +175,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                       unit="cycle", file=sys.stderr, disable=args.json) as bar:
                 if operator is not None:
                     operator.bar = bar
-                return await calibrate(ctrl, scene, target, values, feature=feature, fit=fit, cycles=cycles,
+                return await calibrate(ctrl.task_port, scene, target, values, feature=feature, fit=fit, cycles=cycles,
                                        drop_first=drop, place=operator.place if operator else None,
                                        progress=bar.update, seed=cfg.driver.samples_seed(),
                                        journal=journal, free_cycles=free)
@@ -223,7 +223,7 @@ def cmd_sense(args: argparse.Namespace) -> int:
     async def job():
         async with app.controller(cfg, own_process=True) as ctrl:
             valves.append(ctrl.backend.valves)
-            return await sense(ctrl, cal, scene, cycles=args.cycles, place=operator.place if operator else None)
+            return await sense(ctrl.task_port, cal, scene, cycles=args.cycles, place=operator.place if operator else None)
 
     try:
         res = stopsignals.run(job()).to_dict()

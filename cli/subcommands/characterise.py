@@ -163,18 +163,19 @@ def cmd_characterise(args: argparse.Namespace) -> int:
     async def job():
         async with app.controller(cfg, own_process=True) as ctrl:
             valves.append(ctrl.backend.valves)
-            place_free = nobody_places if real else ctrl.scene.place
+            port = ctrl.task_port
+            place_free = nobody_places if real else port.place
             with tqdm(total=total, initial=done, desc=f"characterising {start.name}", unit="cycle",
                       file=sys.stderr, disable=args.json) as bar:
-                entries = await ch.measure(ctrl, levels, args.cycles, journal, place=place_free,
+                entries = await ch.measure(port, levels, args.cycles, journal, place=place_free,
                                            progress=bar.update)
                 if targets is None:
                     return entries, None
                 bar.set_description(f"characterising {start.name}: targets")
                 if operator is not None:
                     operator.bar = bar
-                contact_entries = await ct.measure(ctrl, targets, tcycles, cjournal,
-                                                   place=operator.place if operator else ctrl.scene.place,
+                contact_entries = await ct.measure(port, targets, tcycles, cjournal,
+                                                   place=operator.place if operator else port.place,
                                                    place_free=place_free, progress=bar.update)
                 return entries, contact_entries
 
@@ -217,10 +218,12 @@ def cmd_characterise(args: argparse.Namespace) -> int:
     if contact is not None:
         # the check: the written profile's simulated cell at the same targets (virtual time)
         from fluidsense.controller.config.profile import Profile
+        from fluidsense.controller.service import open_cell
 
         mine = Profile.model_validate(data)
         try:
-            sim_entries = stopsignals.run(ct.simulate(mine, targets, tcycles, seed=args.seed + 7919))
+            sim_entries = stopsignals.run(ct.simulate(mine, targets, tcycles, seed=args.seed + 7919,
+                                                      open_cell=open_cell))
         except KeyboardInterrupt as exc:  # the rig's valves were vented when its cycles ended
             sig = stopsignals.interruption(exc)
             print(f"fluidsense: characterisation stopped by {sig.name} during the simulated check (the rig's cycles "

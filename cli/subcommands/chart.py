@@ -128,6 +128,7 @@ def command(args: argparse.Namespace) -> str:
 
 def main(args: argparse.Namespace) -> int:
     from fluidsense.controller.config import load_profile
+    from fluidsense.controller.service import open_cell
     from fluidsense.tasks import speed_accuracy as sa
 
     from ..speed_chart import draw, pyplot
@@ -143,7 +144,7 @@ def main(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {args.out}: exists and is not a directory")
     with Progress(sa.steps(scene, plan), f"charting {prof.name}") as bar:
-        res = sa.chart(prepared, scene, plan, progress=bar)
+        res = sa.chart(prepared, scene, plan, progress=bar, open_cell=open_cell)
     source = source_words(prof, path)
     res = {"command": command(args), "profile_file": str(path.resolve()), "source": source,
            "provenance": None if prof.provenance is None else {

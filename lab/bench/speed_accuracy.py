@@ -132,9 +132,12 @@ def _pair_rows(scene: str, circuit: str, rows) -> list[dict[str, Any]]:
 def _pair(args: tuple[str, str, int, int, int, float]) -> tuple[list, dict, dict | None]:
     """One scene and circuit on its own seeded cell: its rows, floor and (for CHECK_PAIR)
     check rows. The same in a worker process as in this one."""
+    from fluidsense.controller.service import open_cell
+
     scene, circuit, trials, cal_cycles, seed, lag = args
     how = plan(trials, cal_cycles, seed)
-    measured = core.measure(_profile(SCENES[scene][0], CIRCUITS[circuit], lag), chart_scene(scene), how)
+    measured = core.measure(_profile(SCENES[scene][0], CIRCUITS[circuit], lag), chart_scene(scene), how,
+                            open_cell=open_cell)
     check = None
     if (scene, circuit) == CHECK_PAIR and trials >= CHECK_TRIALS:
         check = {"scene": scene, "circuit": circuit, "trials": CHECK_TRIALS,

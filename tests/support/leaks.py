@@ -21,10 +21,6 @@ ALLOWED = {
     # close; the idle worker exits moments after, on its own
     "thread 'sim-pacer_": "drivers/sim/backend.py: ThreadPoolExecutor.shutdown(wait=False)",
     "thread 'daqmx-": "drivers/daqmx/calls.py TaskThread.close: ThreadPoolExecutor.shutdown(wait=False)",
-    # a product leak, not the test's: the grip handler's follow task outlives the controller it
-    # was started on (tests/test_grip_handler.py shows it); the handler's rework (issue 35 item 5)
-    # is to end it, and then this entry goes
-    "GripHandler._follow_cycle": "known: controller/requests/grip.py does not end its follow task on stop",
 }
 
 

@@ -14,8 +14,8 @@ PROFILES = Path(__file__).resolve().parent.parent / "config" / "profiles"
 def add_cell_options(p: argparse.ArgumentParser) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--config", "-c", help="cell config YAML (default: a simulated cell for --profile)")
-    g.add_argument("--profile", "-p", help="actuator profile YAML or name in config/profiles/ "
-                   "(runs on a simulated cell in virtual time)")
+    g.add_argument("--profile", "-p", help="actuator profile YAML, or a name: shipped (config/profiles/) or "
+                   "NAME.yaml here (runs on a simulated cell in virtual time)")
     p.add_argument("--seed", type=int, default=1, help="seed of the simulated cell (default 1)")
 
 
@@ -33,21 +33,31 @@ def _exists(path: Path) -> bool:
 
 
 def profile_path(name: str) -> Path:
+    """A profile by its file, or by its name: a shipped one (``pneunet-gripper``), or one of
+    your own in the working directory (``mine`` for mine.yaml, as ``fluidsense characterise
+    --out mine.yaml`` writes it). A name that is both is refused: give the file."""
     from fluidsense.common.errors import ConfigError
     from fluidsense.common.files import one_line
 
-    for candidate in (Path(name), PROFILES / name, PROFILES / f"{name}.yaml"):
-        if _exists(candidate):
-            return candidate
+    if _exists(Path(name)):
+        return Path(name)
+    shipped = next((c for c in (PROFILES / name, PROFILES / f"{name}.yaml") if _exists(c)), None)
+    own = next((c for c in (Path(f"{name}.yaml"), Path(f"{name}.yml")) if _exists(c)), None)
+    if shipped is not None and own is not None:
+        raise ConfigError(f"{one_line(name)}: both {own} here and the shipped profile of that name: give the file "
+                          f"(./{own}) or rename yours")
+    if shipped is not None or own is not None:
+        return shipped or own
     known = ", ".join(sorted(p.stem for p in PROFILES.glob("*.yaml")))
-    raise ConfigError(f"{one_line(name)}: no such profile file or name (known: {known})")
+    raise ConfigError(f"{one_line(name)}: no such profile file, no {one_line(name)}.yaml here and no shipped profile "
+                      f"of that name (shipped: {known})")
 
 
 def cell_config(args: argparse.Namespace, default_profile: str | None = None):
     """The cell for a job. Simulated cells run in virtual time with ``--seed``."""
     from fluidsense.common.errors import ConfigError
     from fluidsense.controller.config import CellConfig, load_cell_config, load_profile
-    from fluidsense.drivers.config import SimDriverConfig
+    from fluidsense.drivers.registry import SimDriverConfig
 
     if args.config:
         cfg = load_cell_config(args.config)

@@ -18,6 +18,7 @@ import numpy as np
 from fluidsense.cli.contact import t_c_text
 from fluidsense.common.errors import RecordingError
 from fluidsense.common.units import KPA
+from fluidsense.controller.cycles.analysis import reference_key
 from fluidsense.drivers.recording.reader import RecordingReader
 from fluidsense.drivers.recording.schema import REFERENCE
 
@@ -82,14 +83,14 @@ def read_cycles(path: str | Path, channel: str = "p_act") -> list[CyclePlot]:
         sel = (t >= r.get("t_start_s", t_open)) & (t <= end)
         cp = CyclePlot(r["cycle_id"], r, channel, t[sel] - t_open, p[sel] / KPA,
                        windows=[(w["name"], w["start_s"], w["end_s"]) for w in r.get("windows", [])])
-        ref = refs.get(round(r["p0_kpa"], 3)) if r.get("has_reference") and r.get("p0_kpa") is not None else None
+        ref = refs.get(reference_key(r["p0_kpa"] * KPA)) if r.get("has_reference") and r.get("p0_kpa") is not None else None
         if ref is not None:  # the reference is offset-corrected: back onto this cycle's offset
             cp.ref_t_rel_s, cp.ref_kpa = ref[0], ref[1] / KPA + (r.get("offset_kpa") or 0.0)
         if r.get("is_reference") and r.get("p0_kpa") is not None:
             # a later cycle at the same P0 is compared with this one (as the controller does:
             # offset-corrected, from the opening for actuate_s)
             opened = (cp.t_rel_s >= 0) & (cp.t_rel_s < actuate_s)
-            refs[round(r["p0_kpa"], 3)] = (cp.t_rel_s[opened], (cp.p_kpa[opened] - (r.get("offset_kpa") or 0.0)) * KPA)
+            refs[reference_key(r["p0_kpa"] * KPA)] = (cp.t_rel_s[opened], (cp.p_kpa[opened] - (r.get("offset_kpa") or 0.0)) * KPA)
         plots.append(cp)
     return plots
 

@@ -1,26 +1,28 @@
 """What tasks use besides cycles: the arm, and (simulated cells only) the scene.
 
-Tasks never reach into the backend: they move through ``ctrl.arm`` and, on a simulated
-cell, place objects and read the ground truth through ``ctrl.scene``. On a real cell
-``ctrl.scene.available`` is False and ``truth()`` is None: the operator places objects and
-nobody knows the truth.
+Tasks never reach into the backend: they move the arm and, on a simulated cell, place
+objects and read the ground truth through their port (controller/ports.py TaskPort), whose
+members are these (``ctrl.arm``, ``ctrl.scene``). On a real cell ``SceneAccess.available``
+is False and ``truth()`` is None: the operator places objects and nobody knows the truth.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 from fluidsense.common.errors import FaultError, NotSupportedError
-from fluidsense.common.faults import Fault
 from fluidsense.drivers.backend import Backend
+
+from .path import Faults, SampleTime
 
 
 class ArmAccess:
     """Straight-line moves of the tool, refused while a fault is latched."""
 
-    def __init__(self, backend: Backend, fault: Callable[[], Fault | None], now: Callable[[], float]) -> None:
-        self._backend, self._fault, self._now = backend, fault, now
+    def __init__(self, backend: Backend, faults: Faults, clock: SampleTime) -> None:
+        """``faults``: the safety latch (a move is refused while a fault is latched)."""
+        self._backend, self._faults, self._clock = backend, faults, clock
 
     @property
     def available(self) -> bool:
@@ -37,10 +39,10 @@ class ArmAccess:
     async def move_l(self, pose: Sequence[float], speed: float, acc: float) -> None:
         """Move in a straight line; returns on arrival (sample time)."""
         arm = self._arm()
-        fault = self._fault()
+        fault = self._faults.fault
         if fault is not None:
             raise FaultError(f"in FAULT ({fault.kind}); send reset")
-        await arm.move_l(pose, speed, acc, self._now())
+        await arm.move_l(pose, speed, acc, self._clock.now)
 
     def _arm(self):
         if self._backend.arm is None:
@@ -51,8 +53,8 @@ class ArmAccess:
 class SceneAccess:
     """Objects in front of the actuator, and what is really there (simulated cells)."""
 
-    def __init__(self, backend: Backend, now: Callable[[], float]) -> None:
-        self._backend, self._now = backend, now
+    def __init__(self, backend: Backend, clock: SampleTime) -> None:
+        self._backend, self._clock = backend, clock
 
     @property
     def available(self) -> bool:
@@ -60,11 +62,11 @@ class SceneAccess:
         return self._backend.scene is not None
 
     async def place(self, scene: Any) -> None:
-        await self._scene("cannot place objects").set_scene(scene, self._now())
+        await self._scene("cannot place objects").set_scene(scene, self._clock.now)
 
     async def lay_out(self, world: Any) -> None:
         """Slots and objects for an arm to work in."""
-        await self._scene("cannot lay out a work cell").set_world(world, self._now())
+        await self._scene("cannot lay out a work cell").set_world(world, self._clock.now)
 
     async def truth(self) -> dict[str, Any] | None:
         """What a simulated cell knows and a real one cannot (to score a run); None on a

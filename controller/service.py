@@ -7,18 +7,27 @@
     telemetry/fanout.py  events to the publisher and the recording
     sampling/clock.py    sample time: waits released by samples
 
-The command socket's requests (requests/) are wired onto this interface by the daemon;
-the controller knows nothing of them.
+Each part is handed the others through a named port (path.py: SampleTime, Events,
+Faults, Stream, EventPublisher; the loop's BlockPipeline is this controller), never a bare
+callable; path.py follows one sample from the driver's block to the published
+``pressure`` event.
 
-Per block: clock -> cycle trace -> supervisor (-> latch) -> cycle runner -> outputs watch
--> telemetry -> waits released -> heartbeat -> deferred faults.
+The command socket's requests (requests/) are wired onto this interface by the daemon;
+the controller knows nothing of them. Tasks get its task port (ports.py TaskPort).
+
+Per block (``on_block``): clock (waits released) -> cycle trace -> supervisor (-> latch)
+-> cycle runner -> outputs watch -> telemetry -> block watchers -> heartbeat -> deferred
+faults.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+from collections.abc import AsyncIterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import asynccontextmanager
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +41,10 @@ from .cell import ArmAccess, SceneAccess
 from .config import CellConfig
 from .cycles.analysis import CycleResult, Reference
 from .cycles.kept import ReferenceKeeper, identity
-from .cycles.runner import CycleRunner, reference_key
+from .cycles.analysis import reference_key
+from .cycles.runner import CycleRunner
+from .path import BlockWatcher, EventPublisher
+from .ports import TaskPort
 from .safety.latch import SafetyLatch, vented_word
 from .safety.outputs import OutputWatch
 from .safety.supervisor import Supervisor
@@ -40,31 +52,34 @@ from .safety.ventpath import vent_path
 from .sampling.clock import SampleClock
 from .sampling.loop import SampleLoop
 from .telemetry.fanout import Sink, Telemetry
-from .telemetry.publisher import NullPublisher, Publisher
+from .telemetry.publisher import NullPublisher
 
 log = logging.getLogger(__name__)
 
 
 class Controller:
-    def __init__(self, cfg: CellConfig, backend: Backend, publisher: Publisher | NullPublisher | None = None):
+    """The parts wired (each is handed the others through a path.py port: the clock as
+    SampleTime, the latch as Faults, the telemetry as Events, the source as Stream, the
+    publisher as EventPublisher), and the sample loop's BlockPipeline itself."""
+
+    def __init__(self, cfg: CellConfig, backend: Backend, publisher: EventPublisher | None = None):
         self.cfg, self.profile, self.backend = cfg, cfg.profile, backend
         self.clock = SampleClock()
-        now = lambda: self.clock.now  # noqa: E731
         self.latch = SafetyLatch(backend, self.clock.demand)
-        self.telemetry = Telemetry(publisher or NullPublisher(), cfg.publisher, now=now, rate_hz=lambda: backend.source.rate_hz,
-                                   clock_origin=lambda: backend.source.clock_origin_s, on_failure=self._internal)
-        self.cycles = CycleRunner(self.profile, backend, now=now, emit=self.telemetry.emit,
-                                  record=self.telemetry.record, trip=self._trip, freeze_s=cfg.supervision.freeze_s)
+        self.telemetry = Telemetry(publisher or NullPublisher(), cfg.publisher, clock=self.clock, stream=backend.source,
+                                   faults=self.latch)
+        self.cycles = CycleRunner(self.profile, backend, clock=self.clock, events=self.telemetry, faults=self.latch,
+                                  freeze_s=cfg.supervision.freeze_s)
         self.supervisor = Supervisor(self.profile, cfg.supervision)
-        self.outputs = OutputWatch(backend, self.latch, self.telemetry.emit, cfg.publisher.heartbeat_s)
-        self.loop = SampleLoop(cfg, backend, connect=self._connect, handle=self._on_block, fail=self._read_failed,
-                               wanted=self._wants_samples, demand=self.clock.demand, now=now)
-        self.arm = ArmAccess(backend, lambda: self.latch.fault, now)
-        self.scene = SceneAccess(backend, now)
+        self.outputs = OutputWatch(backend, self.latch, self.telemetry, cfg.publisher.heartbeat_s)
+        self.loop = SampleLoop(cfg, backend, pipeline=self, clock=self.clock)
+        self.arm = ArmAccess(backend, self.latch, self.clock)
+        self.scene = SceneAccess(backend, self.clock)
+        #: what follows the running cycle block by block beside the telemetry (the gripper's
+        #: watch: requests/wiring.py), called after the block's telemetry (``watch``)
+        self.watchers: list[BlockWatcher] = []
         self.latch.before_vent.append(self.cycles.on_fault)
-        self.latch.after_vent += [lambda f, event: self.telemetry.emit("fault", event),
-                                  lambda f, event: self.outputs.tripped(), self.cycles.after_fault,
-                                  lambda f, event: self.clock.fail(FaultError(f"{f.kind}: {f.detail}"))]
+        self.latch.after_vent.append(self._vented)
         self._task: asyncio.Task[None] | None = None
         #: the free-air references with their age; on disk once the daemon asks (``keep_references``)
         self.keeper = ReferenceKeeper(None, identity(cfg))
@@ -92,7 +107,9 @@ class Controller:
                 raise self.cfg.driver.unreachable(exc) from exc
         self._task = asyncio.create_task(self.loop.run(), name="fluidsense-sample-loop")
 
-    async def _connect(self) -> None:
+    async def set_up(self) -> None:
+        """The devices set up for sampling (the sample loop connects through this: path.py
+        BlockPipeline), and commanded to their safe state."""
         await self.backend.setup()
         if self.backend.arm is not None:
             self.backend.arm.use_clock(self.clock)
@@ -264,8 +281,23 @@ class Controller:
         if seq.t_open + seconds > self.now:
             await self.wait(seq.t_open + seconds - self.now)
 
+    @cached_property
+    def task_port(self) -> TaskPort:
+        """What a task may ask of this controller (ports.py): tasks/ are handed this, never
+        the controller."""
+        arm, scene = self.arm, self.scene
+        return TaskPort(profile=self.profile, now=lambda: self.now, run_cycle=self.run_cycle,
+                        start_cycle=self.start_cycle, measured=self.measured, release=self.release,
+                        wait_after_open=self.wait_after_open, reference=self.reference, fault=lambda: self.fault,
+                        emit=self.emit, simulated=scene.available, place=scene.place, lay_out=scene.lay_out,
+                        truth=scene.truth, move_l=arm.move_l, tcp_pose=lambda: arm.tcp_pose)
+
     def add_sink(self, sink: Sink) -> None:
         self.telemetry.sinks.append(sink)
+
+    def watch(self, watcher: BlockWatcher) -> None:
+        """Hand every block to ``watcher`` after its telemetry (path.py BlockWatcher)."""
+        self.watchers.append(watcher)
 
     def emit(self, topic: str, payload: dict[str, Any]) -> None:
         """Publish an event (a task's progress) and hand it to the sinks."""
@@ -306,15 +338,18 @@ class Controller:
                 "rate_hz": self.backend.source.rate_hz, "virtual": self.virtual,
                 "realtime": self.realtime["sched_fifo"], "vent_path": self.vent_path["by"]}
 
-    # ------------------------------------------------------------------ the loop's side
+    # ------------------------------------------------------------------ the loop's side (path.py BlockPipeline)
     def _check_running(self) -> None:
         if not self.running:
             raise CommandError("controller is not running")
 
-    def _wants_samples(self) -> bool:
+    @property
+    def wants_samples(self) -> bool:
+        """Something waits on samples: a wait on the clock, or a cycle that needs them."""
         return self.clock.waiting or self.cycles.wants_samples
 
-    async def _on_block(self, block: SampleBlock) -> None:
+    async def on_block(self, block: SampleBlock) -> None:
+        """One block from the sample loop, through every part in this order (path.py)."""
         self.clock.advance(block.t_end)
         self.cycles.trace(block)
         fault = self.supervisor.check(block, holding=self.cycles.holding,
@@ -324,17 +359,42 @@ class Controller:
         await self.cycles.on_block()
         self.outputs.on_block(self.now)
         self.telemetry.on_block(block)
+        self._watch(block)
         if self.telemetry.heartbeat_due():
             self.telemetry.heartbeat(self.heartbeat(), self.loop.proc_s)
         await self.latch.trip_deferred(self.now)
 
-    async def _trip(self, fault: Fault) -> None:
-        await self.latch.trip(fault, self.now)
+    def _watch(self, block: SampleBlock) -> None:
+        """The block to each watcher; one that raises is a bug: it is dropped, said on the
+        ``log`` topic, and an internal fault is latched after the block (as for a sink)."""
+        for watcher in list(self.watchers):
+            try:
+                watcher.on_block(block)
+            except Exception as exc:  # noqa: BLE001 - dropped, and a fault
+                self.watchers.remove(watcher)
+                name, reason = type(watcher).__name__, f"{type(exc).__name__}: {exc}"
+                log.error("block watcher %s failed and was dropped: %s", name, reason, exc_info=exc)
+                self.telemetry.emit("log", {"level": "ERROR", "message": f"{name} failed and was dropped: {reason}",
+                                            "watcher": name})
+                self.latch.defer(f"{name} failed: {reason}", FaultKind.INTERNAL, self.now)
 
-    async def _read_failed(self, fault: Fault) -> None:
+    async def on_read_failure(self, fault: Fault) -> None:
         """No block: a fault, and whoever waits on samples now is told (none will come)."""
         await self.latch.trip(fault, self.now)
         self.clock.fail(FaultError(f"no samples: {fault.detail}"))
 
-    def _internal(self, detail: str) -> None:
-        self.latch.defer(detail, FaultKind.INTERNAL, self.now)
+    def _vented(self, fault: Fault, event: dict[str, Any]) -> None:
+        """After the latch vented (its ``after_vent``): the fault published, the outputs
+        watch told, the cycle ended with what it measured, every wait on samples released."""
+        self.telemetry.emit("fault", event)
+        self.outputs.tripped()
+        self.cycles.after_fault(fault, event)
+        self.clock.fail(FaultError(f"{fault.kind}: {fault.detail}"))
+
+
+@asynccontextmanager
+async def open_cell(cfg: CellConfig, backend: Backend) -> AsyncIterator[TaskPort]:
+    """A controller started on ``backend`` for one job, as its task port (ports.OpenCell);
+    stopped (vented, the devices closed) when the job leaves it."""
+    async with Controller(cfg, backend) as ctrl:
+        yield ctrl.task_port

@@ -26,7 +26,7 @@ from fluidsense.controller.requests.wiring import wire
 from fluidsense.controller.safety.latch import vented_word
 from fluidsense.controller.service import Controller
 from fluidsense.controller.telemetry.publisher import Publisher
-from fluidsense.drivers.config import build_backend
+from fluidsense.drivers.registry import build_backend
 
 from .notify import LoopWatchdog, Notifier, keep_alive
 
@@ -148,7 +148,7 @@ def _task_runner(ctrl: Controller, tasks_dir: Path):
         if root not in path.parents or path.suffix not in (".yaml", ".yml") or not path.is_file():
             raise CommandError(f"task file {name!r} is not a YAML file in {root}")
         task = load_task(path)
-        return run_task(ctrl, task, order_mm=order_mm)
+        return run_task(ctrl.task_port, task, order_mm=order_mm)
 
     return start
 

@@ -7,7 +7,7 @@ UR robot and control box behind it, files it reads, whether its samples come fro
 seed. The defaults here describe a cell that has none of these; a driver overrides what
 applies to it. Nothing outside drivers/ looks at ``kind`` to decide anything
 (tests/test_driver_registry.py checks it), so adding a driver touches its config, its
-backend and the registry (drivers/config.py) only: docs/architecture.md, "Adding a
+backend and the registry (drivers/registry.py) only: docs/architecture.md, "Adding a
 driver".
 
 Importing this imports pydantic only: the backend's module (and ur_rtde, pymodbus,
@@ -67,7 +67,7 @@ class DriverEntry(StrictModel):
     live: ClassVar[bool] = True
 
     def build(self, hardware: Hardware, read_only: bool = False) -> Backend:
-        """Import the backend's module now and build it (drivers/config.py's
+        """Import the backend's module now and build it (drivers/registry.py's
         ``build_backend`` says what ``read_only`` means)."""
         return importlib.import_module(self.backend_module).build(self, hardware, read_only=read_only)
 

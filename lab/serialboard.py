@@ -40,7 +40,7 @@ from typing import Any
 from fluidsense.common.hardware import Hardware
 from fluidsense.common.scenes import Scene
 from fluidsense.common.units import KPA
-from fluidsense.drivers.config import SimDriverConfig
+from fluidsense.drivers.registry import SimDriverConfig
 from fluidsense.drivers.serial.config import SerialDriverConfig
 from fluidsense.simulator.cell import SimulatedCell
 from pydantic import TypeAdapter, ValidationError

@@ -60,6 +60,12 @@ class Plant:
         self.flow_of_t: Callable[[float], float] | None = None
         self._events: list[_Event] = []
         self._seq = itertools.count()
+        # s of the first solve after an event (then doubling): long in virtual time, where
+        # fewer solves are cheaper; short where the plant runs in real time beside I/O, so
+        # that no one solve holds the box's loop for longer than its I/O period
+        self.first_horizon_s = _FIRST_HORIZON_S
+        # the solver's relative tolerance (absolute: 1 % of it, relative to each state)
+        self.rtol = _RTOL
         y0 = np.empty(network.n_state)
         p_initial_abs = p_initial_abs or {}
         for i, name in enumerate(network.names):
@@ -149,11 +155,11 @@ class Plant:
     def _new_segment(self, t0: float, y0: np.ndarray) -> _Segment:
         rhs = self.net.rhs_factory(self.valves, self.laws, self.regulator_target_abs,
                                    self.regulator_tau_s, self.flow_of_t)
-        return _Segment(t0=t0, y0=np.array(y0, dtype=float), rhs=rhs, t_end=t0)
+        return _Segment(t0=t0, y0=np.array(y0, dtype=float), rhs=rhs, t_end=t0, horizon=self.first_horizon_s)
 
     def _atol(self, y: np.ndarray) -> np.ndarray:
         scale = np.maximum(np.abs(y), 1e-6)
-        return scale * 1e-11
+        return scale * self.rtol * 1e-2
 
     def _extend(self, seg: _Segment, t_needed: float) -> None:
         """Integrate the segment forward until it covers ``t_needed``."""
@@ -163,7 +169,7 @@ class Plant:
             t_stop = max(t_needed, t_start + seg.horizon)
             seg.horizon = min(seg.horizon * 2.0, _MAX_HORIZON_S)
             res = solve_ivp(seg.rhs, (t_start, t_stop), y_start, method="LSODA",
-                            dense_output=True, rtol=_RTOL, atol=self._atol(y_start))
+                            dense_output=True, rtol=self.rtol, atol=self._atol(y_start))
             self.n_solves += 1
             if not res.success:  # pragma: no cover - LSODA failing is a model bug
                 raise RuntimeError(f"plant integration failed: {res.message}")

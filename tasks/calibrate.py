@@ -13,6 +13,8 @@ from typing import Any
 
 from fluidsense.common.errors import FluidsenseError, JobStopped
 from fluidsense.common.scenes import TARGETS, EmptyScene, Scene
+from fluidsense.common.units import KPA
+from fluidsense.controller.ports import TaskPort
 from fluidsense.controller.sensing.calibration import (
     FEATURES,
     NEEDS_REFERENCE,
@@ -21,7 +23,6 @@ from fluidsense.controller.sensing.calibration import (
     feature_value,
 )
 from fluidsense.controller.sensing.estimate import Estimate, si_unit
-from fluidsense.controller.service import Controller
 from pydantic import TypeAdapter
 
 from .journal import CycleJournal
@@ -36,13 +37,14 @@ def scene_with(scene: Any, target: str, value: float) -> Any:
     return _SCENE.validate_python({**data, target: value})
 
 
-async def ensure_reference(ctrl: Controller, place: Place, p0_kpa: float | None = None) -> None:
+async def ensure_reference(port: TaskPort, place: Place, p0_kpa: float | None = None) -> None:
     """A free-air reference cycle at this P0 unless one is stored."""
-    p0 = ctrl.profile.sequence.p0_kpa if p0_kpa is None else p0_kpa
-    if round(p0, 3) in ctrl.cycles.references:
+    profile = port.profile
+    p0 = profile.sequence.p0_kpa if p0_kpa is None else p0_kpa
+    if port.reference(p0 * KPA) is not None:
         return
     await place(EmptyScene())
-    res = await ctrl.run_cycle(p0_kpa=p0, label="reference", store_reference=True)
+    res = await port.run_cycle(p0_kpa=p0, label="reference", store_reference=True)
     if not res.ok:
         raise FluidsenseError(f"reference cycle {res.cycle_id} failed: {res.aborted}")
 
@@ -53,7 +55,7 @@ class CalibrationRun:
     skipped: list[dict[str, Any]] = field(default_factory=list)  # cycles whose feature was missing
 
 
-async def calibrate(ctrl: Controller, scene: Any, target: str, values: Sequence[float], *, feature: str = "p_eq",
+async def calibrate(port: TaskPort, scene: Any, target: str, values: Sequence[float], *, feature: str = "p_eq",
                     fit: str = "linear", cycles: int = 8, drop_first: int = 1, place: Place | None = None,
                     progress: Callable[[int], None] | None = None, seed: int | None = None,
                     journal: CycleJournal | None = None, free_cycles: int = 0) -> CalibrationRun:
@@ -64,13 +66,13 @@ async def calibrate(ctrl: Controller, scene: Any, target: str, values: Sequence[
     again. A run that cannot finish raises JobStopped with what it had done."""
     if feature not in FEATURES:
         raise CalibrationError(f"unknown feature {feature!r}; known: {', '.join(FEATURES)}")
-    place = place or ctrl.scene.place
+    place = place or port.place
     unit = TARGETS.get(scene.kind, (target, ""))[1]
     entries: list[dict[str, Any]] = list(journal.entries) if journal is not None else []
     total = len(values) * cycles + free_cycles
     try:
         if feature in NEEDS_REFERENCE:
-            await ensure_reference(ctrl, place)
+            await ensure_reference(port, place)
         plan: list[tuple[float | None, int]] = [(None, free_cycles)] if free_cycles else []
         for value, n in [*plan, *((v, cycles) for v in values)]:
             done = sum(1 for e in entries if e["value"] == value)
@@ -79,7 +81,7 @@ async def calibrate(ctrl: Controller, scene: Any, target: str, values: Sequence[
             await place(EmptyScene() if value is None else scene_with(scene, target, value))
             label = "free" if value is None else f"{target}={value:g}"
             for k in range(done, n):
-                res = await ctrl.run_cycle(label=label)
+                res = await port.run_cycle(label=label)
                 if not res.ok:
                     raise FluidsenseError(f"calibration cycle {res.cycle_id} ({label}) ended: {res.aborted}")
                 entry = {"value": None if value is None else float(value), "k": k, "cycle_id": res.cycle_id,
@@ -94,22 +96,23 @@ async def calibrate(ctrl: Controller, scene: Any, target: str, values: Sequence[
     except FluidsenseError as exc:
         kept = f"; finished cycles are kept in {journal.path}: run again with --resume" if journal else ""
         partial = {"completed": False, "cycles_done": len(entries), "cycles_total": total,
-                   "journal": None if journal is None else str(journal.path), "fault": fault_dict(ctrl),
+                   "journal": None if journal is None else str(journal.path), "fault": fault_dict(port),
                    "error": f"{type(exc).__name__}: {exc}"}
-        raise JobStopped(stopped_message("calibration", ctrl, exc, f"{len(entries)} of {total} cycles") + kept,
+        raise JobStopped(stopped_message("calibration", port, exc, f"{len(entries)} of {total} cycles") + kept,
                          partial, partial["fault"]) from exc
     used = [e for e in entries if e["k"] >= drop_first]
     free_y = [e["y"] for e in used if e["value"] is None and e["y"] is not None]
     used = [e for e in used if e["value"] is not None]
     skipped = [{"cycle_id": e["cycle_id"], target: e["value"]} for e in used if e["y"] is None]
     points = [(e["value"], e["y"]) for e in used if e["y"] is not None]
-    seq = ctrl.profile.sequence
+    profile = port.profile
+    seq = profile.sequence
     window = (seq.flow_window if feature == "v_eq" else seq.windows[0]).model_dump()
     cal = Calibration.fit_points(
-        [x for x, _ in points], [y for _, y in points], fit, profile=ctrl.profile.name, method=seq.method,
+        [x for x, _ in points], [y for _, y in points], fit, profile=profile.name, method=seq.method,
         feature=feature, feature_unit=FEATURES[feature][1], scene=scene.model_dump(), target=target,
         target_unit=unit, window=window, seed=seed, cycles=cycles, drop_first=drop_first, free_y=free_y,
-        session_rel_sd=ctrl.profile.session_rel_sd)
+        session_rel_sd=profile.session_rel_sd)
     return CalibrationRun(cal, skipped)
 
 
@@ -144,28 +147,29 @@ class Sensing:
         }
 
 
-async def sense(ctrl: Controller, cal: Calibration, scene: Any | None = None, cycles: int = 1,
+async def sense(port: TaskPort, cal: Calibration, scene: Any | None = None, cycles: int = 1,
                 place: Place | None = None) -> Sensing:
     """Measure ``cycles`` cycles (averaged) and say what the calibration makes of them:
     a value with its interval, no object, or out of range."""
-    place = place or ctrl.scene.place
-    if ctrl.profile.name != cal.profile:
-        raise CalibrationError(f"calibration is for profile {cal.profile!r}, the cell runs {ctrl.profile.name!r}")
+    place = place or port.place
+    profile = port.profile
+    if profile.name != cal.profile:
+        raise CalibrationError(f"calibration is for profile {cal.profile!r}, the cell runs {profile.name!r}")
     if cal.feature in NEEDS_REFERENCE:
-        await ensure_reference(ctrl, place)
+        await ensure_reference(port, place)
     if scene is not None:
         await place(scene)
     values: list[float] = []
     missing = 0
     for _ in range(cycles):
         try:
-            res = await ctrl.run_cycle(label="sense")
+            res = await port.run_cycle(label="sense")
             if not res.ok:
                 raise FluidsenseError(f"sensing cycle {res.cycle_id} ended: {res.aborted}")
         except FluidsenseError as exc:
             partial = {"completed": False, "cycles_done": len(values), "cycles_total": cycles,
-                       "measurements": values, "fault": fault_dict(ctrl), "error": f"{type(exc).__name__}: {exc}"}
-            raise JobStopped(stopped_message("sensing", ctrl, exc, f"{len(values)} of {cycles} cycles"), partial,
+                       "measurements": values, "fault": fault_dict(port), "error": f"{type(exc).__name__}: {exc}"}
+            raise JobStopped(stopped_message("sensing", port, exc, f"{len(values)} of {cycles} cycles"), partial,
                              partial["fault"]) from exc
         y = feature_value(res, cal.feature)
         if y is None:
@@ -177,15 +181,15 @@ async def sense(ctrl: Controller, cal: Calibration, scene: Any | None = None, cy
         est = cal.estimate(None, n_measurements=cycles)
     else:
         est = cal.estimate(sum(values) / len(values) / scale, n_measurements=len(values))
-    truth = await _truth(ctrl, scene, cal.target)
+    truth = await _truth(port, scene, cal.target)
     return Sensing(est, values, truth, cal.target_unit, cal.feature_unit)
 
 
-async def _truth(ctrl: Controller, scene: Any | None, target: str) -> float | None:
+async def _truth(port: TaskPort, scene: Any | None, target: str) -> float | None:
     """The target's true value from the scene's geometry (simulated cell), not from any
     measurement."""
     if scene is not None and hasattr(scene, target):
         return float(getattr(scene, target))
-    truth = await ctrl.scene.truth() if ctrl.scene.available else None
+    truth = await port.truth() if port.simulated else None
     value = None if truth is None else truth.get(target)
     return float(value) if isinstance(value, (int, float)) else None

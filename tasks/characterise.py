@@ -38,7 +38,7 @@ from fluidsense.common.hardware import PORT_VOLUME_M3
 from fluidsense.common.scenes import EmptyScene
 from fluidsense.common.units import KPA, LITRE, ML
 from fluidsense.controller.config.profile import FittedNumber, Profile, Provenance
-from fluidsense.controller.service import Controller
+from fluidsense.controller.ports import TaskPort
 from scipy import integrate, optimize, stats
 
 from .journal import CycleJournal
@@ -201,13 +201,14 @@ def reading(res, level_kpa: float, k: int, window: tuple[float, float]) -> dict[
 
 
 # ------------------------------------------------------------------ the cycles
-async def measure(ctrl: Controller, levels: Sequence[float], cycles: int, journal: CharacteriseJournal,
+async def measure(port: TaskPort, levels: Sequence[float], cycles: int, journal: CharacteriseJournal,
                   place: Place | None = None, progress: Callable[[int], None] | None = None) -> list[dict]:
     """``cycles`` free-air cycles at each level; each finished one goes into ``journal`` as
     it completes (those already there are not run again). A run that cannot finish raises
     JobStopped with what it had done."""
-    place = place or ctrl.scene.place
-    seq = ctrl.profile.sequence
+    place = place or port.place
+    profile = port.profile
+    seq = profile.sequence
     window = (seq.windows[0].start_s, seq.windows[0].end_s)
     entries = journal.entries
     total = len(levels) * cycles
@@ -222,7 +223,7 @@ async def measure(ctrl: Controller, levels: Sequence[float], cycles: int, journa
             for level in levels:
                 if any(e["level_kpa"] == level and e["k"] == k for e in entries):
                     continue
-                res = await ctrl.run_cycle(p0_kpa=level, label=f"characterise P0={level:g}")
+                res = await port.run_cycle(p0_kpa=level, label=f"characterise P0={level:g}")
                 if not res.ok or res.trace is None or res.p_eq is None:
                     raise FluidsenseError(f"free-air cycle {res.cycle_id} at {level:g} kPa ended: {res.aborted}")
                 # off the event loop: the sampler shares it, and a real-time loop held up by a
@@ -235,8 +236,8 @@ async def measure(ctrl: Controller, levels: Sequence[float], cycles: int, journa
         raise
     except FluidsenseError as exc:
         partial = {"completed": False, "cycles_done": len(entries), "cycles_total": total,
-                   "journal": str(journal.path), "fault": fault_dict(ctrl), "error": f"{type(exc).__name__}: {exc}"}
-        raise JobStopped(stopped_message("characterisation", ctrl, exc, f"{len(entries)} of {total} cycles")
+                   "journal": str(journal.path), "fault": fault_dict(port), "error": f"{type(exc).__name__}: {exc}"}
+        raise JobStopped(stopped_message("characterisation", port, exc, f"{len(entries)} of {total} cycles")
                          + f"; finished cycles are kept in {journal.path}: run again with --resume", partial,
                          partial["fault"]) from exc
     return entries
@@ -260,6 +261,7 @@ class Characterisation:
     residual_kpa: float
     pure_error_kpa: float
     levels: list[dict[str, float]] = field(default_factory=list)  # per level: P0, mean, sd, n, fitted
+    pv_cov: list[list[float]] | None = None  # covariance of (v0 ml, c ml/kPa): the contact fit carries it
 
     def value(self, name: str) -> float | None:
         for f in self.fitted:
@@ -540,31 +542,42 @@ def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
         "circuit.hose": "as the config states it (bore and length)",
         "circuit.regulator_repeatability_kpa": "not separable from the other causes of the spread; "
                                                "sequence.eq_sd_kpa holds the spread itself",
-        "actuator (other fields)": "contact and closing need objects (issue 36 item 2): kept",
+        "actuator (other fields)": "the contact law needs objects of known size (--targets): kept",
         "sensor.offset_kpa": "removed per cycle before the valve opens; not a property of the actuator",
     }.items():
         kept.setdefault(name, why)
     level_rows = [{"p0_kpa": lv, "mean_kpa": float(m / KPA), "sd_kpa": float(y.std(ddof=1) / KPA), "n": int(k),
                    "fitted_kpa": float(f / KPA)} for lv, m, y, k, f in zip(levels, means, ys, counts, fitted_eq)]
-    result = Characterisation(fitted, measured, kept, notes, residual, s_pure / KPA, level_rows)
+    result = Characterisation(fitted, measured, kept, notes, residual, s_pure / KPA, level_rows,
+                              pv_cov=[[float(x) for x in row] for row in cov])
     if refused:
         raise FitRefused(refused, result)
     return result
 
 
 # ------------------------------------------------------------------ the profile
+CONTACT_OTHERS = "neither free air nor rigid, centred targets show them: kept"
 FIELD_UNITS = {"actuator.v0_ml": "ml", "actuator.compliance_ml_per_kpa": "ml/kPa"}
 
 
 def characterised_profile(start_data: dict[str, Any], start: Profile, result: Characterisation, *, name: str,
                           rig: str, config: str, from_profile: str, levels: Sequence[float], cycles: int,
-                          cycle_ids: Sequence[int], date: datetime.datetime | None = None) -> dict[str, Any]:
+                          cycle_ids: Sequence[int], date: datetime.datetime | None = None,
+                          contact: Any = None, contact_block: dict[str, Any] | None = None) -> dict[str, Any]:
     """The starting profile's document with the fitted fields set and the provenance
-    block added; checked by the Profile model before it is returned."""
+    block added; checked by the Profile model before it is returned. ``contact`` (a
+    tasks.contact.ContactFit) adds the contact law's fitted fields, ``contact_block`` its
+    provenance (tasks.contact.provenance)."""
     data = {**start_data}
     for key in ("circuit", "actuator", "sensor", "sequence"):
         data[key] = dict(data.get(key) or {})
-    for f in result.fitted:
+    fitted, kept, notes = list(result.fitted), dict(result.kept), list(result.notes)
+    if contact is not None:
+        fitted += contact.fitted
+        kept.update(contact.kept)
+        kept["actuator (other fields)"] = CONTACT_OTHERS
+        notes += contact.notes
+    for f in fitted:
         section, _, key = f.field.partition(".")
         data[section][key] = float(f"{f.value:.6g}")
     data["name"] = name
@@ -573,24 +586,32 @@ def characterised_profile(start_data: dict[str, Any], start: Profile, result: Ch
     when = (date or datetime.datetime.now(datetime.UTC)).isoformat(timespec="seconds")
     prov = Provenance(date=when, rig=rig, config=config, from_profile=from_profile, levels_kpa=list(levels),
                       cycles_per_level=cycles, cycle_ids=list(cycle_ids), residual_kpa=result.residual_kpa,
-                      pure_error_kpa=result.pure_error_kpa, fitted=result.fitted, measured=result.measured,
-                      kept=result.kept, notes=result.notes)
+                      pure_error_kpa=result.pure_error_kpa, fitted=fitted, measured=result.measured,
+                      kept=kept, notes=notes, contact=contact_block)
     data["provenance"] = prov.model_dump(mode="json")
     Profile.model_validate(data)  # a profile nobody can load is never written
     return data
 
 
-def profile_comments(result: Characterisation, prov_line: str) -> str:
+def profile_comments(result: Characterisation, prov_line: str, contact: Any = None) -> str:
     """The header a characterised profile carries: every fitted number with its interval,
     and what was kept, in words (the provenance block holds the same, for programs)."""
+    fitted, kept = list(result.fitted), dict(result.kept)
+    if contact is not None:
+        fitted += contact.fitted
+        kept.update(contact.kept)
+        kept["actuator (other fields)"] = CONTACT_OTHERS
     lines = [f"# Characterised by fluidsense characterise: {prov_line}", "# Fitted on the rig (95 % intervals):"]
-    for f in result.fitted:
+    for f in fitted:
         lines.append(f"#   {f.field} = {f.value:.6g} {f.unit} [{f.lo95:.6g}, {f.hi95:.6g}]")
     lines.append("# Kept from the starting profile:")
-    for k, why in result.kept.items():
+    for k, why in kept.items():
         lines.append(f"#   {k}: {why}")
     lines.append(f"# P-V fit residual {result.residual_kpa:.3g} kPa rms over the levels' means; the cycles' own "
                  f"spread {result.pure_error_kpa:.3g} kPa")
+    if contact is not None:
+        lines.append(f"# Contact law from {len(contact.targets)} targets at P0 (provenance.contact: the readings, "
+                     "the fitted law's and the simulated cell's)")
     return "\n".join(lines) + "\n"
 
 

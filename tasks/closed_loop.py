@@ -1,6 +1,7 @@
 """The paper's closed-loop experiments as tasks: sorting, tomato picking, ripeness.
 
-Each task drives the arm and the gripper through the controller only, takes its
+Each task drives the arm and the gripper through the controller's task port only
+(controller/ports.py TaskPort), takes its
 decisions from the fluidic features, publishes its progress (``report``) and returns a
 JSON-ready summary. On a simulated cell, where the truth is known, the summary also
 scores itself against it.
@@ -18,8 +19,8 @@ from fluidsense.common.errors import FluidsenseError
 from fluidsense.common.units import KPA
 from fluidsense.common.world import WorldObject, WorldSlot, WorldSpec
 from fluidsense.controller.cycles.analysis import CycleResult
+from fluidsense.controller.ports import TaskPort
 from fluidsense.controller.sensing.calibration import Calibration, feature_value
-from fluidsense.controller.service import Controller
 
 from .config import PickingTask, RipenessTask, SortingTask
 
@@ -29,17 +30,17 @@ Report = Callable[[dict[str, Any]], None]
 class Cell:
     """Arm and gripper moves in the task's terms: slots, approach heights, grips."""
 
-    def __init__(self, ctrl: Controller, task, report: Report):
-        self.ctrl, self.task, self.report = ctrl, task, report
+    def __init__(self, port: TaskPort, task, report: Report):
+        self.port, self.task, self.report = port, task, report
         m = task.motion
         self.speed, self.acc, self.up = m.speed_m_s, m.acc_m_s2, m.approach_m
 
     @property
     def simulated(self) -> bool:
-        return self.ctrl.scene.available
+        return self.port.simulated
 
     async def move(self, pose) -> None:
-        await self.ctrl.arm.move_l(pose, self.speed, self.acc)
+        await self.port.move_l(pose, self.speed, self.acc)
 
     def _above(self, pose, dz: float | None = None):
         p = list(pose)
@@ -48,43 +49,43 @@ class Cell:
 
     async def go_to(self, slot: str) -> None:
         """Lift, travel above the slot, descend onto it."""
-        here = self.ctrl.arm.tcp_pose
+        here = self.port.tcp_pose()
         target = self.task.slots[slot]
         await self.move(self._above(here))
         await self.move(self._above(target))
         await self.move(target)
 
     async def lift(self, dz: float | None = None) -> None:
-        await self.move(self._above(self.ctrl.arm.tcp_pose, dz))
+        await self.move(self._above(self.port.tcp_pose(), dz))
 
     async def grip(self, p0_kpa: float | None = None, label: str | None = None) -> CycleResult:
         """Close on whatever is at the tool and measure; the gripper stays closed."""
-        await self.ctrl.start_cycle(p0_kpa=p0_kpa, label=label, hold=True)
-        res = await self.ctrl.measured()
+        await self.port.start_cycle(p0_kpa=p0_kpa, label=label, hold=True)
+        res = await self.port.measured()
         if res.aborted:
             raise FluidsenseError(f"grip cycle {res.cycle_id} failed: {res.aborted}")
         return res
 
     async def release(self) -> None:
-        await self.ctrl.release()
+        await self.port.release()
 
 
-async def _truth(ctrl: Controller) -> dict[str, Any] | None:
-    truth = await ctrl.scene.truth()
+async def _truth(port: TaskPort) -> dict[str, Any] | None:
+    truth = await port.truth()
     return None if truth is None else truth.get("world")
 
 
-def _timing(ctrl: Controller, t0_sample: float, t0_wall: float) -> dict[str, float]:
-    return {"duration_s": ctrl.now - t0_sample, "wall_s": time.perf_counter() - t0_wall}
+def _timing(port: TaskPort, t0_sample: float, t0_wall: float) -> dict[str, float]:
+    return {"duration_s": port.now() - t0_sample, "wall_s": time.perf_counter() - t0_wall}
 
 
 # ---------------------------------------------------------------------- sorting
-async def sorting(ctrl: Controller, task: SortingTask, report: Report, order_mm: list[float] | None = None) -> dict:
+async def sorting(port: TaskPort, task: SortingTask, report: Report, order_mm: list[float] | None = None) -> dict:
     """Modified insertion sort into a separate sorted array (paper, "Sorting experiment"):
     each new object is gripped and measured; the sorted array holds the largest P_eq
     first; a new object smaller than all goes to the end, otherwise the objects after its
     place are shifted one slot along first."""
-    cell = Cell(ctrl, task, report)
+    cell = Cell(port, task, report)
     order = order_mm if order_mm is not None else task.order_mm
     names: dict[str, str] = {}
     if cell.simulated:
@@ -95,9 +96,9 @@ async def sorting(ctrl: Controller, task: SortingTask, report: Report, order_mm:
         slots = [WorldSlot(name=s, pose=task.slots[s], object=objects[i].name if i < len(objects) else None)
                  for i, s in enumerate(task.input_slots)]
         slots += [WorldSlot(name=s, pose=task.slots[s]) for s in task.sorted_slots]
-        await ctrl.scene.lay_out(WorldSpec(slots=slots, objects=objects))
+        await port.lay_out(WorldSpec(slots=slots, objects=objects))
         names = {o.name: o.diameter_mm for o in objects}
-    t0, w0 = ctrl.now, time.perf_counter()
+    t0, w0 = port.now(), time.perf_counter()
     sorted_vals: list[float] = []  # P_eq (kPa) of the objects in sorted_slots, largest first
     readings = []
     n_inputs = len(order) if order is not None else len(task.input_slots)
@@ -124,8 +125,8 @@ async def sorting(ctrl: Controller, task: SortingTask, report: Report, order_mm:
         report({"event": "placed", "slot": slot, "to": task.sorted_slots[k], "sorted_kpa": list(sorted_vals)})
     await cell.lift()
     summary: dict[str, Any] = {"task": "sorting", "readings": readings, "sorted_p_eq_kpa": sorted_vals,
-                               **_timing(ctrl, t0, w0)}
-    world = await _truth(ctrl)
+                               **_timing(port, t0, w0)}
+    world = await _truth(port)
     if world is not None:
         final = [names.get(world["content"][s]) for s in task.sorted_slots[:n_inputs]]
         summary["final_order_mm"] = final
@@ -135,12 +136,12 @@ async def sorting(ctrl: Controller, task: SortingTask, report: Report, order_mm:
 
 
 # ----------------------------------------------------------------- tomato picking
-async def picking(ctrl: Controller, task: PickingTask, report: Report) -> dict:
+async def picking(port: TaskPort, task: PickingTask, report: Report) -> dict:
     """Reference grips in free air at each P0, then per tomato: grip, turn and retract,
     measure; picked when dP = P_eq - P_ref exceeds the threshold, else drop and try the
     next P0 (paper, "Tomato picking experiment"). A drop between the early window and
     the measurement window is reported as a slip."""
-    cell = Cell(ctrl, task, report)
+    cell = Cell(port, task, report)
     if cell.simulated:
         tomatoes = task.tomatoes or [None] * len(task.tomato_slots)
         objects = [WorldObject(name=f"tomato{i + 1}", **(t.model_dump() if t else {"diameter_mm": 60.0}))
@@ -148,14 +149,14 @@ async def picking(ctrl: Controller, task: PickingTask, report: Report) -> dict:
         slots = [WorldSlot(name=s, pose=task.slots[s], object=objects[i].name)
                  for i, s in enumerate(task.tomato_slots)]
         slots += [WorldSlot(name=s, pose=task.slots[s]) for s in task.place_slots]
-        await ctrl.scene.lay_out(WorldSpec(slots=slots, objects=objects))
-    t0, w0 = ctrl.now, time.perf_counter()
+        await port.lay_out(WorldSpec(slots=slots, objects=objects))
+    t0, w0 = port.now(), time.perf_counter()
     refs: dict[float, float] = {}
     if task.home is not None:
         await cell.move(task.home)
     for p0 in task.p0_steps_kpa:  # the gripper closes in the air without moving
         await cell.grip(p0_kpa=p0, label=f"reference {p0:g}")
-        res = await ctrl.release()
+        res = await port.release()
         refs[p0] = res.p_eq / KPA
         report({"event": "reference", "p0_kpa": p0, "p_eq_kpa": refs[p0]})
     outcomes = []
@@ -163,10 +164,10 @@ async def picking(ctrl: Controller, task: PickingTask, report: Report) -> dict:
         attempts, decision = [], "not_picked"
         for p0 in task.p0_steps_kpa:
             await cell.go_to(slot)
-            await ctrl.start_cycle(p0_kpa=p0, label=f"pick {slot} at {p0:g}", hold=True)
-            await ctrl.wait_after_open(task.retract_after_s)
+            await port.start_cycle(p0_kpa=p0, label=f"pick {slot} at {p0:g}", hold=True)
+            await port.wait_after_open(task.retract_after_s)
             await cell.lift(task.retract_m)  # turn the tomato off the stem and retract
-            res = await ctrl.measured()
+            res = await port.measured()
             w = {x.name: x.mean / KPA - refs[p0] for x in res.windows}
             dp, dp_early, dp_carried = w["eq"], w.get("early", w["eq"]), w.get("carried", w["eq"])
             picked = dp > task.dp_threshold_kpa
@@ -189,8 +190,8 @@ async def picking(ctrl: Controller, task: PickingTask, report: Report) -> dict:
         outcomes.append({"slot": slot, "decision": decision, "attempts": attempts})
         report({"event": "tomato", "slot": slot, "decision": decision})
     summary: dict[str, Any] = {"task": "picking", "references_kpa": refs, "tomatoes": outcomes,
-                               **_timing(ctrl, t0, w0)}
-    world = await _truth(ctrl)
+                               **_timing(port, t0, w0)}
+    world = await _truth(port)
     if world is not None:
         events = world["events"]
         for i, out in enumerate(outcomes):
@@ -211,11 +212,11 @@ _D0_FEATURE = {"t_c_threshold": "t_c_threshold", "t_c_onset": "t_c_onset", "t_c_
                "dp_max": "dp_max"}
 
 
-async def ripeness(ctrl: Controller, task: RipenessTask, report: Report) -> dict:
+async def ripeness(port: TaskPort, task: RipenessTask, report: Report) -> dict:
     """Calibrate D against t_c (or dP_max) and dP_eq on rigid dummies, then in each round
     grip every object and flag as overripe the one whose size at contact (D0) exceeds its
     size at equilibrium (D1) by more than the threshold (paper, "Tomato ripeness")."""
-    cell = Cell(ctrl, task, report)
+    cell = Cell(port, task, report)
     rng = random.Random(task.shuffle_seed)
     feat0 = _D0_FEATURE[task.d0_from]
     dummies = [WorldObject(name=f"dummy{d:g}", diameter_mm=d, offset_mm=task.misalignment_mm)
@@ -230,16 +231,16 @@ async def ripeness(ctrl: Controller, task: RipenessTask, report: Report) -> dict
         slots += [WorldSlot(name=s, pose=task.slots[s], object=o.name) for s, o in zip(task.object_slots, placed)]
         return WorldSpec(slots=slots, objects=dummies + placed)
 
-    t0, w0 = ctrl.now, time.perf_counter()
+    t0, w0 = port.now(), time.perf_counter()
 
     async def reference() -> None:
         if task.home is not None:
             await cell.move(task.home)
         else:
             await cell.lift()
-        await ctrl.start_cycle(label="reference", store_reference=True)
-        await ctrl.measured()
-        await ctrl.release()
+        await port.start_cycle(label="reference", store_reference=True)
+        await port.measured()
+        await port.release()
 
     async def grip_once(slot: str, label: str) -> CycleResult:
         await cell.go_to(slot)
@@ -249,7 +250,7 @@ async def ripeness(ctrl: Controller, task: RipenessTask, report: Report) -> dict
 
     # calibration round: first grip on each dummy aligns it, the rest calibrate
     if cell.simulated:
-        await ctrl.scene.lay_out(layout(objects, [0.0] * len(objects)))
+        await port.lay_out(layout(objects, [0.0] * len(objects)))
     await reference()
     xs, y0, y1 = [], [], []
     for slot, d in zip(task.dummy_slots, task.dummy_diameters_mm):
@@ -262,7 +263,8 @@ async def ripeness(ctrl: Controller, task: RipenessTask, report: Report) -> dict
                 xs.append(d)
                 y0.append(f0)
                 y1.append(f1)
-    meta = dict(profile=ctrl.profile.name, method="tank", feature_unit="", scene={}, target="diameter_mm",
+    profile = port.profile
+    meta = dict(profile=profile.name, method="tank", feature_unit="", scene={}, target="diameter_mm",
                 target_unit="mm")
     cal0 = Calibration.fit_points(xs, y0, "poly2" if feat0.startswith("t_c") else "linear", feature=feat0, **meta)
     cal1 = Calibration.fit_points(xs, y1, "linear", feature="dp_eq", **meta)
@@ -273,7 +275,7 @@ async def ripeness(ctrl: Controller, task: RipenessTask, report: Report) -> dict
         rng.shuffle(order)
         offsets = [rng.uniform(0, task.misalignment_mm) for _ in order]
         if cell.simulated:
-            await ctrl.scene.lay_out(layout(order, offsets))
+            await port.lay_out(layout(order, offsets))
         await reference()
         per_object = []
         for slot, obj in zip(task.object_slots, order):
@@ -304,7 +306,7 @@ async def ripeness(ctrl: Controller, task: RipenessTask, report: Report) -> dict
     summary = {"task": "ripeness", "d0_from": feat0, "threshold_mm": task.threshold_mm,
                "calibration": {"d0_slope": cal0.slope, "d1_slope": cal1.slope, "points": len(xs)},
                "rounds": rounds, "success_rate": sum(r["success"] for r in rounds) / len(rounds),
-               **_timing(ctrl, t0, w0)}
+               **_timing(port, t0, w0)}
     return summary
 
 

@@ -1,4 +1,5 @@
-"""Run a task file on a controller, publishing progress on the ``task`` topic."""
+"""Run a task file on the controller (through its task port), publishing progress on the
+``task`` topic."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ import logging
 from typing import Any
 
 from fluidsense.common.errors import CommandError, JobStopped
-from fluidsense.controller.service import Controller
+from fluidsense.controller.ports import TaskPort
 
 from .closed_loop import TASKS
 from .stopping import fault_dict, stopped_message
@@ -14,7 +15,7 @@ from .stopping import fault_dict, stopped_message
 log = logging.getLogger(__name__)
 
 
-async def run_task(ctrl: Controller, task, order_mm: list[float] | None = None) -> dict[str, Any]:
+async def run_task(port: TaskPort, task, order_mm: list[float] | None = None) -> dict[str, Any]:
     """Run ``task`` (a loaded task file); returns its JSON-ready summary. A task that cannot
     finish raises JobStopped with the steps it completed and the fault that stopped it."""
     fn = TASKS[task.task]
@@ -24,17 +25,17 @@ async def run_task(ctrl: Controller, task, order_mm: list[float] | None = None) 
 
     def report(event: dict[str, Any]) -> None:
         steps.append(event)
-        ctrl.emit("task", {"task": task.task, "step": len(steps), **event})
+        port.emit("task", {"task": task.task, "step": len(steps), **event})
 
     report({"event": "started"})
     try:
         kwargs = {"order_mm": order_mm} if task.task == "sorting" else {}
-        summary = await fn(ctrl, task, report, **kwargs)
+        summary = await fn(port, task, report, **kwargs)
     except Exception as exc:
-        fault = fault_dict(ctrl)
+        fault = fault_dict(port)
         error = f"{type(exc).__name__}: {exc}"
-        message = stopped_message(f"task {task.task}", ctrl, exc, f"{len(steps) - 1} step(s)")
-        partial = {"task": task.task, "completed": False, "error": error, "fault": fault, "t_s": ctrl.now,
+        message = stopped_message(f"task {task.task}", port, exc, f"{len(steps) - 1} step(s)")
+        partial = {"task": task.task, "completed": False, "error": error, "fault": fault, "t_s": port.now(),
                    "steps": steps[1:]}
         report({"event": "failed", "error": error, "fault": fault})
         raise JobStopped(message, partial, fault) from exc

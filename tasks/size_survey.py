@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from fluidsense.common.errors import CommandError, FluidsenseError
 from fluidsense.common.scenes import CylinderScene, EmptyScene
-from fluidsense.controller.service import Controller
+from fluidsense.controller.ports import TaskPort
 from scipy import stats
 
 
@@ -62,18 +62,18 @@ class SurveyResult:
         }
 
 
-async def size_survey(ctrl: Controller, diameters_mm: Sequence[float | None], cycles: int = 6,
+async def size_survey(port: TaskPort, diameters_mm: Sequence[float | None], cycles: int = 6,
                       drop_first: int = 1, fit_min_mm: float = 40.0,
                       progress: Callable[[str], None] | None = None) -> SurveyResult:
     if cycles - drop_first < 2:
         raise CommandError(f"need at least 2 cycles after dropping {drop_first}; got {cycles}")
-    t_virtual0, t_wall0 = ctrl.now, time.perf_counter()
+    t_virtual0, t_wall0 = port.now(), time.perf_counter()
     points: list[SurveyPoint] = []
     for d in diameters_mm:
-        await ctrl.scene.place(EmptyScene() if d is None else CylinderScene(diameter_mm=d))
+        await port.place(EmptyScene() if d is None else CylinderScene(diameter_mm=d))
         values = []
         for k in range(cycles):
-            res = await ctrl.run_cycle(label=f"D={d}" if d is not None else "empty")
+            res = await port.run_cycle(label=f"D={d}" if d is not None else "empty")
             if not res.ok:
                 raise FluidsenseError(f"cycle {res.cycle_id} on D={d} failed: {res.aborted}")
             if k >= drop_first:
@@ -88,7 +88,8 @@ async def size_survey(ctrl: Controller, diameters_mm: Sequence[float | None], cy
         slope, intercept, r2 = float(lr.slope), float(lr.intercept), float(lr.rvalue ** 2)
     else:
         slope = intercept = r2 = float("nan")
-    w = ctrl.profile.sequence.windows[0]
+    profile = port.profile
+    w = profile.sequence.windows[0]
     return SurveyResult(points, fit_min_mm, slope, intercept, r2, cycles * len(diameters_mm),
-                        ctrl.now - t_virtual0, time.perf_counter() - t_wall0,
+                        port.now() - t_virtual0, time.perf_counter() - t_wall0,
                         {"start_s": w.start_s, "end_s": w.end_s})

@@ -35,7 +35,7 @@ LONGEST_FIRST = [
     "system/test_recording.py", "system/test_zmq.py", "system/test_controlbox.py", "system/test_soak.py",
     "system/test_backends.py", "system/test_security.py", "system/test_box_watchdog.py", "system/test_serial_lies.py",
     "system/test_stop_signals.py", "system/test_controller.py", "system/test_examples.py", "system/test_protocol.py",
-    "system/test_jobs.py", "system/test_cli.py",
+    "system/test_jobs.py", "system/test_cli.py", "system/test_characterise_contact.py", "system/test_chart.py",
     # the acceptance tier, by itself in `make accept`: the README's walk is the longest by far
     "accept/test_readme.py", "accept/test_bringup_doc.py", "accept/test_ship.py", "accept/test_examples.py",
 ]

@@ -18,7 +18,7 @@ from typing import Any
 
 from fluidsense.common.errors import ConfigError, LinkLostError
 from fluidsense.controller.safety.ventpath import vent_path, vent_path_line
-from fluidsense.drivers.config import build_backend
+from fluidsense.drivers.registry import build_backend
 from fluidsense.drivers.ur.dashboard import SAFETY_OK, generation
 
 from . import actuate, connect, readings

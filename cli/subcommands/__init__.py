@@ -5,6 +5,7 @@ here: they live in the repository's ``lab/`` (``python -m lab``), outside the wh
 from . import (
     calibrate,
     characterise,
+    chart,
     check,
     clients,
     demo,
@@ -19,4 +20,5 @@ from . import (
     watchdog,
 )
 
-MODULES = [run, demo, clients, init, check, calibrate, characterise, design, task, simcell, watchdog, keys, replay, plot]
+MODULES = [run, demo, clients, init, check, calibrate, characterise, design, chart, task, simcell, watchdog, keys, replay,
+           plot]

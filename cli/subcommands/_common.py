@@ -55,3 +55,41 @@ def print_signal_stop(sig, job: str, valves, after: str = "") -> int:
     print(f"fluidsense: {job} stopped by {sig.name}; {vent_words(valves, sig.at)}" + (f"; {after}" if after else ""),
           file=sys.stderr, flush=True)
     return sig.exit_code
+
+
+class Progress:
+    """Progress of a long job on stderr: a bar on a terminal, else a line at each stage and
+    every tenth of the way (a log, a CI job). Called as ``progress(stage, steps_done)``."""
+
+    def __init__(self, total: int, desc: str, stream=None):
+        self.total, self.desc, self.stream = max(1, total), desc, stream or sys.stderr
+        self.done, self.stage, self.bar, self._said = 0, "", None, -1
+
+    def __enter__(self) -> Progress:
+        if self.stream.isatty():
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=self.total, desc=self.desc, unit="step", file=self.stream)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self.bar is not None:
+            self.bar.close()
+        elif exc[0] is None and self._said < 10:
+            self._line()
+
+    def __call__(self, stage: str, n: int = 1) -> None:
+        self.done += n
+        if self.bar is not None:
+            if stage != self.stage:
+                self.bar.set_description(f"{self.desc}: {stage}")
+            self.bar.update(n)
+        elif stage != self.stage or 10 * self.done // self.total > self._said:
+            self._said = 10 * self.done // self.total
+            self.stage = stage
+            self._line()
+        self.stage = stage
+
+    def _line(self) -> None:
+        print(f"{self.desc}: {self.stage} {self.done}/{self.total} ({100 * self.done / self.total:.0f} %)",
+              file=self.stream, flush=True)

@@ -85,13 +85,13 @@ class Operator:
     ``--targets-from`` (a file or a FIFO: the line must name the value asked for), or
     nobody (``--yes``: the targets are placed in the listed order by other means)."""
 
-    def __init__(self, target: str, targets_from: str | None, yes: bool):
+    def __init__(self, target: str, targets_from: str | None, yes: bool, job: str = "calibrating"):
         self.target, self.yes = target, yes
         self.lines = None
         if targets_from is not None:
             self.lines = open(targets_from, encoding="utf-8")  # noqa: SIM115 - read line by line through the run
         elif not yes and not sys.stdin.isatty():
-            raise CommandError("calibrating a real cell asks the operator to place each target, and stdin is not a "
+            raise CommandError(f"{job} a real cell asks the operator to place each target, and stdin is not a "
                                "terminal: run it in one, or pass --targets-from FILE (one line per placed target) "
                                "or --yes (targets placed in the listed order by other means)")
         self.bar = None
@@ -175,7 +175,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                       unit="cycle", file=sys.stderr, disable=args.json) as bar:
                 if operator is not None:
                     operator.bar = bar
-                return await calibrate(ctrl, scene, target, values, feature=feature, fit=fit, cycles=cycles,
+                return await calibrate(ctrl.task_port, scene, target, values, feature=feature, fit=fit, cycles=cycles,
                                        drop_first=drop, place=operator.place if operator else None,
                                        progress=bar.update, seed=cfg.driver.samples_seed(),
                                        journal=journal, free_cycles=free)
@@ -223,7 +223,7 @@ def cmd_sense(args: argparse.Namespace) -> int:
     async def job():
         async with app.controller(cfg, own_process=True) as ctrl:
             valves.append(ctrl.backend.valves)
-            return await sense(ctrl, cal, scene, cycles=args.cycles, place=operator.place if operator else None)
+            return await sense(ctrl.task_port, cal, scene, cycles=args.cycles, place=operator.place if operator else None)
 
     try:
         res = stopsignals.run(job()).to_dict()

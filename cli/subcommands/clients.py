@@ -41,7 +41,7 @@ def register(sub) -> None:
     p.add_argument("--wait", type=float, metavar="SECONDS", nargs="?", const=120.0,
                    help="for a request that starts a cycle (cycle, measure, grip): also wait up to SECONDS "
                    "(default 120) for that cycle's result (topic cycle, from the publisher the config names) "
-                   "and print it")
+                   "and print it; for a grip, its grasp (topic grasp: the gripper holds until a release)")
     p.set_defaults(func=cmd_cmd)
 
 
@@ -97,8 +97,10 @@ def _cmd_and_wait(args: argparse.Namespace, endpoint: str, request: dict, curve)
     from fluidsense.daemon import app
 
     pub = app.load(args.config).publisher.pub
+    # a held grip's cycle ends only at its release: what it answers is its grasp
+    topic = "grasp" if request.get("cmd") == "grip" else "cycle"
     with Gripper(endpoint, pub, timeout_s=args.timeout, event_timeout_s=args.wait, curve=curve,
-                 topics=("cycle",)) as g:
+                 topics=(topic,)) as g:
         try:
             reply = g.request(request)
         except Refused as exc:
@@ -110,7 +112,7 @@ def _cmd_and_wait(args: argparse.Namespace, endpoint: str, request: dict, curve)
         if "cycle_id" not in reply:
             return EXIT_OK  # nothing started: nothing to wait for
         try:
-            result = g.wait_for("cycle", reply["cycle_id"], args.wait, instance=reply.get("instance"))
+            result = g.wait_for(topic, reply["cycle_id"], args.wait, instance=reply.get("instance"))
         except NoReply as exc:
             print(f"fluidsense: {exc}", file=sys.stderr)
             return EXIT_TIMEOUT

@@ -43,7 +43,7 @@ def main(args: argparse.Namespace) -> int:
 
     async def job():
         async with app.controller(cfg) as ctrl:
-            return await size_survey(ctrl, DEMO_DIAMETERS, cycles=args.cycles, drop_first=1,
+            return await size_survey(ctrl.task_port, DEMO_DIAMETERS, cycles=args.cycles, drop_first=1,
                                      progress=progress)
 
     if not args.json:

@@ -16,7 +16,8 @@ def register(sub) -> None:
         description="Search tank volume and P0 for the largest worst-case resolution |dP_eq/dxi| over the "
         "target range, keeping contact at every target, P0 inside the profile's limits and P_eq inside the "
         "sensor's range (paper eq. 1-2 solved with the actuator's volume law; see docs/physics.md).")
-    p.add_argument("--profile", "-p", required=True, help="profile YAML or name in config/profiles/")
+    p.add_argument("--profile", "-p", required=True, help="profile YAML, or a name: shipped (config/profiles/) or "
+                   "NAME.yaml here (yours, e.g. from `fluidsense characterise`)")
     p.add_argument("--range", help="target range lo,hi (default: the profile's calibration values)")
     p.add_argument("--points", type=int, default=5, help="targets evaluated across the range (default 5)")
     p.add_argument("--tanks", help="comma-separated tank volumes in litres (default: 24 from 1/10 to 10x)")
@@ -34,6 +35,26 @@ def _floats(text: str, name: str) -> list[float]:
         return [float(v) for v in text.split(",") if v.strip()]
     except ValueError:
         raise ConfigError(f"{name}: expected comma-separated numbers, got {text!r}") from None
+
+
+def provenance(prof) -> dict | None:
+    """Where a characterised profile's numbers came from (None: a shipped profile's, from
+    the paper): the rig, the date and the fitted fields with their 95 % intervals."""
+    prov = prof.provenance
+    if prov is None:
+        return None
+    return {"rig": prov.rig, "date": prov.date, "from_profile": prov.from_profile,
+            "fitted": {f.field: {"value": f.value, "lo95": f.lo95, "hi95": f.hi95, "unit": f.unit}
+                       for f in prov.fitted}}
+
+
+def provenance_line(prof) -> str:
+    prov = prof.provenance
+    if prov is None:
+        return "  numbers: the profile's own (not characterised: no provenance)"
+    law = [f for f in prov.fitted if f.field.startswith("actuator.")]
+    return (f"  numbers: characterised on {prov.rig}, {prov.date[:10]}"
+            + "".join(f"; {f.field.split('.')[-1]} {f.value:.4g} [{f.lo95:.4g}, {f.hi95:.4g}] {f.unit}" for f in law))
 
 
 def main(args: argparse.Namespace) -> int:
@@ -88,11 +109,12 @@ def main(args: argparse.Namespace) -> int:
            "recommended": None if best is None else best.to_dict(),
            "improvement": None if best is None or current.min_resolution == 0
            else best.min_resolution / current.min_resolution,
-           "grid": [d.to_dict() for d in grid]}
+           "grid": [d.to_dict() for d in grid], "provenance": provenance(prof)}
     if args.json:
         print(json.dumps(out, indent=2))
         return 0 if best is not None else 1
     print(f"{prof.name}: {plan.target} over [{lo:g}, {hi:g}] {unit}")
+    print(provenance_line(prof))
     c = current
     print(f"  current:     tank {c.tank_l:.3g} L at {c.p0_kpa:.3g} kPa: worst |dP/d{plan.target}| "
           f"{c.min_resolution:.4f} kPa/{unit}, mean {c.mean_resolution:.4f}"
@@ -119,12 +141,13 @@ def _requirement(args, prof, plan, scene_at, targets, tanks, p0s, lo, hi) -> int
            "resolution": args.resolution_mm, "decide_by_s": args.decide_by_s,
            "noise_sd_kpa": prof.sensor.noise_sd_kpa, "p0_margin_kpa": prof.p0_margin_kpa,
            "recommended": None if best is None else best.to_dict(), "why_none": why or None,
-           "candidates": len(grid), "meeting": sum(g.meets for g in grid)}
+           "candidates": len(grid), "meeting": sum(g.meets for g in grid), "provenance": provenance(prof)}
     if args.json:
         print(json.dumps(out, indent=2))
         return 0 if best is not None else 1
     print(f"{prof.name}: {plan.target} over [{lo:g}, {hi:g}] {unit}, +-{args.resolution_mm:g} {unit} (95 %) by "
           f"{args.decide_by_s:g} s after opening, sensor noise {prof.sensor.noise_sd_kpa:g} kPa")
+    print(provenance_line(prof))
     if best is None:
         print(f"  no design reaches it: {why}")
         return 1

@@ -35,7 +35,7 @@ def register(sub) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from fluidsense.controller.config import load_cell_config
-    from fluidsense.drivers.config import DriverEntry, SimDriverConfig, kinds
+    from fluidsense.drivers.registry import DriverEntry, SimDriverConfig, kinds
     from fluidsense.simulator.controlbox.__main__ import main_async
     from fluidsense.simulator.controlbox.config import ControlBoxConfig
     from fluidsense.simulator.controlbox.plant import PlantModel

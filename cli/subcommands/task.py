@@ -50,7 +50,7 @@ def main(args: argparse.Namespace) -> int:
     async def job():
         async with app.controller(cfg, publish=args.publish, own_process=True) as ctrl:
             valves.append(ctrl.backend.valves)
-            return await run_task(ctrl, task, order_mm=order)
+            return await run_task(ctrl.task_port, task, order_mm=order)
 
     try:
         summary = stopsignals.run(job())

@@ -28,7 +28,7 @@ def register(sub) -> None:
 def main(args: argparse.Namespace) -> int:
     from fluidsense.common.errors import ConfigError
     from fluidsense.controller.config import load_cell_config
-    from fluidsense.drivers.config import DriverEntry, kinds
+    from fluidsense.drivers.registry import DriverEntry, kinds
     from fluidsense.drivers.ur.box import BoxWatchdogConfig
     from fluidsense.drivers.ur.watchdog import box_script, integrator_thread, safe_levels, send_script
 

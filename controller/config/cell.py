@@ -15,7 +15,7 @@ from typing import Annotated, Any, Literal
 from fluidsense.common.errors import ConfigError
 from fluidsense.common.files import one_line
 from fluidsense.common.models import FieldError, Integer, Real, StrictModel
-from fluidsense.drivers.config import DriverConfig
+from fluidsense.drivers.registry import DriverConfig
 from fluidsense.drivers.recording.config import RecordingConfig
 from pydantic import BaseModel, Field, ValidationInfo, field_validator, model_validator
 

@@ -194,6 +194,45 @@ class FittedNumber(StrictModel):
         return self
 
 
+class ContactReading(StrictModel):
+    """What the rig read at one known target (or in free air, ``size`` None) during the
+    contact step of ``fluidsense characterise --targets``, and what the fitted law gives."""
+
+    size: Real | None = Field(description="the target's size in the scene's unit; None: nothing there")
+    cycles: Integer = Field(ge=1, le=10_000)
+    cycle_ids: list[Integer] = Field(default_factory=list, max_length=10_000)
+    p_eq_kpa: Real = Field(description="mean equilibrium (first window), oriented away from atmosphere")
+    p_eq_sd_kpa: Real = Field(ge=0, description="its cycle-to-cycle sd")
+    dp_eq_kpa: Real | None = Field(None, description="over the free cycles' mean")
+    p_contact_kpa: Real | None = Field(None, description="mean pressure at which the rise left the free one")
+    p_contact_sd_kpa: Real | None = Field(None, ge=0)
+    p_contact_note: str | None = Field(None, max_length=1000, description="why no contact pressure was read")
+    t_c_threshold_s: Real | None = Field(None, description="mean contact time the controller read (threshold)")
+    law_dp_eq_kpa: Real | None = Field(None, description="dP_eq of the fitted law")
+    law_p_contact_kpa: Real | None = Field(None, description="contact pressure of the fitted law")
+
+
+class ContactProvenance(StrictModel):
+    """The contact step of a characterisation: the targets, what the rig read at each, and
+    the simulated cell of the written profile at the same targets (the check)."""
+
+    scene: str = Field(max_length=40, description="the scene kind the targets are")
+    target: str = Field(max_length=40, description="the scene field that sizes them")
+    unit: str = Field("", max_length=20)
+    p0_kpa: Real
+    cycles_per_target: Integer = Field(ge=1, le=10_000)
+    free: ContactReading
+    readings: list[ContactReading] = Field(min_length=1, max_length=100)
+    chi2: Real | None = Field(None, ge=0, description="the contact fit's chi-square (None: as many readings as "
+                              "parameters)")
+    dof: Integer = Field(ge=0)
+    simulated: list[ContactReading] = Field(default_factory=list, max_length=101, description="the same cycles on "
+                                            "the simulated cell of the written profile (virtual time): free, then "
+                                            "each target")
+    check: list[str] = Field(default_factory=list, max_length=200, description="the simulated cell against the "
+                             "rig, per reading, in words")
+
+
 class Provenance(StrictModel):
     """Where a characterised profile's numbers came from (``fluidsense characterise``): the
     rig, the date, the config, the cycles, the fit's residual; which fields were fitted
@@ -215,6 +254,8 @@ class Provenance(StrictModel):
                                          "showed that no profile field holds (reported, not used)")
     kept: dict[str, str] = Field(default_factory=dict, description="field -> why the starting value was kept")
     notes: list[str] = Field(default_factory=list, max_length=100)
+    contact: ContactProvenance | None = Field(None, description="the contact step (--targets): None when the "
+                                              "contact law was kept from the starting profile")
 
 
 class Profile(StrictModel):

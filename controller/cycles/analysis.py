@@ -56,6 +56,12 @@ class Reference:
     cycle_id: int
 
 
+def reference_key(p0_pa: float) -> float:
+    """The key a free-air reference is kept and found under: its P0 in kPa, to the Pa
+    (every store and look-up of references uses this one function)."""
+    return round(p0_pa / KPA, 3)
+
+
 #: 'auto' alignment levels, as fractions of the reference's level in the first window: low
 #: enough to be over before a gripper's fingers reach anything they can hold (the sorting
 #: gripper's 100 mm cylinder is met at 60 % of the level, the quick PneuNet's at 20 %), high

@@ -136,26 +136,40 @@ def sample_period(t: np.ndarray) -> float:
 def _bracketed(t: np.ndarray, y: np.ndarray, level: float, max_gap: float) -> float | None:
     """crossing_time, or NaN where the two samples around the crossing are more than
     ``max_gap`` apart: across a gap (a busy PC's missed slots) the interpolated time is a
-    guess, and on a steep rise a ms of guess is tenths of a kPa of dP. None: never reached."""
+    guess, and on a steep rise a ms of guess is tenths of a kPa of dP. None: never reached.
+    Samples that repeat the one before exactly are not taken as their slot's value: a
+    polled box that did not refresh its register in time answers a read with the older
+    value, which on a rise reads as a rise that came later (through the emulated box, a run
+    of them put a whole rise 2-5 ms late); the crossing is bracketed from the first of the
+    run, so a run that long is a gap."""
     above = np.isfinite(y) & (y >= level)
     if not above.any():
         return None
     k = int(np.argmax(above))
-    if k == 0 or t[k] - t[k - 1] > max_gap:
+    if k == 0:
         return math.nan
-    return crossing_time(t[k - 1:k + 1], y[k - 1:k + 1], level)
+    j = k - 1
+    while j > 0 and y[j] == y[j - 1]:
+        j -= 1
+    if t[k] - t[j] > max_gap:
+        return math.nan
+    return crossing_time(np.array([t[j], t[k]]), np.array([y[j], y[k]]), level)
 
 
 def rise_shift(t_rel: np.ndarray, p: np.ndarray, ref_t_rel: np.ndarray, ref_p: np.ndarray, lo: float, hi: float,
                levels: int = 5, min_levels: int = 3) -> float | None:
     """How much later than the reference's this cycle rose through ``lo..hi`` (both oriented
-    so that the rise is upwards, offsets removed): the mean over ``levels`` levels of the
+    so that the rise is upwards, offsets removed): the median over ``levels`` levels of the
     difference of crossing times. A level whose crossing falls in a gap of either curve
     (samples more than 2.5 periods apart) is left out. None when either curve does not
-    reach ``hi``, or fewer than ``min_levels`` levels are left."""
+    reach ``hi``, or fewer than ``min_levels`` levels are left, or fewer than
+    ``min_levels`` of them agree with the median within one sample period: then some
+    samples on the rise were not read when their slot says (a polled box that refreshed
+    late answers a read with an older value), and no one shift fits the curve."""
     if len(t_rel) < 2 or len(ref_t_rel) < 2:
         return None
-    gap, ref_gap = 2.5 * sample_period(t_rel), 2.5 * sample_period(ref_t_rel)
+    period = sample_period(t_rel)
+    gap, ref_gap = 2.5 * period, 2.5 * sample_period(ref_t_rel)
     shifts = []
     for level in np.linspace(lo, hi, levels):
         t_meas, t_ref = _bracketed(t_rel, p, level, gap), _bracketed(ref_t_rel, ref_p, level, ref_gap)
@@ -163,7 +177,11 @@ def rise_shift(t_rel: np.ndarray, p: np.ndarray, ref_t_rel: np.ndarray, ref_p: n
             return None
         if not (math.isnan(t_meas) or math.isnan(t_ref)):
             shifts.append(t_meas - t_ref)
-    return float(np.mean(shifts)) if len(shifts) >= min_levels else None
+    if len(shifts) < min_levels:
+        return None
+    middle = float(np.median(shifts))
+    agree = [s for s in shifts if abs(s - middle) <= period]
+    return float(np.median(agree)) if len(agree) >= min_levels else None
 
 
 def contact_time_threshold(t_rel: np.ndarray, dp: np.ndarray, threshold: float) -> float | None:

@@ -32,7 +32,7 @@ from fluidsense.common.files import decode_utf8, read_bounded
 from fluidsense.common.units import KPA
 
 from ..config import CellConfig
-from .analysis import Reference
+from .analysis import Reference, reference_key
 
 log = logging.getLogger(__name__)
 
@@ -121,7 +121,7 @@ class ReferenceKeeper:
                 log.warning("kept free-air reference at %g kPa (cycle %d) refused: %s", kept.p0_kpa,
                             kept.reference.cycle_id, reason)
                 continue
-            out[round(kept.p0_kpa, 3)] = kept
+            out[reference_key(kept.p0_kpa * KPA)] = kept
             log.info("kept free-air reference at %g kPa taken back from %s (cycle %d, %.0f s old)", kept.p0_kpa,
                      self.path, kept.reference.cycle_id, time.time() - kept.measured_unix_s)
         self.kept = dict(out)

@@ -36,7 +36,8 @@ from fluidsense.controller.cycles.analysis import (
     analyse,
     make_reference,
 )
-from fluidsense.controller.cycles.runner import freeze_for, reference_key
+from fluidsense.controller.cycles.analysis import reference_key
+from fluidsense.controller.cycles.runner import freeze_for
 from fluidsense.drivers.recording.backend import ReplaySource
 from fluidsense.drivers.recording.messages import to_json
 from fluidsense.drivers.recording.reader import Record

@@ -24,6 +24,7 @@ from fluidsense.common.units import KPA
 from fluidsense.drivers.backend import Backend
 
 from ..config import Profile
+from ..path import Events, Faults, SampleTime
 from . import features as F
 from .analysis import (
     CycleResult,
@@ -31,6 +32,7 @@ from .analysis import (
     Reference,
     analyse,
     make_reference,
+    reference_key,
     transition_dict,
 )
 from .sequencer import (
@@ -44,19 +46,12 @@ from .sequencer import (
 
 log = logging.getLogger(__name__)
 
-Emit = Callable[[str, dict[str, Any]], None]
-
 
 def freeze_for(profile: Profile, freeze_s: float | None) -> float | None:
     """``freeze_s`` where a frozen p_act can be told from a live one: not for a sensor the
     profile declares noise-free and unquantised (the supervisor's stuck check skips it too)."""
     sensor = profile.sensor
     return freeze_s if sensor.noise_sd_kpa > 0 or sensor.quantum_kpa > 0 else None
-
-
-def reference_key(p0_pa: float) -> float:
-    """References are kept per P0, to the Pa."""
-    return round(p0_pa / KPA, 3)
 
 
 def _action_dict(action: Action) -> dict[str, Any]:
@@ -68,14 +63,15 @@ def _action_dict(action: Action) -> dict[str, Any]:
 
 
 class CycleRunner:
-    def __init__(self, profile: Profile, backend: Backend, *, now: Callable[[], float], emit: Emit, record: Emit,
-                 trip: Callable[[Fault], Any], freeze_s: float | None = None):
-        """``emit`` publishes an event; ``record`` hands one only to the recording sinks
-        (a cycle's start, each action: what a replay needs); ``trip`` latches a fault;
-        ``freeze_s``: supervision.freeze_s (analysis.analyse)."""
+    def __init__(self, profile: Profile, backend: Backend, *, clock: SampleTime, events: Events, faults: Faults,
+                 freeze_s: float | None = None):
+        """``clock``: sample time; ``events``: where the cycle's events go (``emit``
+        publishes; ``record`` hands one only to the sinks: a cycle's start, each action,
+        what a replay needs); ``faults``: the safety latch, where a refused action trips a
+        fault; ``freeze_s``: supervision.freeze_s (analysis.analyse)."""
         self.profile, self.backend = profile, backend
         self.freeze_s = freeze_for(profile, freeze_s)
-        self._now, self._emit, self._record, self._trip = now, emit, record, trip
+        self._clock, self._events, self._faults = clock, events, faults
         self.sequencer = Sequencer(profile.sequence, backend.valves.safe_positions, settled=self._settled)
         self.references: dict[float, Reference] = {}
         #: called with (p0_pa, key, reference) when a cycle stores a free-air reference
@@ -117,11 +113,11 @@ class CycleRunner:
             raise SequenceError(f"busy: cycle {self.sequencer.cycle_id} is in {self.sequencer.state.value}")
         p0 = self.profile.sequence.p0_kpa if p0_kpa is None else p0_kpa
         self.check_p0(p0)
-        actions = self.sequencer.start(self._now(), p0 * KPA, hold=hold)
+        actions = self.sequencer.start(self._clock.now, p0 * KPA, hold=hold)
         loop = asyncio.get_running_loop()
         self._opts, self._hold = {"label": label, "store_reference": store_reference}, hold
         self._measured, self._result, self._trace = loop.create_future(), loop.create_future(), CycleTrace()
-        self._record("cycle_start", {"cycle_id": self.sequencer.cycle_id, "p0_pa": self.sequencer.p0_pa,
+        self._events.record("cycle_start", {"cycle_id": self.sequencer.cycle_id, "p0_pa": self.sequencer.p0_pa,
                                      "label": label, "store_reference": store_reference, "hold": hold})
         self.publish_transitions()
         await self.apply(actions)
@@ -140,7 +136,7 @@ class CycleRunner:
         fut = self._result
         if fut is None or not self.sequencer.busy:
             raise SequenceError("no cycle is running")
-        actions = self.sequencer.release(self._now())
+        actions = self.sequencer.release(self._clock.now)
         self.publish_transitions()
         await self.apply(actions)
         return fut
@@ -148,13 +144,13 @@ class CycleRunner:
     async def abort(self, reason: str) -> bool:
         if not self.sequencer.busy:
             return False
-        actions = self.sequencer.abort(self._now(), reason)
+        actions = self.sequencer.abort(self._clock.now, reason)
         self.publish_transitions()
         await self.apply(actions)
         return True
 
     def reset(self) -> None:
-        self.sequencer.reset(self._now())
+        self.sequencer.reset(self._clock.now)
         self.publish_transitions()
 
     # ------------------------------------------------------------------ the loop's side
@@ -167,7 +163,7 @@ class CycleRunner:
     async def on_block(self) -> None:
         """The actions due now; the features once the windows have closed; the result once
         the cycle is over."""
-        actions = self.sequencer.on_time(self._now())
+        actions = self.sequencer.on_time(self._clock.now)
         if actions:
             await self.apply(actions)
         self.publish_transitions()
@@ -178,7 +174,7 @@ class CycleRunner:
 
     def on_fault(self, fault: Fault) -> None:
         """The latch's first word: the sequence stops commanding (every valve goes safe)."""
-        self.sequencer.fault(self._now(), f"fault: {fault.kind}")
+        self.sequencer.fault(self._clock.now, f"fault: {fault.kind}")
 
     def after_fault(self, fault: Fault, event: dict[str, Any]) -> None:
         """The cycle ends with what it measured; its waiters get an aborted result."""
@@ -191,13 +187,13 @@ class CycleRunner:
         try:
             for action in actions:
                 await self._act(action)
-                self._record("command", _action_dict(action))
+                self._events.record("command", _action_dict(action))
         except Exception as exc:  # noqa: BLE001
             log.error("command failed: %s", exc)
-            await self._trip(Fault(FaultKind.COMMAND, None, self._now(), str(exc)))
+            await self._faults.trip(Fault(FaultKind.COMMAND, None, self._clock.now, str(exc)), self._clock.now)
 
     async def _act(self, action: Action) -> None:
-        now = self._now()
+        now = self._clock.now
         if isinstance(action, ValveAction):
             await self.backend.valves.set(action.valve, action.open, now)
         elif isinstance(action, SetpointAction):
@@ -214,7 +210,7 @@ class CycleRunner:
 
     def publish_transitions(self) -> None:
         for tr in self.sequencer.drain_transitions():
-            self._emit("state", transition_dict(tr))
+            self._events.emit("state", transition_dict(tr))
 
     def _settled(self, t_now: float) -> str | None:
         """None when the vented actuator has read flat over the last ``settle_s``
@@ -240,10 +236,10 @@ class CycleRunner:
         if seq.t_open is None:
             return seq.aborted is not None or not seq.busy
         last = max(w.end_s for w in self.profile.sequence.windows)
-        return self._now() >= seq.t_open + last or seq.aborted is not None or not seq.busy
+        return self._clock.now >= seq.t_open + last or seq.aborted is not None or not seq.busy
 
     def _analyse(self, final: bool) -> CycleResult:
-        trace, seq, now = self._trace, self.sequencer, self._now()
+        trace, seq, now = self._trace, self.sequencer, self._clock.now
         t, values = trace.arrays()
         ref = None if self._opts.get("store_reference") else self.references.get(reference_key(seq.p0_pa))
         try:
@@ -268,7 +264,7 @@ class CycleRunner:
             for stored in self.on_reference:
                 stored(self.sequencer.p0_pa, key, ref)
         self.results.append(replace(result, trace=None))
-        self._emit("cycle", result.to_dict())
+        self._events.emit("cycle", result.to_dict())
         fut, self._result = self._result, None
         if fut is not None and not fut.done():
             fut.set_result(result)

@@ -26,7 +26,7 @@ from pydantic import Field
 
 from .grip import GripHandler
 from .jobs import TaskJobs
-from .ports import CellPort
+from .ports import DispatchPort
 from .routing import Reply, Routes, answers, models_of, name_of
 
 log = logging.getLogger(__name__)
@@ -71,12 +71,12 @@ class ShutdownRequest(StrictModel):
 
 
 class Dispatcher:
-    def __init__(self, cell: CellPort, grip: GripHandler, jobs: TaskJobs, *,
+    def __init__(self, port: DispatchPort, grip: GripHandler, jobs: TaskJobs, *,
                  socket_stats: Callable[[], dict[str, int]] | None = None,
                  shutdown: Callable[[], None] | None = None):
         """``socket_stats``: the command socket's counts, for ``status``; ``shutdown``: what
         stops the daemon (none: the request is refused)."""
-        self.cell, self.grip, self.jobs = cell, grip, jobs
+        self.port, self.grip, self.jobs = port, grip, jobs
         self._socket_stats, self._shutdown = socket_stats, shutdown
         self.routes = Routes(self, grip)
 
@@ -86,9 +86,9 @@ class Dispatcher:
 
     async def handle(self, request: StrictModel) -> Reply:
         try:
-            if not self.cell.connected() and not getattr(request, "while_connecting", False):
-                error = (self.cell.connecting() or {}).get("error") or "first attempt under way"
-                raise CommandError(f"not connected to {self.cell.backend} yet ({error}); the daemon keeps trying: "
+            if not self.port.connected() and not getattr(request, "while_connecting", False):
+                error = (self.port.connecting() or {}).get("error") or "first attempt under way"
+                raise CommandError(f"not connected to {self.port.backend} yet ({error}); the daemon keeps trying: "
                                    "wait for status to leave 'connecting'")
             return await self.routes.method(request)(request)
         except FluidsenseError:
@@ -96,35 +96,35 @@ class Dispatcher:
         except Exception as exc:  # noqa: BLE001
             name = getattr(request, "cmd", "?")
             log.exception("command %s failed", name)
-            await self.cell.fail(f"{type(exc).__name__} handling {name!r}: {exc}")
+            await self.port.fail(f"{type(exc).__name__} handling {name!r}: {exc}")
             raise CommandError(f"internal error: {type(exc).__name__}: {exc}; the cell was put in its safe state "
                                "(send reset to go on)") from exc
 
     # ------------------------------------------------------------------ the requests on the cell
     @answers(StatusRequest)
     async def status(self, req: StatusRequest) -> Reply:
-        return {**self.cell.status(), "task": self.jobs.status,
+        return {**self.port.status(), "task": self.jobs.status,
                 "commands": None if self._socket_stats is None else self._socket_stats(), **self.grip.status()}
 
     @answers(CycleRequest)
     async def cycle(self, req: CycleRequest) -> Reply:
-        fut = await self.cell.start_cycle(p0_kpa=req.p0_kpa, label=req.label, store_reference=req.store_reference)
+        fut = await self.port.start_cycle(p0_kpa=req.p0_kpa, label=req.label, store_reference=req.store_reference)
         fut.add_done_callback(lambda f: f.exception() if not f.cancelled() else None)
-        return {"cycle_id": self.cell.cycle.cycle_id}
+        return {"cycle_id": self.port.cycle.cycle_id}
 
     @answers(AbortRequest)
     async def abort(self, req: AbortRequest) -> Reply:
         stopped_task = self.jobs.cancel()
-        return {"aborted": await self.cell.abort(req.reason) or stopped_task}
+        return {"aborted": await self.port.abort(req.reason) or stopped_task}
 
     @answers(ResetRequest)
     async def reset(self, req: ResetRequest) -> Reply:
-        self.cell.reset()
-        return {"state": self.cell.cycle.state.value}
+        self.port.reset()
+        return {"state": self.port.cycle.state.value}
 
     @answers(SceneRequest)
     async def scene(self, req: SceneRequest) -> Reply:
-        await self.cell.place(req.scene)
+        await self.port.place(req.scene)
         await self.grip.after_scene()
         return {"scene": req.scene.model_dump()}
 

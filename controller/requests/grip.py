@@ -13,7 +13,10 @@ Events, on their own topics (docs/zmq-schema.md):
 
 Requests reply at once (the socket answers one request at a time: a reply that waited for
 the grasp would keep ``abort`` out); the client library waits for the events. The handler
-reads and asks the cell through its port (ports.GripPort) and nothing else.
+reads and asks the controller through its port (ports.GripPort) and nothing else. It
+follows a cycle it started through the cycle's futures (the features, then the end: done
+callbacks, no task of its own) and block by block as one of the controller's block
+watchers (controller/path.py BlockWatcher: ``on_block``, wired by wiring.py).
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Callable
+from functools import partial
 from types import SimpleNamespace
 from typing import Any, Literal
 
@@ -34,7 +38,6 @@ from ..config import Profile
 from ..config.gripper import GripperConfig
 from ..cycles.analysis import CycleResult, alignment, object_bound
 from ..cycles.sequencer import State
-from ..telemetry.fanout import Sink
 from . import estimates as E
 from .grip_watch import ContactWatch, SlipWatch
 from .ports import GripPort
@@ -70,13 +73,14 @@ class MeasureRequest(StrictModel):
     store_reference: bool = False
 
 
-class GripHandler(Sink):
-    """The gripper's requests, and a telemetry sink that watches every block of a grip."""
+class GripHandler:
+    """The gripper's requests, and the watch over every block of a grip (a block watcher:
+    controller/path.py BlockWatcher)."""
 
-    def __init__(self, cell: GripPort, cfg: GripperConfig, profile: Profile,
+    def __init__(self, port: GripPort, cfg: GripperConfig, profile: Profile,
                  running_task: Callable[[], str | None] = lambda: None):
         """``running_task``: the file of the task that runs, if one does (none may start a grip)."""
-        self.cell, self.cfg, self.plan, self._running_task = cell, cfg, profile.sequence, running_task
+        self.port, self.cfg, self.plan, self._running_task = port, cfg, profile.sequence, running_task
         self._circuit = profile.circuit
         self.calibrations = [E.load_calibration(p, profile.name, f"gripper.calibrations.{i}")
                              for i, p in enumerate(cfg.calibrations)]
@@ -91,7 +95,6 @@ class GripHandler(Sink):
         self._offset = 0.0
         self._t_opened: float | None = None  # a held grip left HOLD (released, aborted, faulted)
         self._slip: SlipWatch | None = None
-        self._follow: asyncio.Task[None] | None = None
         self._storing_reference = False  # the cycle that runs measures the free-air reference
 
     # ------------------------------------------------------------------ state
@@ -121,7 +124,7 @@ class GripHandler(Sink):
 
     @answers(ReleaseRequest)
     async def release(self, req: ReleaseRequest | None = None) -> dict[str, Any]:
-        cycle = self.cell.cycle
+        cycle = self.port.cycle
         if self.op is None:
             if cycle.busy:
                 raise SequenceError(f"cycle {cycle.cycle_id} is not a grip: send abort to stop it")
@@ -132,9 +135,9 @@ class GripHandler(Sink):
             return {"cycle_id": self.cycle_id, "releasing": True, "state": cycle.state.value}
         self._reason = self._reason or "release"
         if cycle.state in (State.ACTUATE, State.HOLD):
-            await self.cell.let_go()
+            await self.port.let_go()
         else:  # still charging: nothing closed yet, opening is aborting
-            await self.cell.abort("released before actuation")
+            await self.port.abort("released before actuation")
         return {"cycle_id": self.cycle_id, "releasing": True, "state": cycle.state.value}
 
     @answers(MeasureRequest)
@@ -145,11 +148,11 @@ class GripHandler(Sink):
     async def after_scene(self) -> None:
         """A scene changed under a held grip. In virtual time sample time stands still while
         holding: run it a little so the grip sees the change, as it would in real time."""
-        if self.holding and self.cell.virtual and self.cfg.settle_s > 0:
-            await self.cell.wait(self.cfg.settle_s)
+        if self.holding and self.port.virtual and self.cfg.settle_s > 0:
+            await self.port.wait(self.cfg.settle_s)
 
     def _check_free(self, what: str) -> None:
-        cycle, task = self.cell.cycle, self._running_task()
+        cycle, task = self.port.cycle, self._running_task()
         if self.holding:
             raise SequenceError(f"holding (cycle {self.cycle_id}): send release before {what}")
         if task is not None:
@@ -159,37 +162,53 @@ class GripHandler(Sink):
 
     async def _start(self, op: str, p0_kpa: float | None, label: str | None, store_reference: bool, *, hold: bool,
                      timeout_s: float | None) -> dict[str, Any]:
-        cell, plan = self.cell, self.plan
-        fut = await cell.start_cycle(p0_kpa=p0_kpa, label=label, store_reference=store_reference, hold=hold)
-        cycle = cell.cycle
+        port, plan = self.port, self.plan
+        fut = await port.start_cycle(p0_kpa=p0_kpa, label=label, store_reference=store_reference, hold=hold)
+        cycle = port.cycle
         self.op, self.cycle_id, self.t_grasp, self._reason = op, cycle.cycle_id, None, None
         self._storing_reference = store_reference
-        self._deadline = float("inf") if timeout_s is None else cell.now() + timeout_s
+        self._deadline = float("inf") if timeout_s is None else port.now() + timeout_s
         self._sign = -1.0 if cycle.p0_pa < 0 else 1.0
-        reference = None if store_reference else cell.reference(cycle.p0_pa)
+        reference = None if store_reference else port.reference(cycle.p0_pa)
         align = None if reference is None else alignment(plan, reference, self._sign)
         self._contact = ContactWatch(reference, plan.contact_threshold_kpa * KPA, self._sign, plan.offset_s,
                                      max(w.end_s for w in plan.windows), align)
         self._slip = None
-        measured = asyncio.ensure_future(cell.measured())
-        self._follow = asyncio.get_running_loop().create_task(self._follow_cycle(measured, fut),
-                                                              name=f"{op} {cycle.cycle_id}")
+        measured = asyncio.ensure_future(port.measured())
+        measured.add_done_callback(partial(self._on_measured, fut))
         return {"cycle_id": cycle.cycle_id, "p0_kpa": cycle.p0_pa / KPA, "reference": reference is not None}
 
     # ------------------------------------------------------------------ the cycle's course
-    async def _follow_cycle(self, measured: asyncio.Future[CycleResult], done: asyncio.Future[CycleResult]) -> None:
+    def _on_measured(self, done: asyncio.Future[CycleResult], measured: asyncio.Future[CycleResult]) -> None:
+        """The cycle's features are in (its windows closed): the grasp; then its end."""
+        if measured.cancelled() or not self._follow(self._measured, measured):
+            return
+        if done.done():  # as awaiting a finished future would: at once
+            self._on_done(done)
+        else:
+            done.add_done_callback(self._on_done)
+
+    def _on_done(self, done: asyncio.Future[CycleResult]) -> None:
+        """The cycle is over: the gripper is open."""
+        if not done.cancelled():
+            self._follow(self._released, done)
+
+    def _follow(self, step: Callable[[CycleResult], None], fut: asyncio.Future[CycleResult]) -> bool:
+        """``step`` on the future's result; False when the course ends here instead."""
         try:
-            res = await measured
-            if res.ok and res.cycle_id == self.cycle_id:
-                self._grasp(res)
-            final = await done
-            self._released(final)
+            step(fut.result())
+            return True
         except FluidsenseError:  # the controller stopped under the cycle: nothing to report
             self.op = None
         except Exception as exc:  # noqa: BLE001 - a bug here must not leave the gripper closed
             log.exception("following %s %s failed", self.op, self.cycle_id)
             self.op = None
-            await self.cell.fail(f"gripper: {type(exc).__name__}: {exc}")
+            self._spawn(self.port.fail(f"gripper: {type(exc).__name__}: {exc}"))
+        return False
+
+    def _measured(self, res: CycleResult) -> None:
+        if res.ok and res.cycle_id == self.cycle_id:
+            self._grasp(res)
 
     def _grasp(self, res: CycleResult) -> None:
         # a measure that stored the free-air reference was asked for with nothing in the
@@ -219,7 +238,7 @@ class GripHandler(Sink):
         if not self.calibrations:
             note = (note + "; " if note else "") + "no calibration loaded: features in kPa only"
         published = res.to_dict()
-        self.t_grasp = self.cell.now()
+        self.t_grasp = self.port.now()
         self.last_grasp = {
             "cycle_id": res.cycle_id, "command": self.op, "at_s": self.t_grasp, "p0_kpa": published["p0_kpa"],
             "object": obj, "contact": contact, "t_c_s": res.t_c_threshold,
@@ -230,33 +249,35 @@ class GripHandler(Sink):
         level = (res.p_eq or 0.0) + self._offset
         self._slip = SlipWatch(self.cfg.slip_drop_kpa * KPA, self.cfg.slip_within_s, self._sign, level) \
             if self.op == "grip" else None
-        self.cell.emit("grasp", self.last_grasp)
+        self.port.emit("grasp", self.last_grasp)
 
     def _released(self, final: CycleResult) -> None:
         reason = self._reason or final.aborted or ("done" if self.op == "measure" else "release")
-        now = self.cell.now()
+        now = self.port.now()
         held = None if self.t_grasp is None or self.op != "grip" else (self._t_opened or now) - self.t_grasp
-        self.cell.emit("released", {"cycle_id": final.cycle_id, "command": self.op, "at_s": now,
+        self.port.emit("released", {"cycle_id": final.cycle_id, "command": self.op, "at_s": now,
                                     "reason": reason, "held_s": held, "ok": final.aborted is None})
         self.op, self.t_grasp, self._slip, self._contact, self._t_opened = None, None, None, None, None
 
-    # ------------------------------------------------------------------ the samples (a telemetry sink)
+    # ------------------------------------------------------------------ the samples (a block watcher)
     def on_block(self, block: SampleBlock) -> None:
+        """A block of samples, after its telemetry (controller/path.py BlockWatcher): a
+        grip's contact, its timeout, a slip while held, max_hold_s."""
         if self.op is None or "p_act" not in block.channels:
             return
-        cell, seq = self.cell, self.cell.cycle
-        now = cell.now()
+        port, seq = self.port, self.port.cycle
+        now = port.now()
         p = block.channel("p_act")
         if self.t_grasp is not None and self._t_opened is None and seq.state != State.HOLD:
             self._t_opened = float(block.t[0])
         if self._contact is not None and not self._contact.done:
             t_c = self._contact.feed(block.t, p, seq.t_open)
             if t_c is not None:
-                cell.emit("contact", {"cycle_id": self.cycle_id, "command": self.op, "at_s": seq.t_open + t_c,
+                port.emit("contact", {"cycle_id": self.cycle_id, "command": self.op, "at_s": seq.t_open + t_c,
                                       "t_c_s": t_c})
         if self.t_grasp is None and now > self._deadline and seq.busy and self._reason is None:
             self._reason = "timeout"
-            self._spawn(cell.abort("grip timeout"))
+            self._spawn(port.abort("grip timeout"))
         if self._slip is not None and seq.state == State.HOLD:
             slip = self._slip.feed(float(block.t.mean()), float(p.mean()))
             if slip is not None:
@@ -275,13 +296,13 @@ class GripHandler(Sink):
             first = self.plan.windows[0]
             sel = (ref.t_rel >= first.start_s) & (ref.t_rel < first.end_s)
             free = float(ref.p[sel].mean())
-            bound = object_bound(self.plan, self._circuit, free, self.cell.cycle.p0_pa)
+            bound = object_bound(self.plan, self._circuit, free, self.port.cycle.p0_pa)
             obj = bool(self._sign * (level - free) > bound)
             if not obj:
                 ests = [E.no_object(e) for e in ests]
         if self.last_grasp is not None:
             self.last_grasp = {**self.last_grasp, "object": obj if obj is not None else self.last_grasp["object"]}
-        self.cell.emit("slip", {"cycle_id": self.cycle_id, "at_s": slip["at_s"], "held_s": slip["at_s"] - self.t_grasp,
+        self.port.emit("slip", {"cycle_id": self.cycle_id, "at_s": slip["at_s"], "held_s": slip["at_s"] - self.t_grasp,
                                 "drop_kpa": slip["drop_pa"] / KPA, "p_kpa": level / KPA, "object": obj,
                                 "estimates": [E.to_edge(e) for e in ests]})
 

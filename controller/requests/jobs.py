@@ -23,8 +23,8 @@ TaskRunner = Callable[[str, list[float] | None], Awaitable[dict[str, Any]]]
 
 
 class TaskJobs:
-    def __init__(self, cell: JobPort, runner: TaskRunner | None):
-        self.cell, self.runner = cell, runner
+    def __init__(self, port: JobPort, runner: TaskRunner | None):
+        self.port, self.runner = port, runner
         self._job: asyncio.Task | None = None
         self._file: str | None = None
 
@@ -38,7 +38,7 @@ class TaskJobs:
         return self._file if self._job is not None and not self._job.done() else None
 
     def start(self, file: str, order_mm: list[float] | None) -> dict[str, Any]:
-        cycle = self.cell.cycle
+        cycle = self.port.cycle
         if self.runner is None:
             raise NotSupportedError("this daemon runs no tasks")
         if self.running() is not None:
@@ -54,15 +54,15 @@ class TaskJobs:
         try:
             await work
         except asyncio.CancelledError:
-            self.cell.emit("task", {"task": file, "event": "aborted"})
+            self.port.emit("task", {"task": file, "event": "aborted"})
             raise
         except FluidsenseError as exc:  # the task could not go on: reported; the daemon goes on
             log.error("task %s failed: %s", file, exc)
-            if self.cell.cycle.busy:
-                await self.cell.abort(f"task failed: {exc}")
+            if self.port.cycle.busy:
+                await self.port.abort(f"task failed: {exc}")
         except Exception as exc:  # noqa: BLE001 - a bug in a task: vent, say why
             log.exception("task %s failed", file)
-            await self.cell.fail(f"task {file}: {type(exc).__name__}: {exc}")
+            await self.port.fail(f"task {file}: {type(exc).__name__}: {exc}")
 
     def cancel(self) -> bool:
         if self._job is None or self._job.done():

@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable
 from typing import Any
 
 from fluidsense.common.faults import FaultKind
 from fluidsense.drivers.backend import Backend
 
+from ..path import Events
 from .latch import SafetyLatch, vented_word
 
 log = logging.getLogger(__name__)
@@ -24,9 +25,9 @@ def _word(open_: bool) -> str:
 
 
 class OutputWatch:
-    def __init__(self, backend: Backend, latch: SafetyLatch, emit: Callable[[str, dict[str, Any]], None],
-                 period_s: float):
-        self.backend, self.latch, self._emit, self.period_s = backend, latch, emit, period_s
+    def __init__(self, backend: Backend, latch: SafetyLatch, events: Events, period_s: float):
+        """``events``: where what the read-back finds is said (``log``)."""
+        self.backend, self.latch, self._events, self.period_s = backend, latch, events, period_s
         self._readback: asyncio.Task | None = None
         self._kick: asyncio.Task | None = None
         self._next_read = 0.0
@@ -61,9 +62,9 @@ class OutputWatch:
         vented = self.latch.vented()
         if self.latch.tripped and vented != self._vented_seen:
             self._vented_seen = vented
-            self._emit("log", {"level": "INFO" if vented else "WARNING",
-                               "message": f"{self.latch.fault.kind} fault: vented {vented_word(vented)} as the device "
-                               "reports", "vented": vented_word(vented), "outputs": valves.reported})
+            self._events.emit("log", {"level": "INFO" if vented else "WARNING",
+                                      "message": f"{self.latch.fault.kind} fault: vented {vented_word(vented)} as the "
+                                      "device reports", "vented": vented_word(vented), "outputs": valves.reported})
 
     async def _guarded(self, work: Awaitable[Any], what: str) -> Any:
         try:

@@ -1,7 +1,8 @@
 """The sample loop: the only reader of the backend's source.
 
 It connects (the daemon's start: retrying with back-off while the devices are not there),
-then pulls blocks for ever and hands each to the controller's pipeline. A read that
+then pulls blocks for ever and hands each to the controller's pipeline (its ``pipeline``,
+controller/path.py BlockPipeline: service.Controller.on_block). A read that
 fails or times out becomes a fault and the loop keeps trying: the daemon outlives its
 devices. Anything the pipeline raises is an internal fault, and the loop goes on with
 the next block, in the safe state. In real time it measures how far it is behind its
@@ -16,29 +17,28 @@ import asyncio
 import logging
 import time
 from collections import deque
-from collections.abc import Awaitable, Callable
 from typing import Any
 
 from fluidsense.common.errors import DeviceTimeoutError, LinkLostError
 from fluidsense.common.faults import Fault, FaultKind
 from fluidsense.common.samples import SampleBlock
 from fluidsense.drivers.backend import Backend
+from fluidsense.drivers.base import SampleSource
 
 from ..config import CellConfig
+from ..path import BlockPipeline
+from .clock import SampleClock
 
 log = logging.getLogger(__name__)
 
 
 class SampleLoop:
-    def __init__(self, cfg: CellConfig, backend: Backend, *, connect: Callable[[], Awaitable[None]],
-                 handle: Callable[[SampleBlock], Awaitable[None]], fail: Callable[[Fault], Awaitable[None]],
-                 wanted: Callable[[], bool], demand: asyncio.Event, now: Callable[[], float]):
-        """``connect`` sets the devices up; ``handle`` is the per-block pipeline; ``fail``
-        latches a fault; ``wanted`` says whether anything waits on samples (virtual time);
-        ``demand`` is set when that changes; ``now`` is sample time."""
+    def __init__(self, cfg: CellConfig, backend: Backend, *, pipeline: BlockPipeline, clock: SampleClock):
+        """``pipeline``: where each block goes, and a failed read (it sets the devices up
+        too); ``clock``: sample time, and its ``demand``, set when something starts waiting
+        on samples (virtual time: the loop parks until then)."""
         self.cfg, self.backend = cfg, backend
-        self._connect, self._handle, self._fail = connect, handle, fail
-        self._wanted, self._demand, self._now = wanted, demand, now
+        self.pipeline, self.clock = pipeline, clock
         self.connected = False
         self.connecting: dict[str, Any] | None = None  # while not connected: attempts, last error
         self.parked = False  # virtual time, nothing waits on samples
@@ -50,13 +50,18 @@ class SampleLoop:
         self._wall_lag0: float | None = None  # wall clock minus sample time of the least late block
 
     @property
+    def source(self) -> SampleSource:
+        """The backend's source, where every block comes from (drivers/base.py)."""
+        return self.backend.source
+
+    @property
     def virtual(self) -> bool:
-        return self.backend.source.virtual
+        return self.source.virtual
 
     @property
     def idle(self) -> bool:
         """Parked with nothing waiting on samples: sample time stands still by design."""
-        return self.parked and not self._wanted()
+        return self.parked and not self.pipeline.wants_samples
 
     def reset_lag(self) -> None:
         """The overrun baseline forms again from the next blocks: a loop still catching up
@@ -75,11 +80,11 @@ class SampleLoop:
             await self._connect_until_up()
         failures = 0
         while True:
-            if self.virtual and not self._wanted():
-                self._demand.clear()
+            if self.virtual and not self.pipeline.wants_samples:
+                self.clock.demand.clear()
                 self.parked = True
                 try:
-                    await self._demand.wait()
+                    await self.clock.demand.wait()
                 finally:
                     self.parked = False
                 continue
@@ -90,7 +95,7 @@ class SampleLoop:
             except Exception as exc:  # noqa: BLE001 - every device failure is a fault, none ends the loop
                 failures += 1
                 self.ticks += 1
-                await self._fail(self._read_fault(exc))
+                await self.pipeline.on_read_failure(self._read_fault(exc))
                 # pace the retries (the driver reconnects); wall time, but no control decision
                 await asyncio.sleep(min(0.05 * 2 ** min(failures, 5), 1.0) if not self.virtual else 0)
                 continue
@@ -101,13 +106,13 @@ class SampleLoop:
             self.missed += block.missed
             self.late += block.late
             try:
-                await self._handle(block)
+                await self.pipeline.on_block(block)
             except asyncio.CancelledError:
                 raise
             except Exception as exc:  # noqa: BLE001 - a bug must vent, not end the loop
                 log.exception("the sample loop failed on block %d", block.seq)
-                await self._fail(Fault(FaultKind.INTERNAL, None, self._now(),
-                                       f"{type(exc).__name__} in the sample loop: {exc}"))
+                await self.pipeline.on_read_failure(Fault(FaultKind.INTERNAL, None, self.clock.now,
+                                                          f"{type(exc).__name__} in the sample loop: {exc}"))
             self.proc_s.append(time.perf_counter() - t0)
             self.ticks += 1
             if not self.virtual:
@@ -115,7 +120,7 @@ class SampleLoop:
 
     async def connect_now(self) -> None:
         """Set the devices up at once (jobs: a device that is not there fails the start)."""
-        await self._connect()
+        await self.pipeline.set_up()
         self.connected, self.connecting = True, None
 
     async def _connect_until_up(self) -> None:
@@ -144,15 +149,15 @@ class SampleLoop:
 
     async def _read(self) -> SampleBlock:
         if self.virtual:
-            return await self.backend.source.read_block()
+            return await self.source.read_block()
         # asyncio.timeout, not wait_for: Python 3.11's wait_for returns the result when a
         # cancel arrives just as the read completes (a block already due, as while catching
         # up after a stall), and the swallowed cancel left stop() waiting for ever
         async with asyncio.timeout(self.cfg.supervision.no_data_s):
-            return await self.backend.source.read_block()
+            return await self.source.read_block()
 
     def _read_fault(self, exc: Exception) -> Fault:
-        now = self._now()
+        now = self.clock.now
         if isinstance(exc, (asyncio.TimeoutError, DeviceTimeoutError)):
             return Fault(FaultKind.NO_DATA, None, now, f"no samples for {self.cfg.supervision.no_data_s} s")
         if isinstance(exc, LinkLostError):
@@ -165,7 +170,7 @@ class SampleLoop:
             return None
         # against the host clock through the source's origin: a device whose clock drifts
         # (a serial device's crystal) moves its origin, which is not the loop falling behind
-        origin = self.backend.source.clock_origin_s
+        origin = self.source.clock_origin_s
         lag = asyncio.get_running_loop().time() - block.t_end - (origin or 0.0)
         if self._wall_lag0 is None or lag < self._wall_lag0:
             self._wall_lag0 = lag

@@ -3,26 +3,27 @@ recording, a test's probe, a monitor).
 
 Every event goes to both; two go to the sinks only, which a recording needs to replay a
 cycle exactly: ``cycle_start`` and ``command``. Pressure samples are published in
-batches. Nothing here raises into the sample loop: a publisher or sink that fails is
-reported to ``on_failure`` (the safety latch defers it as an internal fault, latched
-after the block), a sink that reports a failure it knows (a full disk stops a recording)
-is dropped and control goes on.
+batches: ``on_block`` -> ``_batch_pressure`` -> ``flush_pressure``, the ``pressure`` event
+(controller/path.py: the sample path). Nothing here raises into the sample loop: a
+publisher or sink that fails is deferred as an internal fault (``faults``, the safety
+latch: latched after the block), a sink that reports a failure it knows (a full disk
+stops a recording) is dropped and control goes on.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 from fluidsense.common.errors import FluidsenseError
+from fluidsense.common.faults import FaultKind
 from fluidsense.common.samples import SampleBlock
 from fluidsense.common.units import KPA, SLPM
 
 from ..config import PublisherConfig
-from .publisher import NullPublisher, Publisher
+from ..path import EventPublisher, Faults, SampleTime, Stream
 
 log = logging.getLogger(__name__)
 
@@ -48,16 +49,16 @@ class Sink:
 
 
 class Telemetry:
-    def __init__(self, publisher: Publisher | NullPublisher, cfg: PublisherConfig, *, now: Callable[[], float],
-                 rate_hz: Callable[[], float], clock_origin: Callable[[], float | None],
-                 on_failure: Callable[[str], None]):
-        """``rate_hz`` and ``clock_origin``: the source's, asked when needed (a replayed
-        recording knows its rate only once it is open)."""
+    def __init__(self, publisher: EventPublisher, cfg: PublisherConfig, *, clock: SampleTime, stream: Stream,
+                 faults: Faults):
+        """``publisher``: where events leave; ``clock``: sample time, each event's stamp;
+        ``stream``: the samples' source, its rate and clock origin asked at each batch;
+        ``faults``: where a failing publisher or sink is deferred as an internal fault."""
         self.pub, self.cfg = publisher, cfg
         #: pressure batches are built: for any publisher but the null one (a test's stand-in
         #: need not say); ``python -m lab bench sim --batches`` turns it on to cost them
         self.batches = getattr(publisher, "publishes", True)
-        self._now, self._rate_hz, self._origin, self._on_failure = now, rate_hz, clock_origin, on_failure
+        self._clock, self._stream, self._faults = clock, stream, faults
         self.sinks: list[Sink] = []
         #: sinks dropped after a failure, for status: sink, state ("failed"), reason, t_s
         self.failed_sinks: list[dict[str, Any]] = []
@@ -70,17 +71,17 @@ class Telemetry:
     def emit(self, topic: str, payload: dict[str, Any]) -> None:
         """Publish an event and hand it to every sink."""
         try:
-            self.pub.send(topic, self._now(), payload)
+            self.pub.send(topic, self._clock.now, payload)
         except Exception as exc:  # noqa: BLE001
             log.exception("publishing %s failed", topic)
-            self._on_failure(f"publishing {topic!r} failed: {type(exc).__name__}: {exc}")
+            self._fail(f"publishing {topic!r} failed: {type(exc).__name__}: {exc}")
         self.record(topic, payload)
 
     def record(self, topic: str, payload: dict[str, Any]) -> None:
         """Hand an event to the sinks only."""
         for sink in list(self.sinks):
             try:
-                sink.on_event(topic, self._now(), payload)
+                sink.on_event(topic, self._clock.now, payload)
             except Exception as exc:  # noqa: BLE001 - dropped, and maybe a fault
                 self._drop(sink, exc)
 
@@ -101,7 +102,7 @@ class Telemetry:
         name = getattr(sink, "name", type(sink).__name__)
         known = isinstance(exc, FluidsenseError)
         reason = str(exc) if known else f"{type(exc).__name__}: {exc}"
-        self.failed_sinks.append({"sink": name, "state": "failed", "reason": reason, "t_s": self._now()})
+        self.failed_sinks.append({"sink": name, "state": "failed", "reason": reason, "t_s": self._clock.now})
         if known:
             log.error("sink %s dropped: %s", name, exc)
         else:
@@ -109,16 +110,20 @@ class Telemetry:
         self.emit("log", {"level": "ERROR", "message": f"sink {name} failed and was dropped: {reason}",
                           "sink": name})
         if not known:
-            self._on_failure(f"sink {name} failed: {reason}")
+            self._fail(f"sink {name} failed: {reason}")
+
+    def _fail(self, detail: str) -> None:
+        """A bug here: an internal fault, latched after the block (nothing raises into the loop)."""
+        self._faults.defer(detail, FaultKind.INTERNAL, self._clock.now)
 
     # ------------------------------------------------------------------ heartbeat
     def heartbeat_due(self) -> bool:
-        return self._now() >= self._next_heartbeat
+        return self._clock.now >= self._next_heartbeat
 
     def heartbeat(self, fields: dict[str, Any], proc_s) -> None:
         """``fields``: the controller's state; ``proc_s``: block handling times (s), cleared."""
         period = self.cfg.heartbeat_s
-        self._next_heartbeat = (np.floor(self._now() / period) + 1) * period
+        self._next_heartbeat = (np.floor(self._clock.now / period) + 1) * period
         proc = np.array(proc_s) * 1e6 if proc_s else np.zeros(1)
         p50, p99 = np.percentile(proc, [50, 99]).tolist()
         self.emit("heartbeat", {**fields, "block_proc_us": {"p50": p50, "p99": p99, "max": float(proc.max())},
@@ -134,8 +139,8 @@ class Telemetry:
         # Half a period of slack: a polled source stamps each read when it happens, and a
         # first sample a few ns later than the last one must not hold the batch for a
         # second block (measured: the oldest sample 20 ms old instead of 10 on Modbus)
-        period = 1.0 / self._rate_hz()
-        covered = self._now() + period - self._batch_start
+        period = 1.0 / self._stream.rate_hz
+        covered = self._clock.now + period - self._batch_start
         if covered + 0.5 * period >= self.cfg.pressure_batch_s:
             self.flush_pressure()
 
@@ -145,9 +150,9 @@ class Telemetry:
         t = np.concatenate([b.t for b in self._batch])
         channels = self._batch[0].channels
         v = np.vstack([b.values for b in self._batch]) / np.array([_EDGE_SCALE[edge_unit(c)] for c in channels])
-        origin = self._origin()
-        self.pub.send("pressure", self._now(), {
-            "t0_s": float(t[0]), "rate_hz": self._rate_hz(), "n": len(t),
+        origin = self._stream.clock_origin_s
+        self.pub.send("pressure", self._clock.now, {
+            "t0_s": float(t[0]), "rate_hz": self._stream.rate_hz, "n": len(t),
             "clock_origin_s": origin, "sent_s": None if origin is None else time.monotonic(),
             "channels": list(channels), "units": [edge_unit(c) for c in channels],
             "times_s": t.tolist(), "values": np.round(v, 5).T.tolist()})
@@ -158,7 +163,7 @@ class Telemetry:
         self.flush_pressure()
         for sink in self.sinks:
             try:
-                sink.flush(self._now())
+                sink.flush(self._clock.now)
                 sink.close()
             except Exception as exc:  # noqa: BLE001 - closing the others matters more
                 log.error("closing sink %s: %s", type(sink).__name__, exc)

@@ -80,7 +80,7 @@ class Sender:
                   "on_time": c.on_time, "late": c.late, "missed": c.missed + carry["missed"],
                   "failed": c.failed + carry["failed"], "dropped": carry["dropped"],
                   "read_max_s": b.read_max_s, "last_error": b.last_error,
-                  "stalls": [[slot, ns / 1e9] for slot, ns in b.stalls]}
+                  "stalls": [[slot, ns / 1e9] for slot, ns in b.stalls], "slow": b.slow}
         if self.send("block", fields, (b.t_s, b.values, b.lateness_s)):
             if self._carry is not None:
                 log.info("daemon draining again after %d dropped blocks", self.dropped_blocks)

@@ -14,7 +14,12 @@ stamps the time, reads the poller and files the slot in exactly one of four bins
   (and at least ``max_consecutive_failures`` times) the loop reports link loss and ends.
 
 A read that raises ``NoNewSample`` (nothing new at the source since the last read) is
-a missed slot: no sample, and no step towards link loss.
+a missed slot: no sample, and no step towards link loss. So is a read that took longer
+than one period (a *slow* read, counted apart as well): the device answered with what it
+had at some moment during the read, and which moment is not known; stamped with the
+read's start, a sample on a steep rise was off by the whole read (an emulated box busy
+for 19 ms after a valve opened answered a read begun at 22 ms with its 41 ms value, and
+the rise alignment found 5 ms of shift that was not there).
 
 Each sample carries the time its read started (never its deadline, never an
 interpolation), so ``t - deadline == lateness`` exactly and a consumer can always
@@ -120,6 +125,8 @@ class Block:
     #: (slot served, ns) for each re-alignment: how late the loop woke for the slot it
     #: was waiting for, the first of those it then missed (a stall, always >= 1 period)
     stalls: list[tuple[int, int]] = field(default_factory=list)
+    #: reads that took longer than a period: among ``counts.missed``, no sample
+    slow: int = 0
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -147,6 +154,7 @@ class _Accumulator:
     read_max_ns: int = 0
     last_error: str | None = None
     stalls: list[tuple[int, int]] = field(default_factory=list)
+    slow: int = 0
 
 
 class SlotLoop:
@@ -172,6 +180,8 @@ class SlotLoop:
         self.max_failures = max_consecutive_failures
         self.link_timeout_ns = link_timeout_ns
         self._failing_since_ns = 0
+        self._consecutive_slow = 0
+        self._slow_since_ns = 0
         self.t0_ns = 0
         self.next_slot = 0
         self.totals = Counts()
@@ -216,7 +226,11 @@ class SlotLoop:
             except Exception as exc:  # noqa: BLE001 - any read failure is a failed slot
                 self._failed(k, t, exc)
             else:
-                self._sample(k, t, t - deadline, row, now() - t)
+                read_ns = now() - t
+                if read_ns > self.period_ns:
+                    self._slow_read(k, t, read_ns)
+                else:
+                    self._sample(k, t, t - deadline, row, read_ns)
             k += 1
             self.next_slot = k
             # a block is block_size slots, not block_size samples: slots without a sample
@@ -243,10 +257,29 @@ class SlotLoop:
         self._acc.stalls.append((j, t - self.deadline_ns(k)))
         return j
 
+    def _slow_read(self, k: int, t: int, read_ns: int) -> None:
+        """A read longer than a period: missed. Reads that stay that slow for the link's
+        timeout mean this device cannot be sampled at this rate: link lost, saying so."""
+        acc = self._acc
+        acc.counts.missed += 1
+        acc.slow += 1
+        acc.read_max_ns = max(acc.read_max_ns, read_ns)
+        self._consecutive_slow += 1
+        if self._consecutive_slow == 1:
+            self._slow_since_ns = t
+            log.debug("slot %d: a read took %.2f ms, longer than the %.2f ms period: no sample", k, read_ns / 1e6,
+                     self.period_ns / 1e6)
+        slow_ns = t - self._slow_since_ns
+        if self._consecutive_slow >= self.max_failures and slow_ns >= self.link_timeout_ns:
+            self._lost = (f"every read for {slow_ns / 1e9:.3f} s took longer than the {self.period_ns / 1e6:.3g} ms "
+                          f"period (last {read_ns / 1e6:.3g} ms): their samples cannot be timed; lower the rate")
+            log.error("link lost at slot %d: %s", k, self._lost)
+
     def _sample(self, k: int, t: int, lateness_ns: int, row: list[float], read_ns: int) -> None:
         if len(row) != self.n_channels:
             raise ConfigError(f"poller {type(self.poller).__name__} returned {len(row)} values, "
                               f"the config names {self.n_channels} channel(s)")
+        self._consecutive_slow = 0
         if self._consecutive_failures:
             log.info("reads recovered at slot %d after %d failed", k, self._consecutive_failures)
             self._consecutive_failures = 0
@@ -290,6 +323,6 @@ class SlotLoop:
         self._acc = _Accumulator(slot_end)
         self.totals.add(acc.counts)
         block = Block(self._seq, acc.slot_begin, slot_end, acc.counts, acc.t_s, acc.values,
-                      acc.lateness_s, acc.read_max_ns / 1e9, acc.last_error, acc.stalls)
+                      acc.lateness_s, acc.read_max_ns / 1e9, acc.last_error, acc.stalls, acc.slow)
         self._seq += 1
         self.emit(block)

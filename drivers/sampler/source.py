@@ -73,7 +73,7 @@ class SampledSource(SampleSource):
         self.final: dict[str, Any] | None = None
         #: counts from every block received: on_time/late count delivered samples
         self.stats = {"on_time": 0, "late": 0, "missed": 0, "failed": 0, "dropped": 0, "slots": 0, "blocks": 0,
-                      "stalls": 0, "stall_max_s": 0.0}
+                      "stalls": 0, "stall_max_s": 0.0, "slow": 0}
         #: the latest stalls, (slot served after it, how late the loop woke in s): a
         #: stall is a wake-up after the next slot's deadline, which made slots missed
         self.stall_log: deque[tuple[int, float]] = deque(maxlen=10_000)
@@ -220,6 +220,7 @@ class SampledSource(SampleSource):
             self.stats[key] += int(h[key])
         self.stats["slots"] += int(h["slot_end"]) - int(h["slot_begin"])
         self.stats["blocks"] += 1
+        self.stats["slow"] += int(h.get("slow", 0))
         for slot, stall_s in h.get("stalls", ()):
             self.stats["stalls"] += 1
             self.stats["stall_max_s"] = max(self.stats["stall_max_s"], stall_s)

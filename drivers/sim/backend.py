@@ -27,7 +27,7 @@ from fluidsense.simulator.cell import SimulatedCell
 
 from ..backend import Backend
 from ..base import FlowController, Regulator, SampleSource, SceneControl, ValveBank
-from ..config import SimDriverConfig
+from ..registry import SimDriverConfig
 from .arm import SimArm
 
 log = logging.getLogger(__name__)

@@ -8,6 +8,9 @@ import json
 from pathlib import Path
 from typing import Any
 
+from fluidsense.cli.speed_chart import floor_lines, method_line
+from fluidsense.tasks.speed_accuracy import SETTLED_KPA
+
 from .speed_spec import (
     CIRCUITS,
     DECIDED,
@@ -98,27 +101,11 @@ def _chart(out_dir: Path, res: dict[str, Any]) -> None:
 
 
 def _method_line(a, rows, colour, label) -> None:
-    """Decided points filled, partially decided hollow (fraction under 99.5 %), undecided as
-    a cross on the top edge: a method that says "not yet" is not a method that is wrong."""
-    decided = [(r["decision_time_s"], r["err95_mm"]) for r in rows
-               if r["err95_mm"] is not None and r["decided_fraction"] >= 0.995]
-    partial = [(r["decision_time_s"], r["err95_mm"]) for r in rows
-               if r["err95_mm"] is not None and r["decided_fraction"] < 0.995]
-    undecided = [r["decision_time_s"] for r in rows if r["err95_mm"] is None]
-    known = sorted(decided + partial)
-    if known:
-        a.plot(*zip(*known), "-", color=colour, lw=1, label=label)
-    if decided:
-        a.plot(*zip(*decided), "o", color=colour, ms=2)
-    if partial:
-        a.plot(*zip(*partial), "o", mfc="white", mec=colour, ms=2.5)
-    if undecided:
-        a.plot(undecided, [ERR_LIM[1] * 0.85] * len(undecided), "x", color=colour, ms=2.5)
+    method_line(a, rows, colour, label, ERR_LIM[1])
 
 
 def _floor_lines(a, fl) -> None:
-    a.axvline(fl["contact_s"], color="k", lw=0.8, ls="--", label=f"farthest target touched {fl['contact_s']:.3g} s")
-    a.axvline(fl["settled_s"], color="k", lw=0.8, ls=":", label=f"settled (0.07 kPa) {fl['settled_s']:.3g} s")
+    floor_lines(a, fl, SETTLED_KPA)
 
 
 def _markdown(res: dict[str, Any]) -> str:
@@ -134,7 +121,9 @@ def _markdown(res: dict[str, Any]) -> str:
              "sample plus the cycle-to-cycle variation of the regulator. Circuits: fast = no resistor (the valve's "
              "own 3e7 Pa*s/m^3), slow = 5.7e8 (the paper's actuation-speed study). The actuators carry a mechanical "
              f"lag of {res['response_s']:g} s (`response_s`, assumed: the published text gives no figure; "
-             "docs/physics.md says why these scenes need it and what it changes).", "",
+             "docs/physics.md says why these scenes need it and what it changes). The cycles, the floor and the "
+             "scoring are those of `fluidsense chart` (tasks/speed_accuracy.py), which draws this chart for any "
+             "profile and scene, your own characterised one included (docs/cli.md).", "",
              "Methods: `window` = mean over the 50 ms ending at t_d (the paper's shortest window); `early` = the "
              "first-order prediction of the equilibrium from the transient after contact (it answers \"not yet\" "
              f"until its 95 % half-width is below {res['early_half_width_mm']:g} mm); `t_c_slope` = contact time by "

@@ -89,7 +89,7 @@ class Study:
 def _cell(profile_name: str, seed: int):
     from fluidsense.cli.options import profile_path
     from fluidsense.controller.config import CellConfig, load_profile
-    from fluidsense.drivers.config import SimDriverConfig
+    from fluidsense.drivers.registry import SimDriverConfig
 
     prof = load_profile(profile_path(profile_name))
     return CellConfig(driver=SimDriverConfig(clock="virtual", seed=seed), profile=prof)
@@ -103,7 +103,7 @@ async def _calibrate(profile_name: str, seed: int, feature: tuple[str, str] | No
     plan = cfg.profile.calibration
     name, fit = feature or (plan.feature, plan.fit)
     async with app.controller(cfg) as ctrl:
-        run = await calibrate(ctrl, plan.scene, plan.target, plan.values, feature=name, fit=fit,
+        run = await calibrate(ctrl.task_port, plan.scene, plan.target, plan.values, feature=name, fit=fit,
                               cycles=plan.cycles, drop_first=plan.drop_first, seed=seed, free_cycles=plan.cycles)
     return run.calibration
 
@@ -132,7 +132,7 @@ async def _session(cal, profile_name: str, seed: int, targets: list[float], beyo
 
     async with app.controller(cfg) as ctrl:
         if cal.feature in NEEDS_REFERENCE:  # a fresh session records its own free-air reference first
-            await ensure_reference(ctrl, ctrl.scene.place)
+            await ensure_reference(ctrl.task_port, ctrl.scene.place)
         for x in targets:
             est = await measure(scene_with(plan.scene, plan.target, x))
             study.truth.append(x)

@@ -51,7 +51,7 @@ def profile():
 
 def _cfg(seed: int, clock: str = "virtual"):
     from fluidsense.controller.config import CellConfig
-    from fluidsense.drivers.config import SimDriverConfig
+    from fluidsense.drivers.registry import SimDriverConfig
 
     return CellConfig(driver=SimDriverConfig(clock=clock, seed=seed), profile=profile())
 
@@ -102,7 +102,7 @@ def _raise_in_loop(ctrl, t: float) -> None:
 async def _injections(kinds, n: int, seed: int) -> list[dict[str, Any]]:
     from fluidsense.common.scenes import CylinderScene
     from fluidsense.controller.service import Controller
-    from fluidsense.drivers.config import build_backend
+    from fluidsense.drivers.registry import build_backend
 
     rng = np.random.default_rng(seed)
     cfg = _cfg(seed)
@@ -120,7 +120,7 @@ async def _injections(kinds, n: int, seed: int) -> list[dict[str, Any]]:
 async def _clean(cycles: int, seed: int) -> tuple[int, list[str]]:
     from fluidsense.common.scenes import CylinderScene, EmptyScene
     from fluidsense.controller.service import Controller
-    from fluidsense.drivers.config import build_backend
+    from fluidsense.drivers.registry import build_backend
 
     rng = np.random.default_rng(seed + 7)
     cfg = _cfg(seed + 1)
@@ -141,7 +141,7 @@ async def _overrun(n: int, seed: int) -> list[dict[str, Any]]:
     """Real time: a sink that blocks the loop for 0.5 s, once per cycle."""
     from fluidsense.common.errors import FaultError
     from fluidsense.controller.service import Controller, Sink
-    from fluidsense.drivers.config import build_backend
+    from fluidsense.drivers.registry import build_backend
 
     class Stall(Sink):
         def __init__(self):

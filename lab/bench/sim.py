@@ -38,7 +38,7 @@ async def _controller_cycles(cfg, n: int, batches: bool = False) -> list[float]:
 
 async def _cell_cycles(cfg, n: int) -> tuple[list[float], float]:
     """The cell alone: the sequencer's valve schedule replayed without the controller."""
-    from fluidsense.drivers.config import build_backend
+    from fluidsense.drivers.registry import build_backend
 
     seq = cfg.profile.sequence
     period = seq.charge_s + seq.isolate_s + seq.actuate_s + seq.vent_s

@@ -12,20 +12,22 @@ few hundred ms it moves the readings by up to 3 kPa, so these scenes need it (do
 Beside each method's earliest decision the bench gives the circuit's physical floor, from
 noise-free step responses: when the farthest target is touched, and when the pressure has
 settled to within one sample's noise.
+
+The cycles, the floor and the scoring are the product's (tasks/speed_accuracy.py, which
+``fluidsense chart`` runs for any profile and scene); this study gives it the paper's two
+scenes, their circuits and lag, and writes docs/speed-accuracy (_speed_chart.py).
 """
 
 from __future__ import annotations
 
 import argparse
-import asyncio
 import json
 import os
 import time
-from itertools import combinations
 from pathlib import Path
 from typing import Any
 
-import numpy as np
+from fluidsense.tasks import speed_accuracy as core
 
 # the bench's tables and scoring (its chart uses them too); readers use them as SA.*
 from .speed_spec import (  # noqa: F401
@@ -46,10 +48,9 @@ NAME = "speed-accuracy"
 HELP = "accuracy against decision time for every sensing method (chart + summary)"
 DESCRIPTION = __doc__
 
-FIT = {"window": "linear", "early": "linear", "dp_max": "linear", "t_c_slope": "poly2", "t_c_threshold": "poly2"}
 EARLY_HALF_WIDTH_MM = 2.0  # the early estimator decides once its 95 % half-width is this narrow
 SEED = 1
-SETTLED_KPA = 0.07  # settled: within one sample's noise sd of the final pressure
+SETTLED_KPA = core.SETTLED_KPA  # settled: within one sample's noise sd (0.07 kPa) of the final pressure
 
 
 def register(p: argparse.ArgumentParser) -> None:
@@ -90,85 +91,26 @@ def _scene(target: str, value: float):
     return CylinderScene(diameter_mm=value) if target == "diameter_mm" else PlateScene(height_mm=value)
 
 
+def chart_scene(scene: str) -> core.ChartScene:
+    """One of the paper's scenes as the product's chart takes it."""
+    _, target, cal_targets, (lo, hi) = SCENES[scene]
+    return core.ChartScene(base=_scene(target, cal_targets[0]), target=target, unit="mm",
+                           calibration=tuple(cal_targets), range=(lo, hi))
+
+
+def plan(trials: int = 200, cal_cycles: int = 6, seed: int = SEED) -> core.Plan:
+    """The paper's scenes' grid (DECISION_TIMES, up to the 5 s reference), floor band and
+    early gate, and the sorting scored at 10 and 20 mm."""
+    return core.Plan(trials=trials, cal_cycles=cal_cycles, seed=seed, early_half_width=EARLY_HALF_WIDTH_MM,
+                     settled_kpa=SETTLED_KPA, sorting=(10.0, 20.0))
+
+
 def floor(scene: str, circuit: str, response_s: float | None = None) -> dict[str, float]:
-    """The physical floor of one scene and circuit, from noise-free step responses at both
-    ends of the range: ``contact_s`` when the farthest target is touched (before it nothing
-    tells the far targets apart), ``settled_s`` when every response is within SETTLED_KPA of
-    its final value (after it a reading no longer depends on when it is taken)."""
-    from fluidsense.simulator.timing import settled_time, step_response
-
-    pname, target, _, (lo, hi) = SCENES[scene]
-    prof = _profile(pname, CIRCUITS[circuit], _response_s(response_s))
-    resps = [step_response(prof.hardware, _scene(target, x), prof.sequence.p0_kpa, 8.0) for x in (lo, hi)]
-    return {"contact_s": max(r.t_contact_s for r in resps),
-            "settled_s": max(settled_time(r, SETTLED_KPA) for r in resps)}
-
-
-async def _collect(prof, target: str, cal_targets, test_targets, cal_cycles: int, seed: int, times):
-    from fluidsense.controller.sensing.decision import features_at
-    from fluidsense.controller.service import Controller
-    from fluidsense.tasks.experiments import reference, sim_cell, sweep
-
-    base = _scene(target, cal_targets[0])
-    cfg, backend = sim_cell(prof, seed)
-    async with Controller(cfg, backend) as ctrl:
-        ref = await reference(ctrl)
-        rt, rp = ref.trace
-        cal = await sweep(ctrl, base, target, cal_targets, cycles=cal_cycles, drop_first=1)
-        test = await sweep(ctrl, base, target, test_targets, cycles=1)
-    thr = prof.sequence.contact_threshold_kpa
-
-    def feats(runs):
-        return [(r.target, features_at(*r.result.trace, rt, rp, times, contact_kpa=thr)) for r in runs]
-
-    return feats(cal), feats(test)
-
-
-def _evaluate(cal, test, method: str, td: float) -> dict[str, Any]:
-    from fluidsense.controller.sensing.calibration import Calibration, CalibrationError
-
-    xs = [x for x, f in cal if f[td][method] is not None]
-    ys = [f[td][method] for x, f in cal if f[td][method] is not None]
-    trials = len(test)
-    meta = dict(profile="", method="", feature=method, feature_unit="", scene={}, target="", target_unit="mm",
-                date="bench")
-    if len(set(xs)) < 3:
-        return {"err95_mm": None, "bias_mm": None, "decided_fraction": 0.0, "trials": trials, "estimates": []}
-    try:
-        curve = Calibration.fit_points(xs, ys, FIT[method], **meta)
-    except CalibrationError:
-        return {"err95_mm": None, "bias_mm": None, "decided_fraction": 0.0, "trials": trials, "estimates": []}
-    slope = abs(curve.slope) or 1e-12
-    errs, pairs = [], []
-    for x, f in test:
-        v = f[td][method]
-        if v is None:
-            continue
-        if method == "early":
-            sd = f[td].get("early_sd")
-            if sd is None or 1.96 * sd / slope > EARLY_HALF_WIDTH_MM:
-                continue  # "not yet": the interval is still too wide
-        try:
-            est = curve.invert(v).estimate
-        except CalibrationError:
-            continue
-        errs.append(est - x)
-        pairs.append((x, est))
-    if not errs:
-        return {"err95_mm": None, "bias_mm": None, "decided_fraction": 0.0, "trials": trials, "estimates": []}
-    e = np.array(errs)
-    return {"err95_mm": float(np.percentile(np.abs(e), 95)), "bias_mm": float(e.mean()),
-            "decided_fraction": len(errs) / trials, "trials": trials, "estimates": pairs}
-
-
-def _sorting(pairs: list[tuple[float, float]], spacing: float) -> float | None:
-    """Fraction of object pairs about ``spacing`` mm apart that the estimates order right."""
-    ok = n = 0
-    for (x1, e1), (x2, e2) in combinations(pairs, 2):
-        if abs(abs(x1 - x2) - spacing) <= 1.0:
-            n += 1
-            ok += (x1 - x2) * (e1 - e2) > 0
-    return ok / n if n else None
+    """The physical floor of one scene and circuit (tasks/speed_accuracy.floor): when the
+    farthest target is touched, and when every response is within SETTLED_KPA of its final
+    value."""
+    pname = SCENES[scene][0]
+    return core.floor(_profile(pname, CIRCUITS[circuit], _response_s(response_s)), chart_scene(scene), SETTLED_KPA)
 
 
 #: the suite's check (tests/system/test_speed_stability.py): this pair's rows over its first
@@ -178,35 +120,29 @@ def _sorting(pairs: list[tuple[float, float]], spacing: float) -> float | None:
 CHECK_PAIR, CHECK_TRIALS = ("gripper-cylinder", "fast"), 40
 
 
-def _pair_rows(scene: str, circuit: str, cal, test, times) -> list[dict[str, Any]]:
-    from fluidsense.controller.sensing.decision import METHODS
-
-    rows = []
-    for method in METHODS:
-        for td in times:
-            ev = _evaluate(cal, test, method, td)
-            pairs = ev.pop("estimates")
-            rows.append({"scene": scene, "circuit": circuit, "method": method, "decision_time_s": td, **ev,
-                         "sorting_10mm": _sorting(pairs, 10.0), "sorting_20mm": _sorting(pairs, 20.0)})
-    return rows
+def _pair_rows(scene: str, circuit: str, rows) -> list[dict[str, Any]]:
+    """The product's rows (tasks/speed_accuracy.score) in this study's terms: scene, circuit,
+    errors in mm, the sorting at 10 and 20 mm."""
+    return [{"scene": scene, "circuit": circuit, "method": r["method"], "decision_time_s": r["decision_time_s"],
+             "err95_mm": r["err95"], "bias_mm": r["bias"], "decided_fraction": r["decided_fraction"],
+             "trials": r["trials"], "sorting_10mm": r["sorting"][10.0], "sorting_20mm": r["sorting"][20.0]}
+            for r in rows]
 
 
 def _pair(args: tuple[str, str, int, int, int, float]) -> tuple[list, dict, dict | None]:
     """One scene and circuit on its own seeded cell: its rows, floor and (for CHECK_PAIR)
     check rows. The same in a worker process as in this one."""
+    from fluidsense.controller.service import open_cell
+
     scene, circuit, trials, cal_cycles, seed, lag = args
-    pname, target, cal_targets, (lo, hi) = SCENES[scene]
-    rng = np.random.default_rng(seed)
-    test_targets = [round(float(x), 3) for x in rng.uniform(lo, hi, trials)]
-    prof = _profile(pname, CIRCUITS[circuit], lag)
-    fl = floor(scene, circuit, lag)
-    times = decision_times(fl)
-    cal, test = asyncio.run(_collect(prof, target, cal_targets, test_targets, cal_cycles, seed, times))
+    how = plan(trials, cal_cycles, seed)
+    measured = core.measure(_profile(SCENES[scene][0], CIRCUITS[circuit], lag), chart_scene(scene), how,
+                            open_cell=open_cell)
     check = None
     if (scene, circuit) == CHECK_PAIR and trials >= CHECK_TRIALS:
         check = {"scene": scene, "circuit": circuit, "trials": CHECK_TRIALS,
-                 "rows": _pair_rows(scene, circuit, cal, test[:CHECK_TRIALS], times)}
-    return _pair_rows(scene, circuit, cal, test, times), fl, check
+                 "rows": _pair_rows(scene, circuit, core.score(measured, how, trials=CHECK_TRIALS))}
+    return _pair_rows(scene, circuit, core.score(measured, how)), measured.floor, check
 
 
 def run_bench(trials: int = 200, cal_cycles: int = 6, seed: int = SEED,

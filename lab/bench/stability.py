@@ -60,7 +60,7 @@ def _gripper(**circuit):
 
 def _variant(name: str, strength: float):
     """(profile, perturbations, scene kwargs) for one perturbation at one strength."""
-    from fluidsense.drivers.config import Perturbations
+    from fluidsense.drivers.registry import Perturbations
 
     prof, pert, scene = _gripper(), Perturbations(), {}
     if name == "off-centre":
@@ -86,15 +86,15 @@ def _variant(name: str, strength: float):
 async def _run_cell(prof, pert, scene_kw, targets, seed, cycles=1, drop=0):
     from fluidsense.common.scenes import CylinderScene
     from fluidsense.controller.config import CellConfig
-    from fluidsense.controller.service import Controller
-    from fluidsense.drivers.config import SimDriverConfig, build_backend
+    from fluidsense.controller.service import open_cell
+    from fluidsense.drivers.registry import SimDriverConfig, build_backend
     from fluidsense.tasks.experiments import reference, sweep
 
     cfg = CellConfig(driver=SimDriverConfig(clock="virtual", seed=seed, perturb=pert), profile=prof)
     backend = build_backend(cfg.driver, prof.hardware)
-    async with Controller(cfg, backend) as ctrl:
-        ref = await reference(ctrl)
-        runs = await sweep(ctrl, CylinderScene(diameter_mm=40, **scene_kw), "diameter_mm", targets, cycles=cycles,
+    async with open_cell(cfg, backend) as port:
+        ref = await reference(port)
+        runs = await sweep(port, CylinderScene(diameter_mm=40, **scene_kw), "diameter_mm", targets, cycles=cycles,
                            drop_first=drop)
     return ref, runs
 
@@ -118,7 +118,7 @@ def size_part(name: str, trials: int, seed: int) -> list[dict[str, Any]]:
     from fluidsense.controller.sensing.calibration import Calibration, CalibrationError
 
     nominal = _gripper()
-    from fluidsense.drivers.config import Perturbations
+    from fluidsense.drivers.registry import Perturbations
 
     ref_cal, cal_runs = asyncio.run(_run_cell(nominal, Perturbations(), {}, CAL_TARGETS, seed, cycles=5, drop=1))
     cal = _features(ref_cal, cal_runs)
@@ -189,7 +189,7 @@ async def _run_task(task, cell, **kw):
             update={"noise_sd_kpa": cfg.profile.sensor.noise_sd_kpa * 4})})
         cfg = cfg.model_copy(update={"profile": prof})
     async with app.controller(cfg) as ctrl:
-        return await run_task(ctrl, task, **kw)
+        return await run_task(ctrl.task_port, task, **kw)
 
 
 MISALIGNMENTS = (0.0, 5.0, 10.0)

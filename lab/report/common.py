@@ -12,7 +12,7 @@ import numpy as np
 from fluidsense.cli.options import PROFILES
 from fluidsense.controller.config import Profile, load_profile
 from fluidsense.controller.sensing.calibration import Calibration, feature_value
-from fluidsense.controller.service import Controller
+from fluidsense.controller.service import open_cell
 from fluidsense.tasks.experiments import sim_cell
 
 
@@ -124,12 +124,13 @@ def profile(name: str) -> Profile:
 
 
 def run_on(prof: Profile, body, seed: int = 1):
-    """``await body(controller)`` on a virtual simulated cell; returns its result."""
+    """``await body(port)`` on a virtual simulated cell, ``port`` its controller's task port
+    (controller/ports.py); returns its result."""
     cfg, backend = sim_cell(prof, seed)
 
     async def main():
-        async with Controller(cfg, backend) as ctrl:
-            return await body(ctrl)
+        async with open_cell(cfg, backend) as port:
+            return await body(port)
 
     return asyncio.run(main())
 

@@ -48,7 +48,7 @@ def register(sub) -> None:
 
 def main(args: argparse.Namespace) -> int:
     from fluidsense.controller.config import load_cell_config
-    from fluidsense.drivers.config import SimDriverConfig
+    from fluidsense.drivers.registry import SimDriverConfig
     from fluidsense.drivers.serial.config import SerialDriverConfig
 
     from ..serialboard import AVR_IMAGE, SerialPlant, SimSerial, build_board

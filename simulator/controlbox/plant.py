@@ -47,6 +47,7 @@ class PlantModel(KinematicModel):
     def __init__(self, hw: Hardware, wiring: Wiring, sim: CellSettings | None = None,
                  initial_pose: Pose = (0.35, 0.0, 0.25, 0.0, 3.1416, 0.0)):
         self.cell = SimulatedCell(sim or CellSettings(block_size=1), hw)
+        self.cell.pace_for_real_time()
         self.wiring = wiring
         self._wired = {s.analog_input: (name, s.transfer) for name, s in wiring.sensors.items()}
         self._latest = {name: 0.0 for name in self.cell.channels}

@@ -12,7 +12,8 @@ request's ``id`` echoed when it has one. This is not part of the UR control box.
 A box backed by the simulated plant (``fluidsense simcell``) also answers ``scene``
 (place an object), ``world`` (lay out slots and objects for an arm), ``truth`` (what a
 bench instrument would read), ``inject`` / ``clear_faults`` (fault injection) and
-``command_lag`` (valve commands reach the valves late, as from a busy PC). Every
+``command_lag`` (valve commands reach the valves late, as from a busy PC) and ``valve_log``
+(the latest valve changes: when each was commanded and when the valve moved, box time). Every
 box answers ``network`` (pull the cable), ``rtde_lag`` (slow RTDE streams arrive late) and
 ``lie`` (say on the wire what cannot be true: lies.py). The
 same commands are served over TCP (one JSON object per line each way) when the cell
@@ -102,6 +103,15 @@ class CommandLagCommand(StrictModel):
     lag_s: float = Field(ge=0, le=1)
 
 
+class ValveLogCommand(StrictModel):
+    """The latest valve changes (up to 64), oldest first: ``valve``, ``open``, when the box
+    applied the command (``commanded_s``) and when the valve moved (``effective_s``, after
+    its switching delay and any ``command_lag``), on the box's clock."""
+
+    cmd: Literal["valve_log"]
+    id: Any = None
+
+
 class ClearFaultsCommand(StrictModel):
     cmd: Literal["clear_faults"]
     id: Any = None
@@ -139,9 +149,11 @@ class LieCommand(StrictModel):
     delay_s: float = Field(0.0, ge=0, le=60)
 
 
-_PLANT = (SceneCommand, WorldCommand, TruthCommand, InjectCommand, ClearFaultsCommand, CommandLagCommand)
+_PLANT = (SceneCommand, WorldCommand, TruthCommand, InjectCommand, ClearFaultsCommand, CommandLagCommand,
+          ValveLogCommand)
 SimRequest = TypeAdapter(Annotated[StateCommand | SetCommand | SceneCommand | WorldCommand | TruthCommand
-                                | InjectCommand | ClearFaultsCommand | CommandLagCommand | NetworkCommand
+                                | InjectCommand | ClearFaultsCommand | CommandLagCommand | ValveLogCommand
+                                | NetworkCommand
                                 | RtdeLagCommand
                                 | LieCommand,
                                 Field(discriminator="cmd")])
@@ -192,6 +204,9 @@ def _plant(box: ControlBox, c: StrictModel) -> dict[str, Any]:
         m.clear_faults()
     elif isinstance(c, CommandLagCommand):
         m.cell.command_lag_s = c.lag_s
+    elif isinstance(c, ValveLogCommand):
+        return {"valves": [{"valve": v, "open": o, "commanded_s": tc, "effective_s": te}
+                           for v, o, tc, te in m.cell.valve_log]}
     if not isinstance(c, TruthCommand):
         log.info("sim control: %s", c.cmd)
     return {"truth": m.truth()}

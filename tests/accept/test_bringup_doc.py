@@ -6,7 +6,9 @@ endpoints (the file's comments say to set them; fixed ports would meet other dae
 shared test machine). Skipped by name, each said below: the monitor (runs until Ctrl-C; its
 screen is tests/system/test_monitor_screen.py), ``check --actuate`` without ``--yes`` (asks a
 person; the same check with ``--yes`` runs), ``calibrate`` (the shipped sorting profile's
-30 cycles are 7 minutes of real time; calibrating the emulated box is tests/system/test_jobs.py)."""
+30 cycles are 7 minutes of real time; calibrating the emulated box is tests/system/test_jobs.py),
+``characterise`` (minutes of real time too; tests/system/test_characterise.py) and the ``design`` and
+``chart`` lines on its profile (tests/system/test_chart.py)."""
 
 from __future__ import annotations
 
@@ -27,6 +29,13 @@ SKIPPED = {
     "fluidsense monitor --config my-cell.yaml": "runs until Ctrl-C",
     "fluidsense check --config my-cell.yaml --actuate": "asks a person before it moves anything",
     "fluidsense calibrate --config my-cell.yaml --out my-gripper.json": "minutes of real time",
+    # minutes of real-time cycles too, and through ur on a loaded test machine a fault (overrun, no_data) ended
+    # it in 3 of 4 walks here (issue 35's closing note): characterise through the emulated box, start to
+    # written profile, is tests/system/test_characterise.py's; design and chart on a characterised profile are
+    # tests/system/test_chart.py's
+    "fluidsense characterise --config my-cell.yaml --out mine.yaml --cycles 2 --yes": "minutes of real time",
+    "fluidsense design --profile mine": "needs mine.yaml from the characterise line (skipped)",
+    "fluidsense chart --profile mine --out chart --trials 40": "needs mine.yaml from the characterise line (skipped)",
 }
 
 
@@ -50,6 +59,8 @@ def test_bringup_runs_as_written_from_the_integrators_folder(tmp_path):
             _, results = run_as_written([line], subs, tmp_path, timeout_s=900, cwd=home, background=background)
             if "fluidsense simcell" in line:  # the doc says to wait for the box's ready line, as a person does
                 wait_for_ready(*background[-1])
+            if line.startswith("fluidsense run "):  # ... and for the daemon's 'fluidsense running' line
+                wait_for_ready(*background[-1], timeout_s=120, marker="fluidsense running")
             if "fluidsense init" in line:
                 cell = home / "my-cell.yaml"
                 data = yaml.safe_load(cell.read_text())
@@ -63,8 +74,15 @@ def test_bringup_runs_as_written_from_the_integrators_folder(tmp_path):
                 is_check = line.startswith("fluidsense check ")
                 ok = r.returncode == 0 or (is_check and r.returncode == 4
                                            and all(p.startswith("sampling") for p in problems(r.stdout)))
-                assert ok, (line, r.returncode, r.stdout[-3000:], r.stderr[-3000:])
+                assert ok, f"{line}: exit {r.returncode}\n{r.stdout[-3000:]}\n{r.stderr[-3000:]}"
         by_command = {line.split("#")[0].strip(): r for line, r in ran}
+        # step 6: a free-air reference, then a grip of nothing: never an object
+        grip = by_command["fluidsense cmd grip --config my-cell.yaml --wait 120"].stdout
+        decoder = json.JSONDecoder()
+        reply, end = decoder.raw_decode(grip)
+        grasp, _ = decoder.raw_decode(grip[end:].lstrip())
+        assert grasp["topic"] == "grasp" and grasp["cycle_id"] == reply["cycle_id"] and grasp["object"] is not True, grasp
+        assert json.loads(by_command["fluidsense cmd release --config my-cell.yaml"].stdout)["ok"]
         summary = json.loads(by_command["fluidsense task run sorting --config my-cell.yaml --json"].stdout)
         assert summary["success"] is True and None not in summary["final_order_mm"], summary
         assert "sec fluidsense" in by_command["fluidsense watchdog --config my-cell.yaml"].stdout
@@ -78,7 +96,8 @@ def test_bringup_runs_as_written_from_the_integrators_folder(tmp_path):
             codes.append(proc.wait(60))
             log.close()
     logs = "\n".join((tmp_path / f"bg{i}.log").read_text() for i in range(len(background)))
-    assert len(background) == 2 and codes == [0, 0], logs
+    # the box, the daemon of step 3 and the one of step 6 (each shut down by the doc's own line)
+    assert len(background) == 3 and codes == [0, 0, 0], logs
     assert "Traceback" not in logs, logs
 
 

@@ -51,11 +51,14 @@ def run_as_written(lines: list[str], subs: dict[str, str], tmp_path: Path, timeo
     return background, results
 
 
-def wait_for_ready(proc, log, timeout_s: float = 60.0) -> None:
-    """Until the box's log has its ready line (it exits or the time runs out: the test fails)."""
+def wait_for_ready(proc, log, timeout_s: float = 60.0, marker: str = "ready") -> None:
+    """Until the process's log has its ready line, one starting with ``marker`` or, for the
+    daemon (``marker="fluidsense running"``), holding it: it exits or the time runs out, the
+    test fails."""
     path = Path(log.name)
     deadline = time.monotonic() + timeout_s
-    while not any(line.startswith("ready") for line in path.read_text().splitlines()):
+    while not any(line.startswith(marker) or (marker != "ready" and marker in line)
+                  for line in path.read_text().splitlines()):
         assert proc.poll() is None, path.read_text()
         assert time.monotonic() < deadline, path.read_text()
         time.sleep(0.05)  # polling a file for an event, not pacing a timing

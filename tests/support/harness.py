@@ -193,7 +193,7 @@ def profile_controller(profile: str, body, seed: int = 1):
     """Run ``body(controller)`` on a virtual simulated cell with a shipped profile."""
     from fluidsense.controller.config import CellConfig, load_profile
     from fluidsense.daemon import app
-    from fluidsense.drivers.config import SimDriverConfig
+    from fluidsense.drivers.registry import SimDriverConfig
 
     prof = load_profile(CONFIG / "profiles" / f"{profile}.yaml")
     cfg = CellConfig(driver=SimDriverConfig(clock="virtual", seed=seed), profile=prof)

@@ -25,10 +25,6 @@ ALLOWED = {
     # terminal: calibrate and characterise run in this process under capsys) never ends it on
     # close, as an enabled one does. It idles, a daemon thread, until the process exits
     "thread 'tqdm_monitor'": "tqdm: a disabled bar's close() does not stop the monitor its __new__ started",
-    # a product leak, not the test's: the grip handler's follow task outlives the controller it
-    # was started on (tests/unit/test_grip_handler.py shows it); the handler's rework (issue 35 item 5)
-    # is to end it, and then this entry goes
-    "GripHandler._follow_cycle": "known: controller/requests/grip.py does not end its follow task on stop",
 }
 
 

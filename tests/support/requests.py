@@ -23,7 +23,7 @@ from fluidsense.controller.config.gripper import GripperConfig
 from fluidsense.controller.cycles.analysis import CycleResult, Reference, WindowResult, judge_object, object_bound
 from fluidsense.controller.cycles.sequencer import State
 from fluidsense.controller.requests.dispatch import Dispatcher
-from fluidsense.controller.requests.ports import CellPort, GripPort, JobPort
+from fluidsense.controller.requests.ports import DispatchPort, GripPort, JobPort
 from fluidsense.controller.requests.wiring import assemble
 
 from support.harness import PROFILE, REPO
@@ -128,11 +128,11 @@ class FakeCell:
                 "backend": "fake"}
 
     # ------------------------------------------------------------------ the ports and the handlers on them
-    def ports(self) -> tuple[CellPort, GripPort, JobPort]:
+    def ports(self) -> tuple[DispatchPort, GripPort, JobPort]:
         now = lambda: self.t  # noqa: E731
-        return (CellPort(backend="fake", connected=lambda: self.connected, connecting=lambda: self.connecting,
-                         cycle=self.cycle, status=self.status, start_cycle=self.start_cycle, abort=self.abort,
-                         reset=self.reset, place=self.place, fail=self.fail),
+        return (DispatchPort(backend="fake", connected=lambda: self.connected, connecting=lambda: self.connecting,
+                             cycle=self.cycle, status=self.status, start_cycle=self.start_cycle, abort=self.abort,
+                             reset=self.reset, place=self.place, fail=self.fail),
                 GripPort(now=now, virtual=self.virtual, cycle=self.cycle, reference=self.references.get,
                          start_cycle=self.start_cycle, measured=self.measured_result, let_go=self.let_go,
                          abort=self.abort, wait=self.wait, fail=self.fail, emit=self.emit),

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from fluidsense.common.errors import CommandError, DriverError, SafetyError
 from fluidsense.controller.config import load_cell_config
-from fluidsense.drivers.config import build_backend
+from fluidsense.drivers.registry import build_backend
 from support.harness import free_simcell, sim_config
 
 BACKENDS = ["sim", "ur", "modbus", "serial"]

@@ -20,7 +20,7 @@ import pytest
 from fluidsense.common.errors import FaultError
 from fluidsense.controller.config import load_cell_config
 from fluidsense.controller.service import Controller
-from fluidsense.drivers.config import build_backend
+from fluidsense.drivers.registry import build_backend
 from fluidsense.drivers.ur.watchdog import safe_levels, watchdog_lines
 from fluidsense.simulator.controlbox.box import ControlBox
 from fluidsense.simulator.controlbox.config import ControlBoxConfig

@@ -27,7 +27,7 @@ def test_tank_method_distance_accuracy_on_held_out_heights():
     held_out = held_out[np.abs(held_out - np.round(held_out / 10) * 10) > 1]  # not a calibration height
 
     async def body(ctrl):
-        run = await calibrate(ctrl, PlateScene(height_mm=0), "height_mm", [0, 10, 20, 30, 40],
+        run = await calibrate(ctrl.task_port, PlateScene(height_mm=0), "height_mm", [0, 10, 20, 30, 40],
                               feature="p_eq", cycles=4, drop_first=1)
         errors, covered = [], 0
         for h in held_out:

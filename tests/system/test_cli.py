@@ -103,3 +103,26 @@ def test_cmd_wait_prints_the_started_cycle_or_says_it_did_not_come(tmp_path):
         assert daemon.request({"cmd": "status"})["cycle_id"] == started["cycle_id"]
     finally:
         assert daemon.close() == 0
+
+
+def test_cmd_grip_wait_prints_the_grasp_and_the_gripper_holds_until_release(tmp_path):
+    """A held grip's cycle ends only at its release, so ``cmd grip --wait`` answers with the
+    grasp (object, features), and the daemon still holds until ``cmd release``."""
+    from support.harness import Daemon, sim_config
+
+    cell = sim_config(tmp_path)
+    daemon = Daemon(cell)
+    try:
+        daemon.wait_welcome()
+        run_ = subprocess.run([sys.executable, "-m", "fluidsense", "cmd", "grip", "--config", str(cell),
+                               "--wait", "120"], cwd=REPO, capture_output=True, text=True, timeout=180)
+        assert run_.returncode == 0, run_.stdout + run_.stderr
+        decoder = json.JSONDecoder()
+        reply, end = decoder.raw_decode(run_.stdout)
+        grasp, _ = decoder.raw_decode(run_.stdout[end:].lstrip())
+        assert reply["ok"] and grasp["topic"] == "grasp" and grasp["cycle_id"] == reply["cycle_id"]
+        assert "object" in grasp and "p_eq_kpa" in grasp["features"]
+        assert daemon.request({"cmd": "status"})["holding"] is True
+        assert daemon.request({"cmd": "release"})["ok"]
+    finally:
+        assert daemon.close() == 0

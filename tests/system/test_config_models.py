@@ -9,7 +9,7 @@ from __future__ import annotations
 import importlib
 import pytest
 
-MODULES = ["fluidsense.common.hardware", "fluidsense.common.scenes", "fluidsense.common.world", "fluidsense.drivers.config", "fluidsense.drivers.sampler.config",
+MODULES = ["fluidsense.common.hardware", "fluidsense.common.scenes", "fluidsense.common.world", "fluidsense.drivers.registry", "fluidsense.drivers.sampler.config",
            "fluidsense.drivers.reconnect", "fluidsense.drivers.recording.config",
            "fluidsense.drivers.ur.box", "fluidsense.common.wiring", "fluidsense.drivers.ur.config", "fluidsense.drivers.modbus.config", "fluidsense.drivers.serial.config",
            "fluidsense.drivers.daqmx.config",

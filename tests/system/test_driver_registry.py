@@ -1,4 +1,4 @@
-"""A driver is one registry entry (drivers/config.py): its config model names its backend
+"""A driver is one registry entry (drivers/registry.py): its config model names its backend
 and answers what the commands ask of a cell, so nothing outside drivers/ switches on
 ``driver.kind``; the recording's format lives in one package (docs/architecture.md,
 "Adding a driver" and "Recording").
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
-from fluidsense.drivers.config import ENTRIES
+from fluidsense.drivers.registry import ENTRIES
 from support.harness import REPO
 
 

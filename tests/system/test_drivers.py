@@ -26,7 +26,7 @@ import yaml
 from fluidsense.common.errors import ConfigError, DeviceProtocolError, DriverError, SafetyError
 from fluidsense.controller.config import load_cell_config
 from fluidsense.controller.service import Controller
-from fluidsense.drivers.config import build_backend
+from fluidsense.drivers.registry import build_backend
 from support.configs import cell_config, task_config, whole
 from support.harness import CONFIG, REPO, Daemon, free_simcell, free_tcp_port
 

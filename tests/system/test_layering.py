@@ -1,7 +1,8 @@
-"""Layering: cli -> daemon -> tasks -> controller -> drivers -> common; the bottom layer
-imports nothing of ours; the simulator stands beside the drivers and only the sim driver's
-adapter imports it; the client knows only the shared vocabulary; the product never imports
-the studies (docs/architecture.md, decision 1). Every import of ours names ``fluidsense``.
+"""Layering: cli -> daemon -> tasks -> controller -> drivers -> common; tasks hold the
+controller's task port, never its service; the bottom layer imports nothing of ours; the
+simulator stands beside the drivers and only the sim driver's adapter imports it; the client
+knows only the shared vocabulary; the product never imports the studies
+(docs/architecture.md, decision 1). Every import of ours names ``fluidsense``.
 
 (Its in-process tests: tests/unit/test_layering.py.)
 """
@@ -18,7 +19,7 @@ def test_import_contracts_hold():
     run_linter = "import sys; from importlinter.cli import lint_imports_command; sys.exit(lint_imports_command())"
     out = subprocess.run([sys.executable, "-c", run_linter, "--no-cache"], cwd=REPO,
                          capture_output=True, text=True, timeout=120)
-    assert "6 kept, 0 broken" in out.stdout, out.stdout + out.stderr
+    assert "7 kept, 0 broken" in out.stdout, out.stdout + out.stderr
     assert out.returncode == 0
 
 

@@ -11,7 +11,7 @@ import asyncio
 import pytest
 from fluidsense.controller.config import CellConfig, load_cell_config
 from fluidsense.controller.service import Controller
-from fluidsense.drivers.config import build_backend
+from fluidsense.drivers.registry import build_backend
 from support.harness import sim_config
 
 #: a hang fails the test instead of the suite; nothing below waits on wall time otherwise
@@ -48,7 +48,7 @@ def test_a_sample_loop_that_dies_stops_the_daemon_vented_with_status_1(tmp_path,
         raise Boom("injected in the latch")
 
     monkeypatch.setattr(app, "build_backend", build)
-    monkeypatch.setattr(Controller, "_on_block", broken_block)
+    monkeypatch.setattr(Controller, "on_block", broken_block)
     monkeypatch.setattr(SafetyLatch, "trip", broken_trip)
     code = asyncio.run(asyncio.wait_for(app.run_daemon(_daemon_cfg(tmp_path)), HANG_S))
     cell = built["backend"].sim
@@ -88,13 +88,13 @@ def test_sigterm_ends_the_daemon_vented_in_every_state(state, tmp_path, monkeypa
 
     monkeypatch.setattr(app, "build_backend", build)
     if state == "starved":
-        real = Controller._on_block
+        real = Controller.on_block
 
         async def slow(self, block):
             _time.sleep(0.012)  # deliberately blocks the loop longer than a 10 ms block lasts
             await real(self, block)
 
-        monkeypatch.setattr(Controller, "_on_block", slow)
+        monkeypatch.setattr(Controller, "on_block", slow)
 
     async def main():
         daemon = asyncio.ensure_future(app.run_daemon(_daemon_cfg(tmp_path)))

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 from fluidsense.common.errors import DriverError, LinkLostError
 from fluidsense.controller.config import load_cell_config
-from fluidsense.drivers.config import build_backend
+from fluidsense.drivers.registry import build_backend
 from fluidsense.drivers.serial import protocol as p
 from support.harness import Daemon, free_tcp_port, profile_controller
 from support.serial import (

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from fluidsense.common.hardware import Hardware
 from fluidsense.common.scenes import CylinderScene
-from fluidsense.drivers.config import SimDriverConfig, build_backend
+from fluidsense.drivers.registry import SimDriverConfig, build_backend
 
 
 # ------------------------------------------------------------- simulated only

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import pytest
 from fluidsense.controller.config import load_cell_config
-from fluidsense.drivers.config import build_backend
+from fluidsense.drivers.registry import build_backend
 from fluidsense.drivers.ur.watchdog import runstate_program, safe_levels, watchdog_program
 from fluidsense.simulator.controlbox.box import ControlBox, IdleProgram, RuntimeState
 from fluidsense.simulator.controlbox.config import ControlBoxConfig

@@ -15,7 +15,7 @@ import pytest
 from fluidsense.common.units import KPA, ML
 from fluidsense.controller.config import load_cell_config, load_profile
 from fluidsense.controller.service import Controller
-from fluidsense.drivers.config import build_backend
+from fluidsense.drivers.registry import build_backend
 from fluidsense.tasks import characterise as ch
 from fluidsense.tasks.journal import journal_path
 from support.configs import profile_config
@@ -56,7 +56,7 @@ def characterise_in_process(tmp_path, seed: int, plant_profile_path, levels=None
         ctrl = Controller(cfg, build_backend(cfg.driver, hidden_cfg.profile.hardware))
         await ctrl.start()
         try:
-            return await ch.measure(ctrl, levels, cycles, journal)
+            return await ch.measure(ctrl.task_port, levels, cycles, journal)
         finally:
             await ctrl.stop()
 

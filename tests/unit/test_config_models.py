@@ -15,7 +15,7 @@ from fluidsense.common.errors import ConfigError
 from fluidsense.common.models import StrictModel
 from fluidsense.controller.config import validate
 
-MODULES = ["fluidsense.common.hardware", "fluidsense.common.scenes", "fluidsense.common.world", "fluidsense.drivers.config", "fluidsense.drivers.sampler.config",
+MODULES = ["fluidsense.common.hardware", "fluidsense.common.scenes", "fluidsense.common.world", "fluidsense.drivers.registry", "fluidsense.drivers.sampler.config",
            "fluidsense.drivers.reconnect", "fluidsense.drivers.recording.config",
            "fluidsense.drivers.ur.box", "fluidsense.common.wiring", "fluidsense.drivers.ur.config", "fluidsense.drivers.modbus.config", "fluidsense.drivers.serial.config",
            "fluidsense.drivers.daqmx.config",

@@ -106,7 +106,7 @@ def test_pressure_batches_hold_as_many_samples_as_their_length_says(tmp_path, ba
     """At 1 kHz in blocks of 10, a 10 ms batch is one block: n samples cover n periods."""
     from fluidsense.controller.config import load_cell_config
     from fluidsense.controller.service import Controller
-    from fluidsense.drivers.config import build_backend
+    from fluidsense.drivers.registry import build_backend
     from support.harness import sim_config
 
     cfg = load_cell_config(sim_config(tmp_path))
@@ -158,13 +158,25 @@ def test_a_polled_sources_jitter_does_not_hold_a_batch_for_a_second_block(tmp_pa
         def close(self):
             pass
 
-    clock = {"now": 0.0}
-    telemetry = Telemetry(Capture(), PublisherConfig(pressure_batch_s=0.01), now=lambda: clock["now"], rate_hz=lambda: 1000.0,
-                          clock_origin=lambda: None, on_failure=lambda detail: None)
+    class Clock:  # path.SampleTime
+        now = 0.0
+
+    class Source:  # path.Stream
+        rate_hz, clock_origin_s = 1000.0, None
+
+    faults = []
+
+    class Latch:  # path.Faults
+        def defer(self, detail, kind, now):
+            faults.append(detail)
+
+    clock = Clock()
+    telemetry = Telemetry(Capture(), PublisherConfig(pressure_batch_s=0.01), clock=clock, stream=Source(),
+                          faults=Latch())
     slots = np.arange(30) / 1000.0
     lateness = np.tile(np.r_[5e-6, np.zeros(9)], 3)  # each block's first read 5 us late
     for i in range(3):
         t = slots[10 * i:10 * i + 10] + lateness[10 * i:10 * i + 10]
-        clock["now"] = float(t[-1])
+        clock.now = float(t[-1])
         telemetry.on_block(SampleBlock(seq=i, t=t, values=np.zeros((10, 1)), channels=("p",)))
-    assert sent == [10, 10, 10]
+    assert sent == [10, 10, 10] and faults == []

@@ -1,4 +1,4 @@
-"""A driver is one registry entry (drivers/config.py): its config model names its backend
+"""A driver is one registry entry (drivers/registry.py): its config model names its backend
 and answers what the commands ask of a cell, so nothing outside drivers/ switches on
 ``driver.kind``; the recording's format lives in one package (docs/architecture.md,
 "Adding a driver" and "Recording").
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 from fluidsense.controller.config import load_cell_config
-from fluidsense.drivers.config import ENTRIES, DriverEntry, kinds
+from fluidsense.drivers.registry import ENTRIES, DriverEntry, kinds
 from fluidsense.drivers.ur.dashboard import Robot
 from support.cli import run_cli
 from support.harness import CONFIG, PROFILE, REPO, sim_config, write_cell

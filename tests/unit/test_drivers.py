@@ -11,7 +11,7 @@ import pytest
 from fluidsense.common.errors import ConfigError
 from fluidsense.common.wiring import Linear, Mpx, Ratiometric, RegulatorWiring
 from fluidsense.controller.config import load_cell_config
-from fluidsense.drivers.config import build_backend
+from fluidsense.drivers.registry import build_backend
 from fluidsense.simulator.controlbox.model import AnalogDomain
 from fluidsense.simulator.controlbox.plant import PlantModel
 from support.configs import DELETE, cell_config

@@ -17,7 +17,7 @@ from lab.bench import faults as bench
 
 def _cell():
     from fluidsense.controller.service import Controller
-    from fluidsense.drivers.config import build_backend
+    from fluidsense.drivers.registry import build_backend
 
     cfg = bench._cfg(seed=3)
     return Controller(cfg, build_backend(cfg.driver, cfg.profile.hardware))
@@ -129,7 +129,7 @@ def test_a_stalled_loop_is_an_overrun_vented_at_once_and_latched_once_and_the_co
     import time
 
     from fluidsense.controller.service import Controller, Sink
-    from fluidsense.drivers.config import build_backend
+    from fluidsense.drivers.registry import build_backend
 
     class Stall(Sink):
         at: float | None = None

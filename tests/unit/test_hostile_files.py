@@ -245,7 +245,7 @@ def test_a_date_shaped_name_stays_a_string(tmp_path):
     assert load_profile(path).name == "2024-13-45"
 
 
-FILE_MODULES = ["fluidsense.common.hardware", "fluidsense.common.scenes", "fluidsense.common.world", "fluidsense.drivers.config", "fluidsense.drivers.sampler.config",
+FILE_MODULES = ["fluidsense.common.hardware", "fluidsense.common.scenes", "fluidsense.common.world", "fluidsense.drivers.registry", "fluidsense.drivers.sampler.config",
                 "fluidsense.drivers.reconnect", "fluidsense.drivers.recording.config",
                 "fluidsense.drivers.ur.box", "fluidsense.common.wiring", "fluidsense.drivers.ur.config", "fluidsense.drivers.modbus.config", "fluidsense.controller.config",
                 "fluidsense.controller.sensing.calibration", "fluidsense.tasks.config"]

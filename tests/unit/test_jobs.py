@@ -8,6 +8,7 @@ nobody can answer.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import json
 from pathlib import Path
 
@@ -16,7 +17,7 @@ from fluidsense.common.errors import CommandError, ConfigError, JobStopped
 from fluidsense.common.scenes import CylinderScene
 from fluidsense.controller.config import CellConfig, load_profile
 from fluidsense.daemon import app
-from fluidsense.drivers.config import SimDriverConfig
+from fluidsense.drivers.registry import SimDriverConfig
 from fluidsense.tasks.calibrate import calibrate
 from fluidsense.tasks.journal import CycleJournal, journal_path
 from support.cli import run_cli
@@ -47,7 +48,7 @@ async def _calibrate(cfg, journal, fault_after: int | None = None):
             if done["n"] == fault_after:  # the cell fails during the next cycle
                 ctrl.backend.sim.inject("sensor_nan", ctrl.now + 1.0)
 
-        return await calibrate(ctrl, CylinderScene(diameter_mm=40), feature="p_eq", fit="linear",
+        return await calibrate(ctrl.task_port, CylinderScene(diameter_mm=40), feature="p_eq", fit="linear",
                                progress=progress, journal=journal, **PLAN)
 
 
@@ -136,16 +137,15 @@ def test_a_task_stopped_by_a_fault_reports_it_with_what_it_did():
 
     async def main():
         async with app.controller(cfg) as ctrl:
-            original = ctrl.emit
+            port = ctrl.task_port
 
             def emit(topic, payload):
                 seen.append((topic, payload))
                 if topic == "task" and payload.get("event") == "measured" and payload["position"] == 0:
                     ctrl.backend.sim.inject("sensor_stuck", ctrl.now + 0.2)
-                original(topic, payload)
+                port.emit(topic, payload)
 
-            ctrl.emit = emit
-            await run_task(ctrl, task, order_mm=[60, 100, 80, 40])
+            await run_task(dataclasses.replace(port, emit=emit), task, order_mm=[60, 100, 80, 40])
 
     with pytest.raises(JobStopped) as stopped:
         asyncio.run(main())

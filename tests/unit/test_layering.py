@@ -1,7 +1,8 @@
-"""Layering: cli -> daemon -> tasks -> controller -> drivers -> common; the bottom layer
-imports nothing of ours; the simulator stands beside the drivers and only the sim driver's
-adapter imports it; the client knows only the shared vocabulary; the product never imports
-the studies (docs/architecture.md, decision 1). Every import of ours names ``fluidsense``.
+"""Layering: cli -> daemon -> tasks -> controller -> drivers -> common; tasks hold the
+controller's task port, never its service; the bottom layer imports nothing of ours; the
+simulator stands beside the drivers and only the sim driver's adapter imports it; the client
+knows only the shared vocabulary; the product never imports the studies
+(docs/architecture.md, decision 1). Every import of ours names ``fluidsense``.
 
 (Its tests with real peers: tests/system/test_layering.py.)
 """

@@ -22,7 +22,7 @@ from support.harness import CONFIG
 def _run(profile: str, body, seed: int = 3, residual_kpa: float = 0.0, **sequence):
     from fluidsense.controller.config import CellConfig, load_profile
     from fluidsense.daemon import app
-    from fluidsense.drivers.config import Perturbations, SimDriverConfig
+    from fluidsense.drivers.registry import Perturbations, SimDriverConfig
 
     # the protocol is about the tube, not the parts: without the profile's error budget the
     # sensor's offset is its fixed one (a session's zero draw would move it within the TEB)

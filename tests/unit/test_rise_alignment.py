@@ -156,6 +156,38 @@ def test_a_rise_with_samples_missing_across_the_levels_is_not_aligned_and_claims
     assert res.object is False and "could not be aligned" in res.object_note
 
 
+def stale(t_rel: np.ndarray, p: np.ndarray, at: list[int], hold: int) -> np.ndarray:
+    """Samples ``at`` (indices) and the ``hold - 1`` after each answer with the value read at
+    the first of them: a polled box that did not refresh its register for ``hold`` periods."""
+    q = p.copy()
+    for k in at:
+        q[k:k + hold] = p[k]
+    return q
+
+
+def test_one_stale_sample_on_the_rise_does_not_move_the_shift():
+    """A box that refreshed late once on the rise: one level's crossing is off by up to a
+    period; the median of the levels is not."""
+    t_rel = np.arange(int(FS)) / FS
+    p = rise(t_rel, 0.0)
+    k = int(np.flatnonzero(p > 1.6 * KPA)[0])
+    shift = F.rise_shift(t_rel, stale(t_rel, p, [k], 2), REFERENCE.t_rel, REFERENCE.p, 1 * KPA, 3 * KPA, levels=7)
+    assert shift == pytest.approx(-REF_LATE, abs=2e-4)
+
+
+def test_a_rise_whose_levels_disagree_is_not_aligned():
+    """Stale values across most of the rise (a box busy for several periods, again and again):
+    the levels' shifts spread by more than a period, and no one shift is claimed."""
+    t_rel = np.arange(int(FS)) / FS
+    p = rise(t_rel, 0.0)
+    ks = np.flatnonzero((p > 0.9 * KPA) & (p < 3.2 * KPA))
+    bad = stale(t_rel, p, list(range(int(ks[0]), int(ks[-1]) + 1, 4)), 4)
+    assert F.rise_shift(t_rel, bad, REFERENCE.t_rel, REFERENCE.p, 1 * KPA, 3 * KPA, levels=7) is None
+    # the same curve without the stale values lines up
+    assert F.rise_shift(t_rel, p, REFERENCE.t_rel, REFERENCE.p, 1 * KPA, 3 * KPA, levels=7) == pytest.approx(
+        -REF_LATE, abs=1e-4)
+
+
 def test_without_a_reference_nothing_is_aligned():
     t, values = cycle(0.0)
     res = analyse(2, 63 * KPA, 0.0, T_OPEN, None, t, values, ("p_act",), sequence([1.0, 3.0]), None)

@@ -15,7 +15,7 @@ from fluidsense.controller.config import CellConfig, load_profile
 from fluidsense.controller.cycles.sequencer import State
 from fluidsense.controller.service import Controller, Sink
 from fluidsense.controller.telemetry.publisher import NullPublisher
-from fluidsense.drivers.config import SimDriverConfig, build_backend
+from fluidsense.drivers.registry import SimDriverConfig, build_backend
 from support.harness import CONFIG
 
 #: a hang fails the test instead of the suite; nothing below waits on wall time otherwise

@@ -148,13 +148,27 @@ def test_waking_exactly_on_the_next_deadline_misses_one_slot():
 
 
 def test_a_slow_read_makes_the_following_slots_missed_or_late():
-    # read 3 takes 2.5 ms: slot 4 is missed, slot 5 is served at 5.5 ms (500 us late)
+    # read 3 takes 2.5 ms: its value is from some moment of those 2.5 ms, so slot 3 gives no
+    # sample (missed, and slow); slot 4 is missed, slot 5 is served at 5.5 ms (500 us late)
     result, blocks, poller, _ = run_loop(10, durations={3: 2_500_000})
-    assert result.totals.as_dict() == {"on_time": 8, "late": 1, "missed": 1, "failed": 0, "slots": 10}
+    assert result.totals.as_dict() == {"on_time": 7, "late": 1, "missed": 2, "failed": 0, "slots": 10}
     t, lat, _ = samples(blocks)
-    assert t[4] == (5 * P + 500_000) / 1e9 and lat[4] == 500_000 / 1e9
-    assert blocks[0].read_max_s == 2_500_000 / 1e9
+    assert t[:4] == [0.0, P / 1e9, 2 * P / 1e9, (5 * P + 500_000) / 1e9] and lat[3] == 500_000 / 1e9
+    assert blocks[0].slow == 1 and blocks[0].read_max_s == 2_500_000 / 1e9
     assert blocks[0].stalls == [(5, 1_500_000)]  # waiting for slot 4 ended at 5.5 ms
+
+
+def test_reads_that_stay_slower_than_a_period_are_a_lost_link_that_says_why():
+    """A device that cannot answer within a period cannot be sampled at this rate: every
+    slot missed, then link lost naming the read time, not a silent stream of nothing."""
+    slow = {n: 1_200_000 for n in range(100)}
+    result, blocks, _, _ = run_loop(100, durations=slow, max_failures=5, link_timeout_ns=20 * P)
+    assert result.reason == "link_lost"
+    assert "took longer than the 1 ms period (last 1.2 ms)" in result.detail
+    assert sum(len(b) for b in blocks) == 0 and result.totals.on_time == 0
+    # one slow read among quick ones is only a missed slot
+    result, blocks, _, _ = run_loop(100, durations={40: 1_200_000}, max_failures=5, link_timeout_ns=20 * P)
+    assert result.reason == "stopped" and sum(b.slow for b in blocks) == 1
 
 
 def test_block_boundaries_carry_the_counts_of_their_own_slots():
@@ -300,7 +314,9 @@ def test_every_slot_is_accounted_for_exactly_once(events, block_size, slots):
                                          block_size=block_size, max_failures=1000)
     assert result.slots >= slots and result.totals.slots == result.slots
     assert_blocks_account_for_every_slot(blocks, result.slots)
-    assert len(poller.read_times) == result.totals.on_time + result.totals.late + result.totals.failed
+    slow = sum(b.slow for b in blocks)
+    assert slow == sum(1 for n, dur in durations.items() if dur > P and n < len(poller.read_times) and n not in fail)
+    assert len(poller.read_times) == result.totals.on_time + result.totals.late + result.totals.failed + slow
     t, lat, _ = samples(blocks)
     assert all(a < b for a, b in zip(t, t[1:]))  # strictly increasing
     served = [round((x - y) * 1e9) // P for x, y in zip(t, lat)]  # t - lateness is the slot's deadline

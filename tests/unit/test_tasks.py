@@ -26,7 +26,7 @@ def run_file(name: str, **kw):
 
     async def main():
         async with app.controller(cfg) as ctrl:
-            return await run_task(ctrl, task, **kw)
+            return await run_task(ctrl.task_port, task, **kw)
 
     return run(main())
 
@@ -48,7 +48,7 @@ def test_every_cylinder_in_every_input_slot_sorts_correctly():
         results = []
         async with app.controller(cfg) as ctrl:
             for order in ORDERS:
-                results.append((order, await run_task(ctrl, task, order_mm=list(order))))
+                results.append((order, await run_task(ctrl.task_port, task, order_mm=list(order))))
         return results
 
     results = run(main())
@@ -94,3 +94,25 @@ def test_task_file_errors_name_file_and_field(tmp_path):
     bad = task_config(tmp_path, "sorting", check=False, motion={"speed_m_s": 7})
     with pytest.raises(ConfigError, match=rf"^{bad}: motion.speed_m_s: "):
         load_task(bad)
+
+
+def test_a_task_holds_only_its_port_and_runs_on_a_fake_cell():
+    """tasks/ take the controller's task port (controller/ports.py), nothing else of it: the
+    size survey on a fake cell behind that port (no controller, no process), readings on a
+    line of 0.0416 kPa/mm from 33.8 kPa, gives that line back, each object placed once and
+    its cycles labelled."""
+    from fluidsense.common.scenes import CylinderScene, EmptyScene
+    from fluidsense.controller.config import load_profile
+    from fluidsense.tasks.size_survey import size_survey
+    from support.harness import PROFILE
+    from support.taskport import CYCLE_S, FakeTaskCell
+
+    cell = FakeTaskCell(load_profile(PROFILE), lambda scene: 33.8 + 0.0416 * getattr(scene, "diameter_mm", 0.0))
+    res = run(size_survey(cell.port(), [None, 40.0, 60.0, 80.0, 100.0], cycles=3, drop_first=1))
+    assert res.slope_kpa_per_mm == pytest.approx(0.0416) and res.intercept_kpa == pytest.approx(33.8)
+    assert res.r2 == pytest.approx(1.0) and res.cycles_run == 15 and res.virtual_s == pytest.approx(15 * CYCLE_S)
+    assert [p.p_eq_kpa for p in res.points] == pytest.approx([33.8, 35.464, 36.296, 37.128, 37.96])
+    placed = [a[1] for a in cell.asked if a[0] == "place"]
+    assert placed == [EmptyScene(), *(CylinderScene(diameter_mm=d) for d in (40.0, 60.0, 80.0, 100.0))]
+    labels = [a[2] for a in cell.asked if a[0] == "run_cycle"]
+    assert labels == ["empty"] * 3 + [f"D={d}" for d in (40.0, 60.0, 80.0, 100.0) for _ in range(3)]

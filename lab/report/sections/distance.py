@@ -97,11 +97,11 @@ def _distance(key: str, profile_name: str, feature: str, label: str, fit_kind: s
     sec = Section(f"distance_{key}", f"Distance sensing: {label}")
     held = _held_out_heights(seed + 7)
 
-    async def body(ctrl):
+    async def body(port):
         if with_tc:
-            await reference(ctrl)
-        cal_runs = await sweep(ctrl, PlateScene(height_mm=0), "height_mm", HEIGHTS, cycles=8, drop_first=1)
-        test_runs = await sweep(ctrl, PlateScene(height_mm=0), "height_mm", held, cycles=1)
+            await reference(port)
+        cal_runs = await sweep(port, PlateScene(height_mm=0), "height_mm", HEIGHTS, cycles=8, drop_first=1)
+        test_runs = await sweep(port, PlateScene(height_mm=0), "height_mm", held, cycles=1)
         return cal_runs, test_runs
 
     cal_runs, test_runs = run_on(prof, body, seed)

@@ -34,10 +34,10 @@ def gripper(out: Path, seed: int) -> Section:
     sec = Section("gripper", "Size sensing with the four-finger gripper")
     objects = [EmptyScene()] + [CylinderScene(diameter_mm=d) for d in (20, 40, 60, 80, 100)]
 
-    async def body(ctrl):
-        size = await sweep(ctrl, None, None, objects, cycles=6, drop_first=1)
-        cyc_empty = await sweep(ctrl, None, None, [EmptyScene()], cycles=111)
-        cyc_80 = await sweep(ctrl, None, None, [CylinderScene(diameter_mm=80)], cycles=111)
+    async def body(port):
+        size = await sweep(port, None, None, objects, cycles=6, drop_first=1)
+        cyc_empty = await sweep(port, None, None, [EmptyScene()], cycles=111)
+        cyc_80 = await sweep(port, None, None, [CylinderScene(diameter_mm=80)], cycles=111)
         return size, cyc_empty, cyc_80
 
     size, cyc_empty, cyc_80 = run_on(prof, body, seed)
@@ -114,13 +114,13 @@ def shape(out: Path, seed: int) -> Section:
     sec = Section("shape", "Shape sensing: two contact times on rectangles")
     cal_w, test_w = [40, 55, 70, 85], [50, 65, 80]
 
-    async def body(ctrl):
-        await reference(ctrl)
-        cyl = await sweep(ctrl, CylinderScene(diameter_mm=40), "diameter_mm", [40, 55, 70, 85, 100], cycles=3,
+    async def body(port):
+        await reference(port)
+        cyl = await sweep(port, CylinderScene(diameter_mm=40), "diameter_mm", [40, 55, 70, 85, 100], cycles=3,
                           drop_first=1)
-        rect_cal = await sweep(ctrl, RectangleScene(width_mm=40), "width_mm", cal_w, cycles=3, drop_first=1)
-        rect_test = await sweep(ctrl, RectangleScene(width_mm=40), "width_mm", test_w + [100], cycles=1)
-        ref_trace = ctrl.cycles.references[round(prof.sequence.p0_kpa, 3)]
+        rect_cal = await sweep(port, RectangleScene(width_mm=40), "width_mm", cal_w, cycles=3, drop_first=1)
+        rect_test = await sweep(port, RectangleScene(width_mm=40), "width_mm", test_w + [100], cycles=1)
+        ref_trace = port.reference(prof.sequence.p0_kpa * KPA)
         return cyl, rect_cal, rect_test, ref_trace
 
     cyl, rect_cal, rect_test, ref = run_on(prof, body, seed)
@@ -172,11 +172,11 @@ def stiffness(out: Path, seed: int) -> Section:
     plates = [PlateScene(height_mm=5), PlateScene(height_mm=5, stiffness_n_per_mm=0.65),
               PlateScene(height_mm=5, stiffness_n_per_mm=0.3)]
 
-    async def body(ctrl):
-        await reference(ctrl)
-        cal = await sweep(ctrl, PlateScene(height_mm=0), "height_mm", [0, 5, 10, 15, 20], cycles=3, drop_first=1)
-        runs = await sweep(ctrl, None, None, plates, cycles=1)
-        return cal, runs, ctrl.cycles.references[round(prof.sequence.p0_kpa, 3)]
+    async def body(port):
+        await reference(port)
+        cal = await sweep(port, PlateScene(height_mm=0), "height_mm", [0, 5, 10, 15, 20], cycles=3, drop_first=1)
+        runs = await sweep(port, None, None, plates, cycles=1)
+        return cal, runs, port.reference(prof.sequence.p0_kpa * KPA)
 
     cal_runs, runs, ref = run_on(prof, body, seed)
     tc_cal = fit(cal_runs, "t_c_slope", "poly2", target="height_mm", target_unit="mm")
@@ -223,12 +223,12 @@ def profile_scan(out: Path, seed: int) -> Section:
     shapes = [ProfileScene(shape=s, base_mm=12.0, amplitude_mm=8.0, period_mm=25.0, delay_s=start)
               for s in ("sine", "triangle")]
 
-    async def body(ctrl):
-        await reference(ctrl)
-        cal = await sweep(ctrl, PlateScene(height_mm=0), "height_mm", [0, 2, 4, 6, 8, 10, 12, 14], cycles=2,
+    async def body(port):
+        await reference(port)
+        cal = await sweep(port, PlateScene(height_mm=0), "height_mm", [0, 2, 4, 6, 8, 10, 12, 14], cycles=2,
                           drop_first=1)
-        scans = await sweep(ctrl, None, None, shapes, cycles=1)
-        return cal, scans, ctrl.cycles.references[round(seq.p0_kpa, 3)]
+        scans = await sweep(port, None, None, shapes, cycles=1)
+        return cal, scans, port.reference(seq.p0_kpa * KPA)
 
     cal_runs, scans, ref = run_on(prof, body, seed)
     cal = fit(cal_runs, "dp_eq", "poly2", target="height_mm", target_unit="mm")

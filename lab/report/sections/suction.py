@@ -34,10 +34,10 @@ def suction(out: Path, seed: int) -> Section:
     sec = Section("suction", "Suction cup on silicone samples, and the pull test")
     mats = ["OO-50", "OO-30", "OO-10", "OOO-34"]
 
-    async def body(ctrl):
+    async def body(port):
         res = {}
         for p0 in (-62.0, -21.0):
-            res[p0] = await sweep(ctrl, None, None, [SampleScene(material=m) for m in mats], cycles=5, drop_first=1,
+            res[p0] = await sweep(port, None, None, [SampleScene(material=m) for m in mats], cycles=5, drop_first=1,
                                   p0_kpa=p0)
         return res
 
@@ -48,12 +48,12 @@ def suction(out: Path, seed: int) -> Section:
     pull = profile("suction-cup-pull")
     pulls = []
     for k in range(3):
-        async def one(ctrl):
+        async def one(port):
             s = pull.sequence
             scene = PullScene(material="OO-30", rate_n_per_s=0.2, delay_s=s.charge_s + s.isolate_s + 20.0)
-            await ctrl.scene.place(scene)
-            r = await ctrl.run_cycle()
-            return scene, r, await ctrl.scene.truth()
+            await port.place(scene)
+            r = await port.run_cycle()
+            return scene, r, await port.truth()
 
         pulls.append(run_on(pull, one, seed + 100 + k))
     fig, ax = figure(2, 1)

@@ -80,6 +80,27 @@ def _value(text: str) -> Any:
     return text
 
 
+def apply_sets(data: dict[str, Any], sets: list[str]) -> None:
+    """``--set KEY=VALUE`` items into ``data`` (values read as numbers where they are)."""
+    from fluidsense.common.errors import ConfigError
+
+    for item in sets:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"--set {item!r}: expected KEY=VALUE")
+        data[key.strip()] = _value(value.strip())
+
+
+def floats(text: str, name: str) -> list[float]:
+    """A comma-separated list of numbers given to option ``name``."""
+    from fluidsense.common.errors import ConfigError
+
+    try:
+        return [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise ConfigError(f"{name}: expected comma-separated numbers, got {text!r}") from None
+
+
 def scene_from_args(args: argparse.Namespace, base: Any | None = None) -> Any | None:
     """``--scene NAME --set k=v ...`` on top of ``base`` (a scene or None)."""
     from fluidsense.common.errors import ConfigError
@@ -94,11 +115,7 @@ def scene_from_args(args: argparse.Namespace, base: Any | None = None) -> Any | 
         if data.get("kind") != args.scene:
             data = {}
         data["kind"] = args.scene
-    for item in args.set:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise ConfigError(f"--set {item!r}: expected KEY=VALUE")
-        data[key.strip()] = _value(value.strip())
+    apply_sets(data, args.set)
     try:
         return TypeAdapter(Scene).validate_python(data)
     except ValidationError as exc:

@@ -11,7 +11,7 @@ from pathlib import Path
 from fluidsense.common.errors import ConfigError
 from fluidsense.common.exitcodes import EXIT_OK
 
-from ..options import add_scene_options, profile_path
+from ..options import add_scene_options, floats, profile_path
 from ._common import Progress, setup_logging
 
 PNG, JSON = "speed_accuracy.png", "speed_accuracy.json"
@@ -44,13 +44,6 @@ def register(sub) -> None:
     p.set_defaults(func=main)
 
 
-def _floats(text: str, name: str) -> list[float]:
-    try:
-        return [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise ConfigError(f"{name}: expected comma-separated numbers, got {text!r}") from None
-
-
 def chart_scene(args: argparse.Namespace, prof):
     """The scene the chart varies: the profile's calibration scene, or --scene KIND, with
     --set fields over it; its target field (common/scenes.TARGETS), the range (--range, or
@@ -61,7 +54,7 @@ def chart_scene(args: argparse.Namespace, prof):
     from fluidsense.tasks.speed_accuracy import ChartScene
     from pydantic import TypeAdapter, ValidationError
 
-    from ..options import _value
+    from ..options import apply_sets
 
     plan = prof.calibration
     kind = args.scene or (plan.scene.kind if plan is not None else None)
@@ -73,7 +66,7 @@ def chart_scene(args: argparse.Namespace, prof):
     target, unit = TARGETS[kind]
     own = plan is not None and plan.scene.kind == kind and plan.target == target
     if args.range:
-        rng = _floats(args.range, "--range")
+        rng = floats(args.range, "--range")
         if len(rng) != 2:
             raise ConfigError(f"--range: expected lo,hi, got {args.range!r}")
         lo, hi = rng
@@ -85,16 +78,12 @@ def chart_scene(args: argparse.Namespace, prof):
     if not hi > lo:
         raise ConfigError(f"--range needs lo < hi, got {lo:g},{hi:g}")
     data = {**(plan.scene.model_dump() if own else {}), "kind": kind, target: lo}
-    for item in args.set:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise ConfigError(f"--set {item!r}: expected KEY=VALUE")
-        data[key.strip()] = _value(value.strip())
+    apply_sets(data, args.set)
     try:
         base = TypeAdapter(Scene).validate_python(data)
     except ValidationError as exc:
         raise ConfigError(f"--scene/--set: {first_error(exc, 'scene', skip=1)}") from None
-    cal = _floats(args.targets, "--targets") if args.targets else [round(float(x), 6) for x in np.linspace(lo, hi, 5)]
+    cal = floats(args.targets, "--targets") if args.targets else [round(float(x), 6) for x in np.linspace(lo, hi, 5)]
     if len(set(cal)) < 3:
         raise ConfigError("--targets: at least 3 distinct calibration targets (a curve and its spread)")
     return ChartScene(base=base, target=target, unit=unit, calibration=tuple(cal), range=(lo, hi))

@@ -7,7 +7,7 @@ import json
 
 from fluidsense.common.errors import ConfigError
 
-from ..options import profile_path
+from ..options import floats, profile_path
 
 
 def register(sub) -> None:
@@ -28,13 +28,6 @@ def register(sub) -> None:
                    "reading must be done")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=main)
-
-
-def _floats(text: str, name: str) -> list[float]:
-    try:
-        return [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise ConfigError(f"{name}: expected comma-separated numbers, got {text!r}") from None
 
 
 def provenance(prof) -> dict | None:
@@ -69,7 +62,7 @@ def main(args: argparse.Namespace) -> int:
     if plan is None:
         raise ConfigError(f"profile {prof.name} has no calibration section naming its scene and target")
     if args.range:
-        lo, hi = _floats(args.range, "--range")
+        lo, hi = floats(args.range, "--range")
     else:
         lo, hi = min(plan.values), max(plan.values)
     if not hi > lo or args.points < 2:
@@ -79,10 +72,10 @@ def main(args: argparse.Namespace) -> int:
     if circuit.kind != "tank":
         raise ConfigError(f"design searches tank volume and P0: profile {prof.name} uses a {circuit.kind} circuit")
     vacuum = prof.sequence.p0_kpa < 0
-    tanks = _floats(args.tanks, "--tanks") if args.tanks else list(np.geomspace(circuit.tank_l / 10,
+    tanks = floats(args.tanks, "--tanks") if args.tanks else list(np.geomspace(circuit.tank_l / 10,
                                                                                   circuit.tank_l * 10, 24))
     limit = prof.limits.min_kpa if vacuum else prof.limits.max_kpa
-    p0s = _floats(args.p0, "--p0") if args.p0 else list(np.linspace(limit / 24, limit, 24))
+    p0s = floats(args.p0, "--p0") if args.p0 else list(np.linspace(limit / 24, limit, 24))
 
     def scene_at(x):
         return scene_with(plan.scene, plan.target, x)

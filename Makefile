@@ -1,5 +1,6 @@
-# Two commands for a fresh machine: `make demo` and `make test`.
-# Both create .venv, install the project with its test extras, then run.
+# Two commands for a fresh machine: `make demo` and `make test`; two more for the suite's other
+# uses: `make check` (the unit tier, on every change) and `make accept` (the acceptance tier).
+# Each creates .venv, installs the project with its test extras, then runs.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -8,7 +9,7 @@ STAMP := $(VENV)/.installed
 # installed package; they are not in the wheel
 LAB := $(BIN)/python -m lab
 
-.PHONY: demo test install clean wheel image-check image-base image-clean lint-imports report speed-accuracy stability timing faults fuzz busy grips soak firmware firmware-host firmware-sim firmware-deps
+.PHONY: demo check test accept install clean wheel image-deps image-check image-base image-clean lint-imports report speed-accuracy stability timing faults fuzz busy grips soak firmware firmware-host firmware-sim firmware-deps
 
 $(STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
@@ -21,26 +22,53 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/fluidsense demo
 
-# The serial driver's tests run the firmware's host board (gcc only) and, where Debian's
-# AVR packages are installed, the AVR image in simavr. CI (CI=true, a fresh machine)
-# installs those packages first (firmware-deps; firmware/README.md says why); elsewhere
-# `make firmware-deps` does, and without them the AVR tests are skipped, said in one line.
-# Where podman, runc and debootstrap are installed (as root), `make image-check` runs beside
-# the suite, in the background: it mostly waits on the network and the engine, and
-# tests/test_ship.py waits for its result (FLUIDSENSE_IMAGE_CHECK_LOG) instead of holding a
-# worker for its minutes.
+# The suite has three tiers, by folder (tests/README.md):
+#   tests/unit/    in this process only (an autouse guard fails a test that starts a process or
+#                  opens a socket other than inproc://); 60 s per test
+#   tests/system/  real peers: daemons, `fluidsense simcell` boxes, the firmware's boards on
+#                  ptys, Modbus servers, RTDE clients; 300 s per test
+#   tests/accept/  the documents walked as written (README.md, docs/bringup.md,
+#                  examples/README.md, docs/deployment.md's install), the production image,
+#                  the long runs of the AVR image; each test names its own timeout
+# `make check`: the unit tier, what a developer runs on every change (the goal: under 90 s on a
+# quiet 2-core machine; about 115 s of CPU in all, measured on a shared one).
+check: $(STAMP)
+	$(BIN)/python -m pytest tests/unit -n 2
+
+# `make test`: the unit and system tiers, the README's test command. The system tier's serial
+# tests run the firmware's host board (gcc only) and, where Debian's AVR packages are
+# installed, the AVR image in simavr. CI (CI=true, a fresh machine) installs those packages
+# first (firmware-deps; firmware/README.md says why); elsewhere `make firmware-deps` does,
+# and without them the AVR tests are skipped, said in one line. --dist loadfile hands whole
+# files to the two workers, longest first (tests/conftest.py LONGEST_FIRST). A unit test past
+# its minute ends its worker (tests/conftest.py TIER_TIMEOUT_METHOD); xdist then gives that
+# file to a new worker, which meets the same test: two such restarts end the run.
+PYTEST_XDIST := -n 2 --dist loadfile --no-loadscope-reorder --max-worker-restart 2 --durations=30 --durations-min=5
 test: $(STAMP) firmware-host
 	@if [ "$$CI" = true ]; then $(MAKE) -s firmware-deps || echo "make test: installing $(AVR_DEBS) failed"; fi
 	@if $(AVR_READY); then $(MAKE) -s firmware-sim; else echo "make test: $(AVR_DEBS) not installed (make \
 	firmware-deps): the AVR image's tests are skipped, the host board's run"; fi
+	$(BIN)/python -m pytest tests/unit tests/system $(PYTEST_XDIST)
+
+# `make accept`: the acceptance tier. As root it installs what it needs with apt-get: the AVR
+# toolchain and simavr (firmware-deps) and podman, runc and debootstrap (image-check); not
+# root and without them, those tests are skipped, each saying why. `make image-check` runs
+# beside the tier, in the background: it mostly waits on the network and the engine, and
+# tests/accept/test_ship.py waits for its result (FLUIDSENSE_IMAGE_CHECK_LOG) instead of
+# holding a worker for its minutes.
+accept: $(STAMP) firmware-host
+	@$(MAKE) -s firmware-deps || echo "make accept: installing $(AVR_DEBS) failed"
+	@if $(AVR_READY); then $(MAKE) -s firmware-sim; else echo "make accept: $(AVR_DEBS) not installed (make \
+	firmware-deps, as root): the AVR image's runs are skipped"; fi
+	@$(MAKE) -s image-deps || echo "make accept: installing $(IMAGE_TOOLS) failed"
 	@log=; if $(IMAGE_READY); then \
 		log=$$(mktemp /tmp/fluidsense-image-check.XXXXXX); export FLUIDSENSE_IMAGE_CHECK_LOG=$$log; \
 		{ $(IMAGE_CHECK) > $$log 2>&1; echo "exit $$?" >> $$log; } & \
-	else echo "make test: $(IMAGE_MISSING)"; fi; \
-	echo "$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder --durations=30 --durations-min=5"; \
-	$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder --durations=30 --durations-min=5; rc=$$?; \
+	else echo "make accept: $(IMAGE_MISSING)"; fi; \
+	echo "$(BIN)/python -m pytest tests/accept $(PYTEST_XDIST)"; \
+	$(BIN)/python -m pytest tests/accept $(PYTEST_XDIST); rc=$$?; \
 	wait; if [ -n "$$log" ]; then grep -h "^image-check: image size" $$log; \
-		grep -qx "exit 0" $$log && rm -f $$log || echo "make test: make image-check failed: $$log"; fi; \
+		grep -qx "exit 0" $$log && rm -f $$log || echo "make accept: make image-check failed: $$log"; fi; \
 	exit $$rc
 
 # The serial streamer's firmware (firmware/README.md): the AVR image (size reported; needs
@@ -130,8 +158,9 @@ wheel: $(STAMP)
 # the non-root daemon on the simulated cell, `fluidsense cmd status` from the host through
 # the published command port, the engine's healthcheck, the config and runs volumes, SIGTERM,
 # pip list) and prints the image's size and start-up time. As root it installs podman, runc
-# and debootstrap with apt-get when they are missing; `make test` runs it when they are
-# installed. The base is made once and kept (`make image-clean` removes it and the images).
+# and debootstrap with apt-get when they are missing (image-deps); `make accept` runs it
+# beside the acceptance tier. The base is made once and kept (`make image-clean` removes it
+# and the images).
 #
 # The engine's flags, in one place, for the machines this project is built and tested on:
 #   --runtime runc   crun refuses their hybrid (v1 and v2 mixed) cgroup hierarchy ("cgroups in
@@ -158,13 +187,16 @@ IMAGE_CHECK = $(MAKE) --no-print-directory image-check
 IMAGE_MISSING = podman, runc or debootstrap not installed, or not root: the production image is not built \
 	or run (make image-check, as root, installs them and does both)
 
-image-check: $(STAMP)
+# podman, runc and debootstrap, installed with apt-get where missing (as root)
+image-deps:
 	@missing=$$(for t in $(IMAGE_TOOLS); do command -v $$t >/dev/null || echo $$t; done); \
 	if [ -n "$$missing" ]; then \
-		[ "$$(id -u)" = 0 ] || { echo "make image-check: needs $$missing (apt-get install $(IMAGE_TOOLS), as root)"; exit 1; }; \
-		echo "make image-check: installing $$missing"; \
+		[ "$$(id -u)" = 0 ] || { echo "make image-deps: needs $$missing (apt-get install $(IMAGE_TOOLS), as root)"; exit 1; }; \
+		echo "make image-deps: installing $$missing"; \
 		apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(IMAGE_TOOLS) >/dev/null; \
 	fi
+
+image-check: $(STAMP) image-deps
 	@$(ENGINE) image exists $(IMAGE_BASE) || $(MAKE) --no-print-directory image-base
 	@tag=localhost/fluidsense:check-$$$$; log=$$(mktemp /tmp/fluidsense-image-build.XXXXXX); \
 	echo "make image-check: building $$tag on $(IMAGE_BASE) (log: $$log)"; \

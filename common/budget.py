@@ -46,7 +46,7 @@ class PartsBudget(StrictModel):
         accuracy of rate on one driven by a set flow. To first order every feature (a
         settled pressure, a delivered volume, a time to contact) scales with its drive, so
         the drive's relative error is the feature's; on the static plant the elasticity is
-        0.85-1.15 for the three distance methods (tests/test_budget.py). Rectangular
+        0.85-1.15 for the three distance methods (tests/unit/test_budget.py). Rectangular
         half-widths, sd = half-width / sqrt(3) (GUM 4.3.7)."""
         rel = 0.0
         if setpoint_kpa:

@@ -3,7 +3,7 @@
 Numbers in files are strict: ``Real`` takes an int or a float and nothing else (a string
 such as ``"63"`` or a YAML boolean is refused, not coerced) and never NaN or infinity;
 ``Integer`` takes an int only (not ``10.0``, not ``true``). Every numeric field of a model
-read from a file uses one of them (tests/test_hostile_files.py walks the models to check).
+read from a file uses one of them (tests/unit/test_hostile_files.py walks the models to check).
 """
 
 from __future__ import annotations

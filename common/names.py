@@ -4,7 +4,7 @@ library speaks them without the controller.
 
 Where a list here is also defined by a model (the requests, by the models that
 controller/requests answers), the model is the source and this is its light copy:
-tests/test_requests.py checks that the two agree.
+tests/unit/test_requests.py checks that the two agree.
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ where it connects and what to check when it does not answer (``fluidsense check`
 UR robot and control box behind it, files it reads, whether its samples come from a
 seed. The defaults here describe a cell that has none of these; a driver overrides what
 applies to it. Nothing outside drivers/ looks at ``kind`` to decide anything
-(tests/test_driver_registry.py checks it), so adding a driver touches its config, its
+(tests/unit/test_driver_registry.py checks it), so adding a driver touches its config, its
 backend and the registry (drivers/registry.py) only: docs/architecture.md, "Adding a
 driver".
 

@@ -56,7 +56,7 @@ KEY_DIGITS = 3  # levels are compared in kPa to 1 Pa
 RISE_FRACTIONS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)  # the rise kept per cycle: when it crossed these
 RISE_SMOOTH_S = 0.011  # moving average before the crossings are taken (11 samples at 1 kHz)
 # The rise model's own error (smoothing, sampling, the law taken as quasi-static), as an sd:
-# against the simulated plant (tests/test_characterise.py, ten set-ups) its resistance came
+# against the simulated plant (tests/system/test_characterise.py, ten set-ups) its resistance came
 # 0.0-0.5 % low and its lag within 0.3 ms, with the cycles' spread alone giving +-0.3 %
 RISE_MODEL_REL = 0.005
 RISE_MODEL_LAG_S = 0.0005

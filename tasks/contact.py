@@ -423,7 +423,7 @@ def law_equilibrium(p0: float, v_tank: float, v_side0: float, c: float, p_contac
     touched; 0: touching from the start), then ``ratio`` of c. On a segment ``v = a + b p``
     eq. 1 is ``b p^2 + (Vt + a + b Pa) p + Pa (Vt + a) - M = 0``, solved in closed form (the
     root that goes to the linear one as b goes to zero); the free segment's root stands if it
-    stops short of contact. tests/test_characterise_contact.py checks it against the
+    stops short of contact. tests/system/test_characterise_contact.py checks it against the
     simulator's own root search on its law."""
     m = (p0 + p_atm) * v_tank + p_atm * v_side0
 

@@ -37,7 +37,7 @@ def smooth(x: np.ndarray, span: int = 21) -> np.ndarray:
 
     The paper used MATLAB's loess with a 20-point span; Savitzky-Golay is the same local
     quadratic least-squares fit without loess's tricube weights, on an odd span. This is
-    scipy.signal.savgol_filter(x, span, 2, mode="interp") (tests/test_features.py holds
+    scipy.signal.savgol_filter(x, span, 2, mode="interp") (tests/unit/test_features.py holds
     the two equal): written out because importing scipy.signal costs every daemon and CLI
     start about 0.7 s of CPU (docs/architecture.md, "The test suite").
     """

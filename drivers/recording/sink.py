@@ -7,7 +7,7 @@ time it waits.
 
 Flush guarantee: every ``flush_s`` of sample time the open chunk is closed and handed to
 the OS, so a daemon killed with SIGKILL loses at most the last ``flush_s`` plus what was
-still queued (normally a block or two; tests/test_recording.py); with ``fsync`` another
+still queued (normally a block or two; tests/unit/test_recording.py); with ``fsync`` another
 worker thread also forces it to storage. A file is started between cycles once it passes
 ``max_file_mb`` or covers ``max_file_s`` of sample time (the MCAP writer keeps an index
 entry per flushed chunk in memory until the file is closed: ~1 KB per ``flush_s``, 28 MB

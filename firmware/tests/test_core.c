@@ -1,7 +1,7 @@
 /* Unit tests of the portable core against a fake board: CRC, COBS, commands and acks,
  * sample frames, the heartbeat watchdog. Prints one line per check and a closing
  * "N passed, M failed" line; exit status 1 when a check failed. Run by
- * tests/test_serial_protocol.py (make -C firmware test-core). */
+ * tests/system/test_serial_protocol.py (make -C firmware test-core). */
 #include <stdio.h>
 #include <string.h>
 

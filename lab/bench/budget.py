@@ -3,7 +3,7 @@ from its parts' figures (simulator/parts.py, the profile's ``budget`` block and 
 existing repeatability and noise fields), and what each part contributes.
 
 The plant here is the model's static equilibrium (eq. 1 with the actuator's volume law;
-the dynamic cell settles at it, tests/test_physics.py), which costs a root search per
+the dynamic cell settles at it, tests/unit/test_physics.py), which costs a root search per
 cycle instead of an integration: thousands of calibrations and held-out sessions in
 seconds. The protocol is the bench's (``python -m lab bench accuracy``): one calibration
 session per trial set with the paper's protocol (h = 0..40 mm in 5 mm steps, 7 kept

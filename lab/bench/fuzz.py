@@ -5,7 +5,7 @@ delimiter, extra routing frames, empty frames, frames up to the size limit, deep
 binary, and commands with random fields. Every message the command socket can answer
 (docs/zmq-schema.md, "Framing") must get exactly one well-formed reply, the
 others none; the daemon must keep running, never latch an overrun or no_data fault, and
-never miss a sample. tests/test_security.py runs the same at a small budget. Needs
+never miss a sample. tests/system/test_security.py runs the same at a small budget. Needs
 hypothesis (the test extras).
 
 Figures: messages sent, replies (of which error replies), malformed messages dropped,

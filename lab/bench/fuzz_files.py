@@ -10,7 +10,7 @@ must either give a valid config or a ConfigError whose every line names one of t
 case's files (``FILE: field: reason``); anything else is a crash, and a load that does
 not end is a hang.
 
-``hostile_cases()`` is the hypothesis strategy (tests/test_hostile_files.py runs it at a
+``hostile_cases()`` is the hypothesis strategy (tests/unit/test_hostile_files.py runs it at a
 small budget in the suite); ``fuzz_config_files(examples, seed)`` runs it at a large one,
 each load in a worker process watched with a timeout, and returns the counts.
 """

@@ -21,7 +21,7 @@ the driver's own. What must hold, whatever the device says:
   more than the guard allows (a device cannot move the daemon's sample time into the future).
 
 ``fuzz_serial(examples, seed)`` returns the counts; ``case_strategy()`` is what
-tests/test_serial_protocol.py runs at a small budget in the suite.
+tests/unit/test_serial_protocol.py runs at a small budget in the suite.
 """
 
 from __future__ import annotations

@@ -113,7 +113,7 @@ def floor(scene: str, circuit: str, response_s: float | None = None) -> dict[str
     return core.floor(_profile(pname, CIRCUITS[circuit], _response_s(response_s)), chart_scene(scene), SETTLED_KPA)
 
 
-#: the suite's check (tests/test_speed_stability.py): this pair's rows over its first
+#: the suite's check (tests/system/test_speed_stability.py): this pair's rows over its first
 #: CHECK_TRIALS trials are kept beside the full rows; a run of CHECK_TRIALS trials gives
 #: them again exactly (each pair has its own seeded cell, and its trials come in order),
 #: at a fifth of the cost of the whole pair

@@ -40,7 +40,7 @@ class Section:
         ``fitted`` (``parameter`` was set from ``set_from``, published numbers "<number>
         <unit>"; such a row agrees by construction and is never counted as a prediction, and
         no predicted row may compare with a figure a fitted row was set from or compares
-        with: tests/test_report.py checks it over the ledger), or ``self-check`` (our code
+        with: tests/unit/test_report.py checks it over the ledger), or ``self-check`` (our code
         against our own analytic solution: no paper number, kept apart from the ledger).
         ``tolerance``: what "match" means: the paper's own spread, or a stated sampling or
         reading error."""

@@ -4,6 +4,7 @@ line as a shell runs it (``&``: in the background), only announced names replace
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 import time
@@ -67,3 +68,12 @@ def problems(stdout: str) -> list[str]:
     """What check's result section lists (empty: everything matches)."""
     lines = stdout.split("\nresult\n", 1)[1].splitlines()
     return [line.strip() for line in lines if line.strip() != "everything matches the config"]
+
+
+def documented_exit(command: str, case_starts: str) -> int:
+    """docs/cli.md's per-command exit table: the code of ``command``'s row whose case
+    starts with ``case_starts``."""
+    text = (REPO / "docs" / "cli.md").read_text()
+    rows = re.findall(r"^\| `fluidsense (\w+)[^`]*` \| ([^|]+?) \| (\d+) \|$", text, flags=re.M)
+    (code,) = {int(c) for cmd, case, c in rows if cmd == command and case.startswith(case_starts)}
+    return code

@@ -31,8 +31,8 @@ from support.harness import PROFILE, REPO
 CALIBRATION = REPO / "config" / "calibrations" / "pneunet-gripper-p_eq.json"
 BLOCK = 10  # samples per block at 1 kHz, as the simulated cell sends them
 
-# Requests the command socket refuses, and a word of each reason: tests/test_zmq.py sends
-# them to a daemon, tests/test_requests.py to the socket's decoding and the dispatcher
+# Requests the command socket refuses, and a word of each reason: tests/system/test_zmq.py sends
+# them to a daemon, tests/unit/test_requests.py to the socket's decoding and the dispatcher
 BAD_REQUESTS = [
     ([b"not json"], "not a JSON object"),
     ([b"[1, 2]"], "must be a JSON object"),

@@ -1,5 +1,5 @@
 """Reading what ships: the Dockerfile's instructions, the systemd unit's entries and the
-shell blocks of docs/deployment.md (tests/test_ship.py, tests/test_deploy.py)."""
+shell blocks of docs/deployment.md (tests/accept/test_ship.py, tests/system/test_deploy.py)."""
 
 from __future__ import annotations
 

@@ -1,0 +1,83 @@
+"""The measurement protocol: the valve opens only on a vented actuator that reads flat, so
+the first cycle of a session reads the same offset and P_eq as the tenth (and a tube that
+will not settle refuses the cycle instead of biasing it).
+
+(Its tests with real peers: tests/system/test_protocol.py.)
+"""
+
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+import pytest
+from fluidsense.common.budget import PartsBudget
+from fluidsense.common.scenes import PlateScene
+from fluidsense.controller.config import SequenceConfig
+from fluidsense.controller.cycles import features as F
+from fluidsense.controller.cycles.sequencer import Sequencer, State
+from support.harness import CONFIG
+
+
+def _run(profile: str, body, seed: int = 3, residual_kpa: float = 0.0, **sequence):
+    from fluidsense.controller.config import CellConfig, load_profile
+    from fluidsense.daemon import app
+    from fluidsense.drivers.registry import Perturbations, SimDriverConfig
+
+    # the protocol is about the tube, not the parts: without the profile's error budget the
+    # sensor's offset is its fixed one (a session's zero draw would move it within the TEB)
+    prof = load_profile(CONFIG / "profiles" / f"{profile}.yaml").model_copy(update={"budget": PartsBudget()})
+    if sequence:
+        prof = prof.model_copy(update={"sequence": prof.sequence.model_copy(update=sequence)})
+    cfg = CellConfig(driver=SimDriverConfig(clock="virtual", seed=seed,
+                                            perturb=Perturbations(residual_kpa=residual_kpa)), profile=prof)
+
+    async def main():
+        async with app.controller(cfg) as ctrl:
+            return await body(ctrl)
+
+    return asyncio.run(main())
+
+
+def test_a_tube_that_does_not_settle_refuses_the_cycle():
+    """20 kPa left in the tube and only 5 s allowed to vent it: the cycle is refused with
+    a reason, the valve never opens."""
+    async def body(ctrl):
+        await ctrl.scene.place(PlateScene(height_mm=10))
+        return await ctrl.run_cycle()
+
+    res = _run("pneunet-bending", body, residual_kpa=20.0, settle_timeout_s=5.0)
+    assert not res.ok and res.t_open is None
+    assert res.aborted.startswith("not settled") and "kPa over" in res.aborted
+
+
+def test_drift_finds_a_slope_and_not_noise():
+    rng = np.random.default_rng(4)
+    t = np.arange(0, 10, 1e-3)
+    noise = rng.normal(0, 70.0, len(t))  # 0.07 kPa
+    change, se = F.drift(t, 300.0 - 2.0 * t + noise)  # 20 Pa over 10 s
+    assert change == pytest.approx(-20.0, abs=4 * se) and abs(change) > 3 * se
+    flat = [F.drift(t, np.random.default_rng(k).normal(0, 70.0, len(t))) for k in range(200)]
+    assert 0.9 < np.mean([abs(c) <= 2 * s for c, s in flat]) <= 0.99
+
+
+def test_sequencer_waits_while_not_settled_and_aborts_after_the_timeout():
+    cfg = SequenceConfig(charge_s=2.0, isolate_s=1.0, actuate_s=5.0, vent_s=1.0, windows=[
+        {"name": "eq", "start_s": 1.0, "end_s": 2.0}], settle_timeout_s=4.0)
+    answers = iter(["still venting"] * 3)
+    seq = Sequencer(cfg, settled=lambda t: next(answers, None))
+    seq.start(0.0)
+    t = 0.0
+    while seq.t_open is None and seq.busy:
+        t += 0.01
+        seq.on_time(t)
+    assert seq.state == State.ACTUATE and seq.t_open == pytest.approx(3.0 + 3 * 0.5, abs=0.05)
+
+    never = Sequencer(cfg, settled=lambda t: "still venting")
+    never.start(0.0)
+    t = 0.0
+    while never.busy and never.state != State.VENT:
+        t += 0.01
+        never.on_time(t)
+    assert never.t_open is None and never.aborted.startswith("not settled: still venting")
+    assert t == pytest.approx(3.0 + 4.0, abs=0.1)

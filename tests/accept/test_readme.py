@@ -1,4 +1,5 @@
-"""README.md's shell blocks run as written, in order, from a fresh copy of the repository.
+"""README.md's shell blocks run as written, in order, from a fresh copy of the repository, and
+then docs/usage.md's (the tour the README sends a reader to), in the same copy.
 
 The copy is the checkout's tracked files (what a clone has: no runs/, no outputs), with the
 checkout's ``.venv`` linked in (what ``make demo`` would create; its stamp is there, so
@@ -30,9 +31,6 @@ pytestmark = [pytest.mark.timeout(1800)]
 
 SKIPPED = {
     "make test": "the whole suite, of which this test is a part",
-    "OPENBLAS_CORETYPE=Sandybridge .venv/bin/python -m pytest -n 0 tests/unit/test_features.py tests/unit/test_rise_alignment.py \\":
-        "five of the suite's own test files under another CPU kernel: the suite runs them",
-    "tests/unit/test_physics.py tests/unit/test_dynamics.py tests/unit/test_resolution.py": "(the line above, continued)",
     ".venv/bin/fluidsense monitor": "a screen for a person, until Ctrl-C (tests/system/test_monitor_screen.py)",
     ".venv/bin/fluidsense check --config config/cell-ur-sim.yaml --actuate":
         "asks a person before it moves anything (tests/accept/test_bringup_doc.py runs it with --yes)",
@@ -77,7 +75,7 @@ def _fresh_copy(dest):
 
 
 def test_readme_runs_as_written_from_a_fresh_copy(tmp_path, netns):
-    blocks = shell_blocks(REPO / "README.md")
+    blocks = [*shell_blocks(REPO / "README.md"), *shell_blocks(REPO / "docs" / "usage.md")]
     said = [_key(line) for block in blocks for line in block]
     assert all(key in said for key in SKIPPED), [k for k in SKIPPED if k not in said]  # a renamed line is seen
     home = tmp_path / "fluidsense"

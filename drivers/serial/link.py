@@ -68,7 +68,7 @@ class SerialLink:
         self.vented = False
         self.last_frame = time.monotonic()
         self.stats = dict.fromkeys(("bytes", "frames", "samples", "corrupt_frames", "lost_frames", "stale_frames",
-                                    "device_tx_dropped", "adc_overruns", "commands", "retries",
+                                    "device_tx_dropped", "adc_overruns", "commands", "retries", "acks",
                                     "implausible_frames"), 0)
         self._ser: serial.Serial | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -156,7 +156,11 @@ class SerialLink:
                     async with asyncio.timeout(timeout_s):
                         ack = await fut
                 except TimeoutError:
-                    continue
+                    # the ack came in time but the loop, late itself, ran the timer before
+                    # the reader's hand-over (its callback was queued first): not a retry
+                    if not fut.done() or fut.cancelled():
+                        continue
+                    ack = fut.result()
                 finally:
                     self._acks.pop(seq, None)
                 if ack.status != p.OK:
@@ -293,6 +297,7 @@ class SerialLink:
             if f.command == p.START and f.status == p.OK and f.session == self.session and not self._started:
                 self._started, self._dev_seq = True, f.seq
                 self._guard = SessionGuard(self.cfg, len(self.channels), arrival)
+            self.stats["acks"] += 1  # a retry's repeat is acknowledged again: one per command sent
             self._post(self._resolve, f)
         elif isinstance(f, p.Sample):
             if self._started:

@@ -106,7 +106,11 @@ def test_frames_round_trip(tmp_path, simserial, reader, board):
             assert abs(p_tank.mean() - 50.0) < 1.0  # the regulator's command came through (its own error ~0.1)
             assert abs(p_tank.mean() - truth["p_tank"]) < 0.5  # 10-bit counts of a settled tank: the plant's truth
             stats = backend.source.link_stats()
-            assert stats["lost_frames"] == 0 and stats["corrupt_frames"] == 0 and stats["retries"] == 0
+            assert stats["lost_frames"] == 0 and stats["corrupt_frames"] == 0
+            # every command sent, each retry included, was acknowledged: none was lost on the way. (A
+            # retry itself is the protocol working, not a fault: simavr starved of CPU, or this
+            # process, answers later than ack_timeout_s; the device acknowledges a repeat again.)
+            assert stats["acks"] == stats["commands"] + stats["retries"], stats
             assert stats["device"]["board"] == BOARD_NAMES[board] and stats["device"]["adc_bits"] == 10
         finally:
             await backend.stop()

@@ -250,7 +250,8 @@ def test_design_on_the_result_recommends_what_it_does_on_the_hidden_actuator(tmp
                   cycles=CYCLES, cycle_ids=[e["cycle_id"] for e in entries])
         mine = d / "mine.yaml"
         mine.write_text(yaml.safe_dump(ch.characterised_profile(read_yaml(start_path), start, res, name="mine", **kw)))
-        assert _same(_design(capsys, hidden_path), _design(capsys, mine)), seed
+        best_hidden, best_mine = _design(capsys, hidden_path), _design(capsys, mine)
+        assert _same(best_hidden, best_mine), (seed, best_hidden, best_mine)
         hidden_req, mine_req = _design(capsys, hidden_path, *REQUIREMENT), _design(capsys, mine, *REQUIREMENT)
         same_req += _same(hidden_req, mine_req)
         # the (v0, c) interval: the fit's ends, at fractions of the way from the fitted values
@@ -264,7 +265,8 @@ def test_design_on_the_result_recommends_what_it_does_on_the_hidden_actuator(tmp
                 (c.hi95 - c.value) if frac > 0 else (c.value - c.lo95))
             at.write_text(yaml.safe_dump(data))
             allowed.append(_design(capsys, at, *REQUIREMENT))
-        rows.append((seed, hidden_req, mine_req, allowed))
+        rows.append((seed, best_hidden, best_mine, hidden_req, mine_req, allowed))
         assert any(_same(hidden_req, a) for a in allowed), (seed, hidden_req, allowed)
-    print("\n" + "\n".join(f"seed {s}: hidden {h}, characterised {m}, within the intervals {sorted(set(a))}"
-                           for s, h, m, a in rows) + f"\nrequirement: the same in {same_req} of {DESIGN_SETUPS}")
+    print("\n" + "\n".join(f"seed {s}: best resolution hidden {bh}, characterised {bm}; requirement hidden {h}, "
+                           f"characterised {m}, within the intervals {sorted(set(a))}"
+                           for s, bh, bm, h, m, a in rows) + f"\nrequirement: the same in {same_req} of {DESIGN_SETUPS}")

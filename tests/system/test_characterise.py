@@ -255,7 +255,8 @@ def test_design_on_the_result_recommends_what_it_does_on_the_hidden_actuator(tmp
         hidden_req, mine_req = _design(capsys, hidden_path, *REQUIREMENT), _design(capsys, mine, *REQUIREMENT)
         same_req += _same(hidden_req, mine_req)
         # the (v0, c) interval: the fit's ends, at fractions of the way from the fitted values
-        v0, c = (next(f for f in res.fitted if f.field == n) for n in ("actuator.v0_ml", "actuator.compliance_ml_per_kpa"))
+        v0, c = (next(f for f in res.fitted if f.field == n)
+                 for n in ("actuator.v0_ml", "actuator.compliance_ml_per_kpa"))
         allowed = [mine_req]
         for frac in (-1.0, -0.5, 0.5, 1.0):
             at = d / f"at{frac:+.1f}.yaml"

@@ -1,5 +1,7 @@
-"""Characterise an actuator on its rig: free-air cycles of the tank circuit over a sweep of
-P0, and from them the numbers a profile needs that the rig can show.
+"""Characterise an actuator on its rig: free-air cycles over a sweep of P0 (the tank
+circuit: the tank's charge; the pressure-flow circuit: the regulated pressure, with the
+flow into the actuator integrated), and from them the numbers a profile needs that the
+rig can show.
 
 What the readings can tell apart (docs/cli.md, "characterise"):
 - The free-air equilibria fix the actuator's free P-V law (``v = v0 + c p``) through eq. 1
@@ -9,6 +11,16 @@ What the readings can tell apart (docs/cli.md, "characterise"):
   equilibrium stays. The scale is the tank's volume the config states (``circuit.tank_l``,
   on its label) and the hose's bore and length: v0 and c are in units of them, and move with
   them if they are wrong.
+- The pressure-flow circuit (method 2): the regulator holds the actuator at P0 and the flow
+  sensor integrates what went in, V_eq (standard volume). Isothermal, from atmosphere:
+  ``V_eq p_std = Pe (v0 + Vh) + c Pe (Pe + Pa)``, linear in (v0, c) and in ABSOLUTE volume:
+  the flow sensor sets the scale (its calibration and its standard conditions: p_std is
+  taken as the circuit's p_atm at the gas's temperature, as eq. 3 and the simulator take
+  it; a sensor referenced elsewhere, or reading k times the true flow, scales v0 and c
+  with it). Each cycle's own Pe (measured) is its abscissa, so the regulator's landing
+  error is in the model, not the spread. A reading at the sensor's rail is refused (the
+  integral loses what it cut); the leak is the flow still going in once settled (the
+  regulator holds the pressure, so no drift shows).
 - The cycle-to-cycle spread of the equilibrium at one P0 (``sequence.eq_sd_kpa``), the
   sensor's noise (the settled window's sd), the lag (where the rise starts), the settling
   time and the leak (the drift after settling) are read from the traces.
@@ -20,7 +32,9 @@ What the readings can tell apart (docs/cli.md, "characterise"):
 
 The fit is refused, naming why, when it cannot hold: fewer than three levels or two cycles
 per level, a leak, a window that reads before the actuator settled, a residual beyond the
-cycles' own spread (lack-of-fit test), a non-physical volume.
+cycles' own spread (lack-of-fit test), a non-physical volume, a flow sensor at its rail.
+The flow-control circuit (method 3) is refused before any valve moves: its sweep is of a
+flow programme, not of a pressure, and is not built here.
 """
 
 from __future__ import annotations
@@ -36,7 +50,7 @@ import numpy as np
 from fluidsense.common.errors import ConfigError, FluidsenseError, JobStopped
 from fluidsense.common.hardware import PORT_VOLUME_M3
 from fluidsense.common.scenes import EmptyScene
-from fluidsense.common.units import KPA, LITRE, ML
+from fluidsense.common.units import KPA, LITRE, ML, SLPM
 from fluidsense.controller.config.profile import FittedNumber, Profile, Provenance
 from fluidsense.controller.ports import TaskPort
 from scipy import integrate, optimize, stats
@@ -62,6 +76,10 @@ RISE_MODEL_REL = 0.005
 RISE_MODEL_LAG_S = 0.0005
 RISE_DRAWS = 40  # draws of the fitted volumes carried into the rise's fit
 RISE_MIN_LEVEL = 0.5  # rises fitted only at levels at least this fraction of the top one (clear of the noise)
+# pressure-flow: the default sweep's top keeps the opening's flow (level / the path's stated
+# resistance, laminar) this far inside the flow sensor's range. At the shipped profile's own
+# 23.8 kPa the simulated HAFBLF0750 (+-0.75 SLPM) sat at its rail for 87-100 ms per cycle
+FLOW_RANGE_USE = 0.9
 
 
 class CharacteriseJournal(CycleJournal):
@@ -71,12 +89,17 @@ class CharacteriseJournal(CycleJournal):
     KIND = "fluidsense characterise cycles"
     WHAT = "a characterisation journal"
     NUMBERS = ("p_eq_kpa", "noise_kpa", "lag_s", "settle_s", "drift_kpa_per_s", "drift_se_kpa_per_s", "rise_s")
+    # a pressure-flow cycle's too (a tank cycle's line has none of them)
+    FLOW_NUMBERS = ("v_eq_ml", "flow_peak_slpm", "flow_rail_s", "flow_settled_slpm", "flow_settled_se_slpm")
 
     @staticmethod
     def parse_entry(e: dict[str, Any]) -> dict[str, Any]:
         out = {"level_kpa": float(e["level_kpa"]), "k": int(e["k"]), "cycle_id": int(e["cycle_id"])}
         for key in CharacteriseJournal.NUMBERS:
             out[key] = None if e[key] is None else float(e[key])
+        for key in CharacteriseJournal.FLOW_NUMBERS:
+            if key in e:
+                out[key] = None if e[key] is None else float(e[key])
         rise = e["rise_t_s"]
         out["rise_t_s"] = None if rise is None else [float(x) for x in rise]
         if out["rise_t_s"] is not None and len(out["rise_t_s"]) != len(RISE_FRACTIONS):
@@ -89,26 +112,55 @@ class CharacteriseJournal(CycleJournal):
             return f"cycle {entry['k']} at {entry['level_kpa']} kPa is not in the plan"
         if entry["p_eq_kpa"] is None:
             return "a cycle without an equilibrium"
+        if (plan.get("sequence") or {}).get("method") == "pressure_flow" and entry.get("v_eq_ml") is None:
+            return "a pressure-flow cycle without its integrated flow (v_eq_ml)"
         return None
 
 
 # ------------------------------------------------------------------ the plan
+def is_flow(profile: Profile) -> bool:
+    """The pressure-flow circuit (method 2): V_eq at a regulated pressure, not P_eq from a tank."""
+    return profile.sequence.method == "pressure_flow"
+
+
+def flow_top_kpa(profile: Profile) -> float:
+    """The highest level whose opening flow (laminar: level over the path's stated
+    resistance, into an actuator at atmosphere) stays FLOW_RANGE_USE inside the flow
+    sensor's range; the standard flow of eq. 3 is the pressure difference over r."""
+    c = profile.circuit
+    r = c.valve_resistance_pa_s_per_m3 + c.resistor_pa_s_per_m3
+    q_max = min(abs(v) for v in profile.flow_sensor.range_slpm) * SLPM
+    return FLOW_RANGE_USE * q_max * r / KPA
+
+
 def default_levels(profile: Profile, n: int = DEFAULT_LEVELS) -> list[float]:
     """From 20 % of the profile's P0 up to it: the profile's own P0 is where its cycles run
     (its eq_sd is read there), nothing above it is asked of an actuator nobody has
     characterised yet, and the wider the span the better the compliance (the curvature of
-    eq. 1) separates from the free volume."""
+    eq. 1) separates from the free volume. The pressure-flow circuit's top is lower where
+    the opening's flow would pass the flow sensor's range (flow_top_kpa): a reading at the
+    rail loses what it cut from V_eq."""
     p0 = profile.sequence.p0_kpa
-    return [round(float(v), KEY_DIGITS) for v in np.linspace(0.2 * p0, p0, n)]
+    top = min(p0, flow_top_kpa(profile)) if is_flow(profile) else p0
+    return [round(float(v), KEY_DIGITS) for v in np.linspace(0.2 * top, top, n)]
 
 
 def check_plan(profile: Profile, levels: Sequence[float], cycles: int) -> list[float]:
     """The levels, sorted, or a ConfigError naming the option and the reason; before any
     valve moves."""
-    if profile.sequence.method != "tank" or profile.circuit.kind != "tank":
-        raise ConfigError(f"profile {profile.name!r}: characterise sweeps the tank circuit's P0 (sequence.method "
-                          f"tank); this profile's method is {profile.sequence.method!r}: the pressure-flow and "
-                          "flow circuits are not characterised yet")
+    method, kind = profile.sequence.method, profile.circuit.kind
+    if method == "flow_control":
+        raise ConfigError(f"profile {profile.name!r}: characterise sweeps a pressure (the tank circuit's P0, or the "
+                          "pressure-flow circuit's regulated P0 with the flow integrated); the flow-control circuit "
+                          "(sequence.method flow_control) feeds a flow programme instead and is not characterised "
+                          "yet: characterise the actuator on a tank or pressure-flow circuit and keep the flow "
+                          "controller's figures")
+    if (method, kind) not in (("tank", "tank"), ("pressure_flow", "regulated")):
+        raise ConfigError(f"profile {profile.name!r}: sequence.method {method!r} with a {kind!r} circuit is not "
+                          "characterised (tank with a tank circuit, pressure_flow with a regulated one)")
+    if method == "pressure_flow" and (profile.sequence.flow_window is None or not profile.circuit.flow_sensor):
+        raise ConfigError(f"profile {profile.name!r}: the pressure-flow characterisation integrates the flow "
+                          "sensor's reading: the circuit needs flow_sensor: true and the sequence a flow_window")
     if not hasattr(profile.actuator, "compliance_ml_per_kpa"):
         raise ConfigError(f"profile {profile.name!r}: actuator kind {profile.actuator.kind!r} has no free P-V "
                           "line (v0_ml, compliance_ml_per_kpa) to fit")
@@ -123,6 +175,9 @@ def check_plan(profile: Profile, levels: Sequence[float], cycles: int) -> list[f
         if v == 0 or (v > 0) != (p0 > 0):
             raise ConfigError(f"--levels: {v:g} kPa: every level must drive the actuator the way its P0 does "
                               f"({p0:g} kPa)")
+        if method == "pressure_flow" and v < 0:
+            raise ConfigError(f"--levels: {v:g} kPa: the pressure-flow circuit's regulator sets pressures above "
+                              "atmosphere")
         if not lim.min_kpa + margin <= v <= lim.max_kpa - margin:
             raise ConfigError(f"--levels: {v:g} kPa is outside the profile's limits [{lim.min_kpa:g}, "
                               f"{lim.max_kpa:g}] kPa less their {margin:.2f} kPa margin")
@@ -172,10 +227,17 @@ def read_trace(t: np.ndarray, p: np.ndarray, p_eq: float, noise: float, window: 
         times.append(float(t[j - 1] + (f * level - qs[j - 1]) * (t[j] - t[j - 1]) / (qs[j] - qs[j - 1])))
     if len(times) == len(RISE_FRACTIONS):
         out["rise_t_s"] = times
-    # settling: the last time the trace was outside the band before the window ended
+    # settling: the last time the trace was outside the band before the window ended, on the
+    # averaged trace (where the average is whole): a raw sample passes 5 sd of white noise
+    # once in 1.7e6, and a pressure-flow cycle's 30 s hold has 3e4 of them (a hidden
+    # actuator's characterisation was refused so, settled "after 28.8 s")
     band = max(SETTLE_FRACTION * level, 5 * noise)
     upto = t < window[1]
-    outside = np.flatnonzero(upto & (np.abs(q - level) > band))
+    whole = np.zeros(q.size, dtype=bool)
+    whole[w // 2:q.size - w // 2] = True
+    if qs is q:
+        whole[:] = True
+    outside = np.flatnonzero(upto & whole & (np.abs(qs - level) > band))
     out["settle_s"] = float(t[outside[-1] + 1]) if outside.size and outside[-1] + 1 < t.size else 0.0
     # drift from the window's start to the trace's end (a leak lets the pressure fall)
     after = t >= window[0]
@@ -190,14 +252,46 @@ def read_trace(t: np.ndarray, p: np.ndarray, p_eq: float, noise: float, window: 
     return out
 
 
-def reading(res, level_kpa: float, k: int, window: tuple[float, float]) -> dict[str, Any]:
-    """One journal line from a finished cycle."""
+def read_flow(t: np.ndarray, q: np.ndarray, offset: float, rail: tuple[float, float], quantum: float,
+              window: tuple[float, float], offset_s: float) -> dict[str, Any]:
+    """A pressure-flow cycle's flow (t: s since the commanded opening; q: standard m^3/s,
+    offset removed): its peak, how long the raw reading sat at the sensor's rail (the
+    integral then lost what the rail cut), and the mean flow over the settled window with
+    its standard error (white noise over the window and over the offset window the offset
+    was taken from: a leak keeps gas going in at the regulated pressure)."""
+    raw = q + offset
+    at_rail = (raw >= rail[1] - quantum / 2) | (raw <= rail[0] + quantum / 2)
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    sel = (t >= window[0]) & (t < window[1])
+    out: dict[str, Any] = {"flow_peak_slpm": float(np.max(np.abs(q))) / SLPM, "flow_rail_s": float(at_rail.sum()) * dt,
+                           "flow_settled_slpm": None, "flow_settled_se_slpm": None}
+    if sel.sum() >= 10 and dt > 0:
+        qq = q[sel]
+        sd = float(qq.std(ddof=1))
+        n_off = max(offset_s / dt, 1.0)
+        out["flow_settled_slpm"] = float(qq.mean()) / SLPM
+        out["flow_settled_se_slpm"] = math.sqrt(sd**2 / qq.size + sd**2 / n_off) / SLPM
+    return out
+
+
+def reading(res, level_kpa: float, k: int, window: tuple[float, float], profile: Profile | None = None
+            ) -> dict[str, Any]:
+    """One journal line from a finished cycle (with ``profile``'s flow sensor, a pressure-
+    flow cycle's flow numbers too)."""
     t, p = res.trace
     p_eq = res.p_eq
     noise = res.p_sd
     numbers = read_trace(np.asarray(t), np.asarray(p), p_eq, noise, window)
-    return {"level_kpa": level_kpa, "k": k, "cycle_id": res.cycle_id, "p_eq_kpa": p_eq / KPA,
+    line = {"level_kpa": level_kpa, "k": k, "cycle_id": res.cycle_id, "p_eq_kpa": p_eq / KPA,
             "noise_kpa": noise / KPA, **numbers}
+    if profile is not None and is_flow(profile):
+        fs = profile.flow_sensor
+        tf, qf = res.flow_trace
+        line["v_eq_ml"] = res.v_eq / ML
+        line.update(read_flow(np.asarray(tf), np.asarray(qf), res.flow_offset,
+                              (fs.range_slpm[0] * SLPM, fs.range_slpm[1] * SLPM), fs.quantum_slpm * SLPM,
+                              window, profile.sequence.offset_s))
+    return line
 
 
 # ------------------------------------------------------------------ the cycles
@@ -226,9 +320,12 @@ async def measure(port: TaskPort, levels: Sequence[float], cycles: int, journal:
                 res = await port.run_cycle(p0_kpa=level, label=f"characterise P0={level:g}")
                 if not res.ok or res.trace is None or res.p_eq is None:
                     raise FluidsenseError(f"free-air cycle {res.cycle_id} at {level:g} kPa ended: {res.aborted}")
+                if is_flow(profile) and (res.v_eq is None or res.flow_trace is None):
+                    raise FluidsenseError(f"free-air cycle {res.cycle_id} at {level:g} kPa read no flow: the "
+                                          "pressure-flow characterisation needs the cell's flow channel")
                 # off the event loop: the sampler shares it, and a real-time loop held up by a
                 # fit or an fsync on a busy host latches an overrun fault (seen through the box)
-                line = await asyncio.to_thread(reading, res, level, k, window)
+                line = await asyncio.to_thread(reading, res, level, k, window, profile)
                 await asyncio.to_thread(journal.add, line)
                 if progress is not None:
                     progress(1)
@@ -262,6 +359,8 @@ class Characterisation:
     pure_error_kpa: float
     levels: list[dict[str, float]] = field(default_factory=list)  # per level: P0, mean, sd, n, fitted
     pv_cov: list[list[float]] | None = None  # covariance of (v0 ml, c ml/kPa): the contact fit carries it
+    residual_ml: float | None = None  # pressure-flow: the V_eq fit's rms residual over the levels' means
+    pure_error_ml: float | None = None  # pressure-flow: the pooled cycle-to-cycle sd of V_eq about the law
 
     def value(self, name: str) -> float | None:
         for f in self.fitted:
@@ -272,7 +371,9 @@ class Characterisation:
     def to_dict(self) -> dict[str, Any]:
         return {"fitted": [f.model_dump() for f in self.fitted], "measured": [f.model_dump() for f in self.measured],
                 "kept": self.kept, "notes": self.notes, "residual_kpa": self.residual_kpa,
-                "pure_error_kpa": self.pure_error_kpa, "levels": self.levels}
+                "pure_error_kpa": self.pure_error_kpa, "levels": self.levels,
+                **({} if self.residual_ml is None else {"residual_ml": self.residual_ml,
+                                                         "pure_error_ml": self.pure_error_ml})}
 
 
 def free_equilibrium(p0: np.ndarray | float, v_tank: float, v_act0: float, c: float, p_atm: float):
@@ -324,6 +425,62 @@ def fit_rise(times: Sequence[float], v_tank: float, v_act0: float, c: float, p0:
     return float(coef[0]), float(coef[1]), float(np.sqrt(np.mean(resid**2)))
 
 
+@dataclass
+class FlowLaw:
+    """The pressure-flow circuit's free P-V law fitted to (Pe, V_eq) per cycle."""
+
+    x: np.ndarray  # (v side ml, c ml/kPa)
+    cov: np.ndarray
+    dof_pure: int
+    s_pure_ml: float
+    residual_ml: float
+    residual_kpa: float  # the level means' V residual carried to pressure through the law's slope
+    f_ratio: float
+    p_lof: float
+    rows: list[dict[str, float]]
+
+
+def flow_law(by_level: dict[float, list[dict]], p_atm: float) -> FlowLaw:
+    """Least squares of every cycle's V_eq on its own measured Pe:
+    ``V_eq p_std = Pe v_side + c Pe (Pe + Pa)`` (isothermal, from atmosphere; p_std the
+    circuit's p_atm, as eq. 3). Linear in (v_side, c), so the least squares is exact. The
+    pure error is the cycles' scatter about the law within each level (each cycle at its
+    own Pe: the regulator's landing error is in the abscissa, not the spread), the lack of
+    fit the levels' mean residuals against it; the covariance is the pure error's, inflated
+    by the lack-of-fit ratio when the means scatter more."""
+    levels = sorted(by_level)
+    pe = np.array([e["p_eq_kpa"] * KPA for lv in levels for e in by_level[lv]])
+    v = np.array([e["v_eq_ml"] * ML for lv in levels for e in by_level[lv]])
+    group = np.array([i for i, lv in enumerate(levels) for _ in by_level[lv]])
+    p_std = p_atm
+    a = np.column_stack([pe / p_std * ML, pe * (pe + p_atm) / p_std * ML / KPA])
+    x, *_ = np.linalg.lstsq(a, v, rcond=None)
+    r = v - a @ x
+    n = np.bincount(group).astype(float)
+    r_mean = np.bincount(group, weights=r) / n
+    ss_pure = float(((r - r_mean[group]) ** 2).sum())
+    dof_pure = int(pe.size - len(levels))
+    dof_lof = len(levels) - 2
+    s_pure = math.sqrt(ss_pure / dof_pure) if dof_pure > 0 else 0.0
+    ss_lof = float((n * r_mean**2).sum())
+    f_ratio = (ss_lof / dof_lof) / s_pure**2 if dof_lof > 0 and s_pure > 0 else 0.0
+    p_lof = float(stats.f.sf(f_ratio, dof_lof, dof_pure)) if dof_lof > 0 and s_pure > 0 else 1.0
+    cov = np.linalg.inv(a.T @ a) * s_pure**2 * max(1.0, f_ratio)
+    # the law's slope dV/dPe at each level: a V residual is worth residual / slope in pressure
+    pe_mean = np.bincount(group, weights=pe) / n
+    slope = (x[0] * ML + x[1] * ML / KPA * (2 * pe_mean + p_atm)) / p_std
+    rows = []
+    for i, lv in enumerate(levels):
+        sel = group == i
+        vv = v[sel]
+        rows.append({"p0_kpa": lv, "mean_kpa": float(pe_mean[i] / KPA),
+                     "sd_kpa": float(pe[sel].std(ddof=1) / KPA), "n": int(n[i]),
+                     "v_eq_mean_ml": float(vv.mean() / ML), "v_eq_sd_ml": float(vv.std(ddof=1) / ML),
+                     "fitted_ml": float((vv.mean() - r_mean[i]) / ML)})
+    return FlowLaw(x, cov, dof_pure, s_pure / ML, math.sqrt(float(np.mean(r_mean**2))) / ML,
+                   math.sqrt(float(np.mean((r_mean / slope) ** 2))) / KPA, f_ratio, p_lof, rows)
+
+
 def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
     """The profile's numbers from the free-air cycles, or FitRefused naming why.
 
@@ -359,43 +516,67 @@ def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
     if s_pure <= 0:
         raise FitRefused(["the cycles at each level read exactly the same: no spread to state an uncertainty from"])
 
-    def resid(x: np.ndarray) -> np.ndarray:
-        v_act0, c = x[0] * ML, x[1] * ML / KPA
-        return np.sqrt(n) * (free_equilibrium(p0, v_tank, v_act0, c, p_atm) - means) / s_pure
+    flow = is_flow(start)
+    law_flow = None
+    if flow:
+        missing = [e["cycle_id"] for e in entries if e.get("v_eq_ml") is None]
+        if missing:
+            raise FitRefused([f"{len(missing)} cycle(s) without an integrated flow (v_eq_ml): cycles {missing[:5]}"])
+        law_flow = flow_law(by_level, p_atm)
+        sol_x, cov, f_ratio, p_lof = law_flow.x, law_flow.cov, law_flow.f_ratio, law_flow.p_lof
+        dof_fit = law_flow.dof_pure
+        residual = law_flow.residual_kpa
+    else:
+        def resid(x: np.ndarray) -> np.ndarray:
+            v_act0, c = x[0] * ML, x[1] * ML / KPA
+            return np.sqrt(n) * (free_equilibrium(p0, v_tank, v_act0, c, p_atm) - means) / s_pure
 
-    x0 = np.array([act.v0_ml + fixed / ML, act.compliance_ml_per_kpa])
-    sol = optimize.least_squares(resid, x0, x_scale=x0, method="lm")
-    jac = sol.jac
-    cov = np.linalg.inv(jac.T @ jac)
-    ss_lof = float(sol.fun @ sol.fun)  # in units of the pure error's variance
-    dof_lof = n_lev - 2
-    f_ratio = ss_lof / dof_lof if dof_lof > 0 else 0.0
-    p_lof = float(stats.f.sf(f_ratio, dof_lof, dof_pure)) if dof_lof > 0 else 1.0
+        x0 = np.array([act.v0_ml + fixed / ML, act.compliance_ml_per_kpa])
+        sol = optimize.least_squares(resid, x0, x_scale=x0, method="lm")
+        jac = sol.jac
+        cov = np.linalg.inv(jac.T @ jac)
+        ss_lof = float(sol.fun @ sol.fun)  # in units of the pure error's variance
+        dof_lof = n_lev - 2
+        f_ratio = ss_lof / dof_lof if dof_lof > 0 else 0.0
+        p_lof = float(stats.f.sf(f_ratio, dof_lof, dof_pure)) if dof_lof > 0 else 1.0
+        cov = cov * max(1.0, f_ratio)
+        sol_x, dof_fit = sol.x, dof_pure
+        fitted_eq = free_equilibrium(p0, v_tank, sol_x[0] * ML, sol_x[1] * ML / KPA, p_atm)
+        residual = math.sqrt(float(np.mean((fitted_eq - means) ** 2))) / KPA
     if p_lof < LACK_OF_FIT_P:
         refused.append(f"the free P-V law does not fit: the levels' means scatter {math.sqrt(f_ratio):.2g} times "
                        f"the cycles' own spread about it (lack-of-fit p = {p_lof:.2g}; a law that bends, a leak, "
                        "or a volume that is not the config's)")
-    cov = cov * max(1.0, f_ratio)
-    t95 = _t95(dof_pure)
-    v_side, c_fit = float(sol.x[0]), float(sol.x[1])
+    t95 = _t95(dof_fit)
+    v_side, c_fit = float(sol_x[0]), float(sol_x[1])
     se_v, se_c = math.sqrt(cov[0, 0]), math.sqrt(cov[1, 1])
     v0_ml = v_side - fixed / ML
-    fitted_eq = free_equilibrium(p0, v_tank, v_side * ML, c_fit * ML / KPA, p_atm)
-    residual = math.sqrt(float(np.mean((fitted_eq - means) ** 2))) / KPA
     if v0_ml - t95 * se_v <= 0 or c_fit - t95 * se_c <= 0:
         refused.append(f"the fitted volume or compliance is not positive within its interval (v0 {v0_ml:.4g} "
                        f"+- {t95 * se_v:.2g} ml, c {c_fit:.4g} +- {t95 * se_c:.2g} ml/kPa): the levels do not "
-                       "span enough of the law, or the stated tank or hose is wrong")
-    scale = (f"scaled by the stated tank ({c_cfg.tank_l:g} L, circuit.tank_l)"
-             + (f" and hose ({hose / ML:.4g} ml, circuit.hose)" if hose else "")
-             + ": the equilibria show only ratios of volumes; if the tank is k times the stated one, so are "
-               "v0 and c")
+                       "span enough of the law, or the stated " + ("flow sensor" if flow else "tank")
+                       + " or hose is wrong")
+    if flow:
+        scale = ("in absolute volume, scaled by the flow sensor: its standard conditions taken as the circuit's "
+                 f"p_atm ({p_atm / KPA:g} kPa) at the gas's temperature (eq. 3); a sensor that reads k times the "
+                 "true standard flow (its calibration, or standard conditions of another temperature: 0 against "
+                 "20 degC is 7 %) gives k times v0 and c. Not in the interval")
+        method = (f"V_eq p_std = Pe v0 + c Pe (Pe + Pa) least squares over {law_flow.dof_pure + n_lev} cycles at "
+                  f"{n_lev} levels (each at its own measured Pe; interval from the cycles' scatter about the law, "
+                  f"{law_flow.dof_pure} degrees of freedom)")
+    else:
+        scale = (f"scaled by the stated tank ({c_cfg.tank_l:g} L, circuit.tank_l)"
+                 + (f" and hose ({hose / ML:.4g} ml, circuit.hose)" if hose else "")
+                 + ": the equilibria show only ratios of volumes; if the tank is k times the stated one, so are "
+                   "v0 and c")
+        method = f"eq. 1 least squares over {n_lev} levels x {counts[0]} cycles"
     fitted = [
         FittedNumber(field="actuator.v0_ml", value=v0_ml, lo95=v0_ml - t95 * se_v, hi95=v0_ml + t95 * se_v,
-                     unit="ml", how=f"eq. 1 least squares over {n_lev} levels x {counts[0]} cycles, {scale}"
+                     unit="ml", how=f"{method}, {scale}"
                      + (f"; the hose's {hose / ML:.4g} ml taken off the fitted side volume" if fixed else "")),
         FittedNumber(field="actuator.compliance_ml_per_kpa", value=c_fit, lo95=c_fit - t95 * se_c,
-                     hi95=c_fit + t95 * se_c, unit="ml/kPa", how=f"eq. 1, the same fit, {scale}"),
+                     hi95=c_fit + t95 * se_c, unit="ml/kPa",
+                     how=f"{'the' if flow else 'eq. 1, the'} same fit, {scale}"),
     ]
     measured: list[FittedNumber] = []
     kept: dict[str, str] = {}
@@ -415,6 +596,23 @@ def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
     measured.append(FittedNumber(field="pure_error_kpa", value=s_pure / KPA, lo95=s_pure / KPA,
                                  hi95=s_pure / KPA, unit="kPa", how=f"pooled sd of the equilibrium over all levels "
                                  f"({dof_pure} degrees of freedom)"))
+    if flow:
+        measured.append(FittedNumber(field="pure_error_ml", value=law_flow.s_pure_ml, lo95=law_flow.s_pure_ml,
+                                     hi95=law_flow.s_pure_ml, unit="ml", how="pooled sd of V_eq about the law "
+                                     f"within each level ({law_flow.dof_pure} degrees of freedom): the flow "
+                                     "sensor's repeatability and the integrated offset's error"))
+        peaks = [e["flow_peak_slpm"] for e in entries if e.get("flow_peak_slpm") is not None]
+        railed = [e for e in entries if (e.get("flow_rail_s") or 0.0) > 0]
+        if peaks:
+            measured.append(FittedNumber(field="flow_peak_slpm", value=max(peaks), lo95=min(peaks),
+                                         hi95=max(peaks), unit="SLPM", how="the largest flow read at the opening, "
+                                         "offset removed (interval: the cycles' range)"))
+        if railed:
+            worst = max(railed, key=lambda e: e["flow_rail_s"])
+            refused.append(f"the flow sensor read its rail in {len(railed)} cycle(s), for up to "
+                           f"{1e3 * worst['flow_rail_s']:.0f} ms at {worst['level_kpa']:g} kPa: V_eq lost what "
+                           "the rail cut; lower the top level (--levels) below where the opening's flow reaches "
+                           "the sensor's range (flow_sensor.range_slpm), or a larger resistor")
 
     # the sensor's noise: the settled window's sample sd, pooled over every cycle
     noise = np.array([e["noise_kpa"] for e in entries])
@@ -427,7 +625,9 @@ def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
                                "cycles' range (quantisation included)"))
 
     # the lag: where the rise starts, after the commanded opening
-    lags = [e["lag_s"] for e in entries if e["lag_s"] is not None]
+    # not for the pressure-flow circuit: its rise from a held pressure is exponential from the
+    # start, and the early part extrapolated back says nothing of the valve (it came 30 ms early)
+    lags = [e["lag_s"] for e in entries if e["lag_s"] is not None and not flow]
     if len(lags) >= MIN_CYCLES:
         m, lo, hi = _mean_interval(lags)
         measured.append(FittedNumber(field="rise_start_s", value=m, lo95=lo, hi95=hi, unit="s",
@@ -461,7 +661,9 @@ def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
         measured.append(FittedNumber(field="drift_kpa_per_s", value=m_d, lo95=m_d - h_d, hi95=m_d + h_d,
                                      unit="kPa/s", how="mean slope of the free-air trace from the window's start to "
                                      "the valve's closing, oriented away from atmosphere (a leak is negative)"))
-        if m_d < -LEAK_T * se_d:
+        if flow:  # the regulator holds the pressure: a leak shows in the flow, not as a drift
+            kept["circuit.leak_resistance_pa_s_per_m3"] = "judged on the settled flow (below)"
+        elif m_d < -LEAK_T * se_d:
             refused.append(f"a leak: the settled free-air pressure falls {-m_d:.3g} kPa/s (+- {h_d:.2g}, "
                            f"{-m_d / se_d:.1f} standard errors): an equilibrium with a leak is not eq. 1's; find "
                            "the leak and characterise again")
@@ -470,13 +672,36 @@ def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
             kept["circuit.leak_resistance_pa_s_per_m3"] = (f"no leak shown (drift {m_d:+.2g} +- {h_d:.2g} kPa/s): "
                                                           "the starting value is kept")
 
+    # pressure-flow: the leak is the flow still going in over the settled window (gas lost
+    # to the air at the regulated pressure); the offset's own error is common to a cycle's window
+    settled = [(e["flow_settled_slpm"], e["flow_settled_se_slpm"]) for e in entries
+               if e.get("flow_settled_slpm") is not None]
+    if flow and settled:
+        q = np.array([x for x, _ in settled])
+        m_q = float(q.mean())
+        se_q = float(q.std(ddof=1)) / math.sqrt(q.size) if q.size > 1 else settled[0][1]
+        se_q = max(se_q, math.sqrt(sum(s**2 for _, s in settled)) / q.size)
+        h_q = _t95(q.size - 1) * se_q
+        measured.append(FittedNumber(field="settled_flow_slpm", value=m_q, lo95=m_q - h_q, hi95=m_q + h_q,
+                                     unit="SLPM", how=f"mean flow into the actuator over the window "
+                                     f"({seq.windows[0].start_s:g}-{seq.windows[0].end_s:g} s), offset removed, "
+                                     f"over {q.size} cycles (a leak is positive)"))
+        if m_q > LEAK_T * se_q:
+            refused.append(f"a leak: once settled, {m_q:.3g} SLPM still flows in at the regulated pressure "
+                           f"(+- {h_q:.2g}, {m_q / se_q:.1f} standard errors): V_eq holds what leaked, not the "
+                           "actuator's law; find the leak and characterise again")
+            kept["circuit.leak_resistance_pa_s_per_m3"] = "a leak was seen: the fit is refused"
+        else:
+            kept["circuit.leak_resistance_pa_s_per_m3"] = (f"no leak shown (settled flow {m_q:+.2g} +- {h_q:.2g} "
+                                                          "SLPM): the starting value is kept")
+
     # the path's resistance from the rise (laminar circuits without a hose only)
     rises = [e["rise_s"] for e in entries if e["rise_s"] is not None]
     if rises:
         m_r, lo_r, hi_r = _mean_interval(rises)
         measured.append(FittedNumber(field="rise_63_s", value=m_r, lo95=lo_r, hi95=hi_r, unit="s",
                                      how="time from the rise's start to 63 % of P_eq, mean over cycles"))
-    laminar = c_cfg.valve is None and c_cfg.hose is None and c_cfg.thermal.model == "isothermal"
+    laminar = c_cfg.valve is None and c_cfg.hose is None and c_cfg.thermal.model == "isothermal" and not flow
     if laminar:
         top = max(abs(v) for v in levels)
         used = [e for e in entries if e["rise_t_s"] is not None and abs(e["level_kpa"]) >= RISE_MIN_LEVEL * top]
@@ -488,7 +713,7 @@ def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
         rise_lags, rs, rms = rises(v_side * ML, c_fit * ML / KPA)
         # the rise's model uses the fitted volumes: carry their uncertainty (draws from the
         # P-V fit's covariance, a fixed seed: the same readings give the same intervals)
-        draws = np.random.default_rng(0).multivariate_normal(sol.x, cov, size=RISE_DRAWS if used else 0)
+        draws = np.random.default_rng(0).multivariate_normal(sol_x, cov, size=RISE_DRAWS if used else 0)
         spread_lag, spread_r = [], []
         for v_d, c_d in draws:
             if v_d > 0 and c_d > 0:
@@ -532,13 +757,20 @@ def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
         else:
             kept["circuit.resistor_pa_s_per_m3"] = "too few rises could be fitted"
     else:
-        why = ("an ISO 6358 valve or a hose: the rise is not a laminar two-volume one, and its conductance is "
+        why = ("the pressure-flow circuit: its rise (regulator, buffer and path) is not modelled here" if flow else
+               "an ISO 6358 valve or a hose: the rise is not a laminar two-volume one, and its conductance is "
                "not fitted yet")
+        if flow:
+            kept["circuit.valve_delay_s"] = why
         for name in ("circuit.valve", "circuit.valve_resistance_pa_s_per_m3", "circuit.resistor_pa_s_per_m3"):
             kept[name] = why
 
+    scale_kept = ({"circuit.buffer_l": "the regulator holds the pressure: the buffer's volume does not enter V_eq",
+                   "flow_sensor": "the scale of every volume: its calibration and standard conditions as the rig "
+                                  "has them (the fit takes p_std as circuit.p_atm)"} if flow else
+                  {"circuit.tank_l": "the scale of every volume: as the config states it (the tank's label)"})
     for name, why in {
-        "circuit.tank_l": "the scale of every volume: as the config states it (the tank's label)",
+        **scale_kept,
         "circuit.hose": "as the config states it (bore and length)",
         "circuit.regulator_repeatability_kpa": "not separable from the other causes of the spread; "
                                                "sequence.eq_sd_kpa holds the spread itself",
@@ -546,10 +778,16 @@ def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
         "sensor.offset_kpa": "removed per cycle before the valve opens; not a property of the actuator",
     }.items():
         kept.setdefault(name, why)
-    level_rows = [{"p0_kpa": lv, "mean_kpa": float(m / KPA), "sd_kpa": float(y.std(ddof=1) / KPA), "n": int(k),
-                   "fitted_kpa": float(f / KPA)} for lv, m, y, k, f in zip(levels, means, ys, counts, fitted_eq)]
+    if flow:
+        level_rows = law_flow.rows
+    else:
+        level_rows = [{"p0_kpa": lv, "mean_kpa": float(m / KPA), "sd_kpa": float(y.std(ddof=1) / KPA),
+                       "n": int(k), "fitted_kpa": float(f / KPA)}
+                      for lv, m, y, k, f in zip(levels, means, ys, counts, fitted_eq)]
     result = Characterisation(fitted, measured, kept, notes, residual, s_pure / KPA, level_rows,
-                              pv_cov=[[float(x) for x in row] for row in cov])
+                              pv_cov=[[float(x) for x in row] for row in cov],
+                              residual_ml=law_flow.residual_ml if flow else None,
+                              pure_error_ml=law_flow.s_pure_ml if flow else None)
     if refused:
         raise FitRefused(refused, result)
     return result
@@ -586,7 +824,8 @@ def characterised_profile(start_data: dict[str, Any], start: Profile, result: Ch
     when = (date or datetime.datetime.now(datetime.UTC)).isoformat(timespec="seconds")
     prov = Provenance(date=when, rig=rig, config=config, from_profile=from_profile, levels_kpa=list(levels),
                       cycles_per_level=cycles, cycle_ids=list(cycle_ids), residual_kpa=result.residual_kpa,
-                      pure_error_kpa=result.pure_error_kpa, fitted=fitted, measured=result.measured,
+                      pure_error_kpa=result.pure_error_kpa, residual_ml=result.residual_ml,
+                      pure_error_ml=result.pure_error_ml, fitted=fitted, measured=result.measured,
                       kept=kept, notes=notes, contact=contact_block)
     data["provenance"] = prov.model_dump(mode="json")
     Profile.model_validate(data)  # a profile nobody can load is never written
@@ -607,8 +846,13 @@ def profile_comments(result: Characterisation, prov_line: str, contact: Any = No
     lines.append("# Kept from the starting profile:")
     for k, why in kept.items():
         lines.append(f"#   {k}: {why}")
-    lines.append(f"# P-V fit residual {result.residual_kpa:.3g} kPa rms over the levels' means; the cycles' own "
-                 f"spread {result.pure_error_kpa:.3g} kPa")
+    if result.residual_ml is not None:
+        lines.append(f"# P-V fit (V_eq against Pe) residual {result.residual_ml:.3g} ml rms over the levels' means "
+                     f"({result.residual_kpa:.3g} kPa through the law's slope); the cycles' own spread "
+                     f"{result.pure_error_ml:.3g} ml")
+    else:
+        lines.append(f"# P-V fit residual {result.residual_kpa:.3g} kPa rms over the levels' means; the cycles' "
+                     f"own spread {result.pure_error_kpa:.3g} kPa")
     if contact is not None:
         lines.append(f"# Contact law from {len(contact.targets)} targets at P0 (provenance.contact: the readings, "
                      "the fitted law's and the simulated cell's)")

@@ -21,9 +21,11 @@ EXIT_REFUSED = EXIT_FAILURE  # the cycles ran, the fit does not hold: no profile
 def register(sub) -> None:
     p = sub.add_parser(
         "characterise", help="measure your actuator's free P-V law and the rig's timing and noise; write a profile",
-        description="With the gripper empty, run free-air cycles of the tank circuit at several P0 levels and fit "
+        description="With the gripper empty, run free-air cycles of the tank circuit at several P0 levels (or of the "
+        "pressure-flow circuit at several regulated pressures, the flow into the actuator integrated) and fit "
         "what the rig can show: the actuator's free volume and compliance (eq. 1; scaled by the tank and hose the "
-        "config states), the lag, the settling time, the leak, the cycle-to-cycle spread and the sensor's noise; "
+        "config states; with the flow sensor, in absolute volume), the lag, the settling time, the leak, the "
+        "cycle-to-cycle spread and the sensor's noise; "
         "for a laminar circuit without a hose also the path's resistance. With --targets, then cycles at the "
         "profile's P0 on each of two or three objects of known size (placed as calibrate asks for them) fit the "
         "contact law the simulator needs (a gripper's opening, closing per ml and wrap ratio). Writes a profile "
@@ -35,8 +37,9 @@ def register(sub) -> None:
     p.add_argument("--from", dest="start", metavar="PROFILE", help="starting profile, file or shipped name "
                    "(default: the config's): its sequence runs the cycles and its values stay where the rig "
                    "cannot show them")
-    p.add_argument("--levels", help="comma-separated P0 levels in kPa (default: 5 from 40 %% of the starting "
-                   "profile's P0 up to it)")
+    p.add_argument("--levels", help="comma-separated P0 levels in kPa (default: 5 from 20 %% of the starting "
+                   "profile's P0 up to it; a pressure-flow circuit's top stays where the opening's flow is within "
+                   "90 %% of the flow sensor's range)")
     p.add_argument("--cycles", type=int, default=4, help="cycles per level (default 4, at least 2)")
     p.add_argument("--name", help="the written profile's name (default: the starting one's + '-characterised')")
     p.add_argument("--seed", type=int, default=1, help="seed of a simulated cell (default 1)")
@@ -118,6 +121,9 @@ def cmd_characterise(args: argparse.Namespace) -> int:
     if args.targets:
         from fluidsense.tasks import contact as ct
 
+        if ch.is_flow(start):
+            raise ConfigError("--targets: the contact step reads the tank circuit's equilibria; with the "
+                              "pressure-flow circuit it is not built yet (the free-air law alone is characterised)")
         spec = ct.spec_of(start)
         targets = ct.check_plan(start, _levels(args.targets, "--targets", spec.unit), tcycles)
     elif args.target_cycles is not None or args.targets_from is not None:
@@ -255,8 +261,12 @@ def cmd_characterise(args: argparse.Namespace) -> int:
         return EXIT_OK
     for f in result.fitted + (contact.fitted if contact is not None else []):
         print(f"{f.field} = {f.value:.5g} {f.unit}  (95 % {f.lo95:.5g} .. {f.hi95:.5g})")
-    print(f"P-V fit: residual {result.residual_kpa:.3g} kPa rms over {len(levels)} levels; the cycles' own spread "
-          f"{result.pure_error_kpa:.3g} kPa")
+    if result.residual_ml is not None:
+        print(f"P-V fit (V_eq against Pe): residual {result.residual_ml:.3g} ml rms over {len(levels)} levels; the "
+              f"cycles' own spread {result.pure_error_ml:.3g} ml")
+    else:
+        print(f"P-V fit: residual {result.residual_kpa:.3g} kPa rms over {len(levels)} levels; the cycles' own "
+              f"spread {result.pure_error_kpa:.3g} kPa")
     if contact is not None:
         for note in contact.notes:
             print(note)

@@ -249,6 +249,11 @@ class Provenance(StrictModel):
     cycle_ids: list[Integer] = Field(default_factory=list, max_length=100_000)
     residual_kpa: Real = Field(ge=0, description="rms of the P-V fit's residual over the levels' means")
     pure_error_kpa: Real = Field(ge=0, description="pooled cycle-to-cycle sd of the free-air equilibrium")
+    residual_ml: Real | None = Field(None, ge=0, description="pressure-flow circuit: rms of the V_eq fit's "
+                                     "residual over the levels' means (residual_kpa is it carried to pressure "
+                                     "through the law's slope); None for a tank circuit")
+    pure_error_ml: Real | None = Field(None, ge=0, description="pressure-flow circuit: pooled cycle-to-cycle sd "
+                                       "of V_eq about the law")
     fitted: list[FittedNumber] = Field(default_factory=list, max_length=100)
     measured: list[FittedNumber] = Field(default_factory=list, max_length=100, description="numbers the rig "
                                          "showed that no profile field holds (reported, not used)")

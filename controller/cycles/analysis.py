@@ -241,6 +241,9 @@ class CycleResult:
     unchanged_s: float | None = None  # longest run of unchanged p_act readings in the measured span
     unreliable: str | None = None  # why the reading is not to be trusted (a freeze under stuck_s), or None
     trace: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+    # (s since opening, standard m^3/s offset removed) over the actuation, with a flow window:
+    # characterise reads the sensor's peak (saturation) and the settled flow (a leak) from it
+    flow_trace: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
 
     @property
     def ok(self) -> bool:
@@ -311,6 +314,8 @@ def analyse(cycle_id: int, p0: float, t_start: float, t_open: float | None, t_en
     opened = (t >= t_open) & (t < t_open + cfg.actuate_s)
     t_rel, p_rel = t[opened] - t_open, pc[opened]
     res.trace = (t_rel, p_rel)
+    if res.flow_offset is not None:
+        res.flow_trace = (t_rel, values[opened, channels.index("flow")] - res.flow_offset)
     if reference is None:
         return res
     res.has_reference = True

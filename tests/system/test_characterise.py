@@ -15,6 +15,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 import yaml
 from fluidsense.controller.config import load_cell_config, load_profile
 from fluidsense.controller.service import Controller
@@ -195,3 +196,78 @@ def test_sigterm_mid_cycle_vents_and_keeps_a_resumable_journal(tmp_path):
     assert kept >= 1 and not out.exists(), err
     header = yaml.safe_load(journal.read_text().splitlines()[0])
     assert len(ch.CharacteriseJournal.open(journal, header["plan"], resume=True).entries) == kept
+
+
+# ------------------------------------------------------------------ design on what it wrote, against the hidden
+DESIGN_SETUPS = 4
+REQUIREMENT = ("--resolution-mm", "5", "--decide-by-s", "3")  # the CLI test's requirement above
+
+
+def _design(capsys, profile_path, *extra) -> tuple[float, float] | None:
+    """``fluidsense design --profile PATH --json`` in this process: (tank L, P0 kPa) recommended."""
+    import json
+
+    from support.cli import run_cli
+
+    run = run_cli(capsys, "design", "--profile", str(profile_path), "--json", *extra)
+    assert run.returncode in (0, 1), run.stderr
+    rec = json.loads(run.stdout)["recommended"]
+    return None if rec is None else (rec["tank_l"], rec["p0_kpa"])
+
+
+def _same(a, b) -> bool:
+    """The same grid point: the tank grid is the stated tank's (kept), the P0 grid ends at the
+    limit less the margin, which moves by 6 x the fitted noise's difference (hundredths of a
+    kPa) while its step is 3.7 kPa."""
+    return a is None and b is None or (a is not None and b is not None and math.isclose(a[0], b[0], rel_tol=1e-9)
+                                       and abs(a[1] - b[1]) < 0.1)
+
+
+@pytest.mark.timeout(900)  # four characterisations (about 25 s of CPU each) and 28 designs, beside other work
+def test_design_on_the_result_recommends_what_it_does_on_the_hidden_actuator(tmp_path, capsys):
+    """Issue 36 item 4: ``design`` on the characterised profile against the hidden one (four
+    hidden set-ups, in virtual time, written by the same characterised_profile the CLI uses).
+
+    - The best-resolution search (no requirement) recommends the same tank and P0: it ranks
+      candidates by |dP_eq/dx|, which moves little with a few % of v0 and c.
+    - For a requirement (+-5 mm by 3 s) the recommendation is the lowest P0 that meets it, a
+      threshold: a few % of v0 and c can move it by one grid step, so the two can honestly
+      differ. What must hold: the hidden profile's recommendation is one that profiles within
+      the fitted 95 % intervals give (the fitted values and four points along the (v0, c)
+      interval, the two being 0.999 correlated); a characterisation outside its interval
+      would miss it."""
+    from fluidsense.controller.config.loading import read_yaml
+
+    start_path = REPO / "config" / "profiles" / f"{START}.yaml"
+    rows, same_req = [], 0
+    for seed in range(1, DESIGN_SETUPS + 1):
+        d = tmp_path / f"s{seed}"
+        d.mkdir()
+        hidden_path, _ = hidden_profile(d, seed)
+        start, entries = characterise_in_process(d, seed, hidden_path)
+        res = ch.fit(entries, start)
+        kw = dict(rig="simulated", config="test", from_profile=START, levels=sorted({e["level_kpa"] for e in entries}),
+                  cycles=CYCLES, cycle_ids=[e["cycle_id"] for e in entries])
+        mine = d / "mine.yaml"
+        mine.write_text(yaml.safe_dump(ch.characterised_profile(read_yaml(start_path), start, res, name="mine", **kw)))
+        best_hidden, best_mine = _design(capsys, hidden_path), _design(capsys, mine)
+        assert _same(best_hidden, best_mine), (seed, best_hidden, best_mine)
+        hidden_req, mine_req = _design(capsys, hidden_path, *REQUIREMENT), _design(capsys, mine, *REQUIREMENT)
+        same_req += _same(hidden_req, mine_req)
+        # the (v0, c) interval: the fit's ends, at fractions of the way from the fitted values
+        v0, c = (next(f for f in res.fitted if f.field == n)
+                 for n in ("actuator.v0_ml", "actuator.compliance_ml_per_kpa"))
+        allowed = [mine_req]
+        for frac in (-1.0, -0.5, 0.5, 1.0):
+            at = d / f"at{frac:+.1f}.yaml"
+            data = ch.characterised_profile(read_yaml(start_path), start, res, name=f"at{frac:+.1f}", **kw)
+            data["actuator"]["v0_ml"] = v0.value + frac * ((v0.hi95 - v0.value) if frac > 0 else (v0.value - v0.lo95))
+            data["actuator"]["compliance_ml_per_kpa"] = c.value + frac * (
+                (c.hi95 - c.value) if frac > 0 else (c.value - c.lo95))
+            at.write_text(yaml.safe_dump(data))
+            allowed.append(_design(capsys, at, *REQUIREMENT))
+        rows.append((seed, best_hidden, best_mine, hidden_req, mine_req, allowed))
+        assert any(_same(hidden_req, a) for a in allowed), (seed, hidden_req, allowed)
+    print("\n" + "\n".join(f"seed {s}: best resolution hidden {bh}, characterised {bm}; requirement hidden {h}, "
+                           f"characterised {m}, within the intervals {sorted(set(a))}"
+                           for s, bh, bm, h, m, a in rows) + f"\nrequirement: the same in {same_req} of {DESIGN_SETUPS}")

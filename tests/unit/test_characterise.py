@@ -127,8 +127,8 @@ def test_bad_plans_are_refused_before_any_valve_moves(tmp_path):
         ch.check_plan(prof, [30, 50, 89.9], 4)
     with pytest.raises(ConfigError, match="--cycles 1"):
         ch.check_plan(prof, [30, 50, 63], 1)
-    flow = load_profile(REPO / "config" / "profiles" / "pneunet-bending-pressure-flow.yaml")
-    with pytest.raises(ConfigError, match="not characterised yet"):
+    flow = load_profile(REPO / "config" / "profiles" / "pneunet-bending-flow-control.yaml")
+    with pytest.raises(ConfigError, match="flow-control circuit .* is not characterised yet"):
         ch.check_plan(flow, [5, 10, 15], 4)
 
 

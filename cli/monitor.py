@@ -64,6 +64,7 @@ def monitor(endpoint: str, topics: list[str], count: int | None, timeout_s: floa
     sock.connect(endpoint)
     shown = 0
     last_seq: int | None = None
+    welcomed: str | None = None
     try:
         while count is None or shown < count:
             if timeout_s is not None and not sock.poll(int(timeout_s * 1000)):
@@ -74,9 +75,12 @@ def monitor(endpoint: str, topics: list[str], count: int | None, timeout_s: floa
             frames = sock.recv_multipart()
             welcome = welcome_instance(frames)
             if welcome is not None:
-                if not as_json:  # a new id here: another daemon on the same endpoint (a restart)
+                # the same id again: another subscriber came, or ours was made again; a new id
+                # is another daemon on the same endpoint (a restart)
+                if not as_json and welcome != welcomed:
                     print(f"(connected to {endpoint}" + (f", daemon {welcome})" if welcome else ")"),
                           file=sys.stderr, flush=True)
+                welcomed = welcome
                 continue
             if len(frames) != 2:
                 continue

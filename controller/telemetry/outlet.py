@@ -75,8 +75,16 @@ class Outlet:
         self.xpub.setsockopt(zmq.RCVHWM, RCVHWM)
         self.xpub.setsockopt(zmq.MAXMSGSIZE, MAX_FRAME_BYTES)
         self.xpub.setsockopt(zmq.LINGER, LINGER_MS)
+        # The welcome says "your subscriptions are in": sent once the subscriber's subscription
+        # to hello has reached the trie, which its earlier ones (its topics, sent first) reached
+        # before it. XPUB_WELCOME_MSG went out when the connection was attached, before libzmq had
+        # read any subscription: an event published right after it could miss a subscriber whose
+        # subscriptions the outlet's I/O thread had not read yet (seen: a monitor lost the first
+        # state of the cycle it asked for, on a loaded machine). XPUB_VERBOSE passes every
+        # subscription up, so that each subscriber's hello is seen, not only the first one.
+        self.xpub.setsockopt(zmq.XPUB_VERBOSE, 1)
         # the daemon's instance id in it: a subscriber tells a restarted daemon on the same port
-        self.xpub.setsockopt(zmq.XPUB_WELCOME_MSG, welcome_frame(instance) if instance else WELCOME)
+        self.welcome = welcome_frame(instance) if instance else WELCOME
         self.inlet = ctx.socket(zmq.PULL)
         self.inlet.setsockopt(zmq.RCVHWM, max(hwm, 10_000))
         self.inlet.setsockopt(zmq.MAXMSGSIZE, MAX_MESSAGE_BYTES)
@@ -102,18 +110,29 @@ class Outlet:
         return True
 
     def read_subscriptions(self) -> None:
-        """libzmq passes up a prefix when it enters the trie (first subscriber) and when it
-        leaves it (last subscriber gone), and any frame that is not a subscription."""
-        for _ in range(BATCH):
-            try:
-                frame = self.xpub.recv(zmq.NOBLOCK)
-            except zmq.Again:
-                return
-            if frame[:1] == b"\x00" or (frame[:1] == b"\x01" and is_known_prefix(frame[1:])):
-                continue  # ours, or a prefix leaving the trie
-            self.foreign += 1
-            if self.foreign > SUBSCRIPTION_BUDGET and self.rebind_at is None:
-                self.drop_subscribers()
+        """libzmq passes up every subscription (XPUB_VERBOSE), a prefix when it leaves the trie
+        (last subscriber gone), and any frame that is not a subscription. A subscription that
+        receives the welcome gets it once this turn's frames are read: one welcome a turn, to
+        every subscriber of ``hello`` (each ignores an id it already has), however many
+        subscribers came."""
+        welcome = False
+        try:
+            for _ in range(BATCH):
+                try:
+                    frame = self.xpub.recv(zmq.NOBLOCK)
+                except zmq.Again:
+                    return
+                if frame[:1] == b"\x01" and is_known_prefix(frame[1:]):
+                    welcome = welcome or WELCOME.startswith(frame[1:])
+                    continue
+                if frame[:1] == b"\x00":
+                    continue  # a prefix leaving the trie
+                self.foreign += 1
+                if self.foreign > SUBSCRIPTION_BUDGET and self.rebind_at is None:
+                    self.drop_subscribers()
+        finally:
+            if welcome and self.rebind_at is None:
+                self.xpub.send(self.welcome)
 
     def drop_subscribers(self) -> None:
         """Unbinding closes every connection accepted on the endpoint, and with them their

@@ -6,9 +6,8 @@ endpoints (the file's comments say to set them; fixed ports would meet other dae
 shared test machine). Skipped by name, each said below: the monitor (runs until Ctrl-C; its
 screen is tests/system/test_monitor_screen.py), ``check --actuate`` without ``--yes`` (asks a
 person; the same check with ``--yes`` runs), ``calibrate`` (the shipped sorting profile's
-30 cycles are 7 minutes of real time; calibrating the emulated box is tests/system/test_jobs.py),
-``characterise`` (minutes of real time too; tests/system/test_characterise.py) and the ``design`` and
-``chart`` lines on its profile (tests/system/test_chart.py)."""
+30 cycles are 7 minutes of real time; calibrating the emulated box is tests/system/test_jobs.py).
+``characterise``, ``design`` and ``chart`` on the measured profile run as written."""
 
 from __future__ import annotations
 
@@ -29,13 +28,6 @@ SKIPPED = {
     "fluidsense monitor --config my-cell.yaml": "runs until Ctrl-C",
     "fluidsense check --config my-cell.yaml --actuate": "asks a person before it moves anything",
     "fluidsense calibrate --config my-cell.yaml --out my-gripper.json": "minutes of real time",
-    # minutes of real-time cycles too, and through ur on a loaded test machine a fault (overrun, no_data) ended
-    # it in 3 of 4 walks here (issue 35's closing note): characterise through the emulated box, start to
-    # written profile, is tests/system/test_characterise.py's; design and chart on a characterised profile are
-    # tests/system/test_chart.py's
-    "fluidsense characterise --config my-cell.yaml --out mine.yaml --cycles 2 --yes": "minutes of real time",
-    "fluidsense design --profile mine": "needs mine.yaml from the characterise line (skipped)",
-    "fluidsense chart --profile mine --out chart --trials 40": "needs mine.yaml from the characterise line (skipped)",
 }
 
 
@@ -88,6 +80,13 @@ def test_bringup_runs_as_written_from_the_integrators_folder(tmp_path):
         assert "sec fluidsense" in by_command["fluidsense watchdog --config my-cell.yaml"].stdout
         actuated = by_command["fluidsense check --config my-cell.yaml --actuate --yes"].stdout
         assert "confirmed by read-back" in actuated and not [p for p in problems(actuated) if not p.startswith("sampling")]
+        # step 4: the measured profile, with where its numbers came from, that design and chart take
+        mine = yaml.safe_load((home / "mine.yaml").read_text())
+        fitted = {f["field"] for f in mine["provenance"]["fitted"]}
+        assert {"actuator.v0_ml", "actuator.compliance_ml_per_kpa"} <= fitted, mine["provenance"]
+        assert "tank" in by_command["fluidsense design --profile mine"].stdout
+        assert (home / "chart" / "speed_accuracy.png").stat().st_size > 0
+        assert (home / "chart" / "speed_accuracy.json").is_file()
     finally:
         codes = []
         for proc, log in reversed(background):  # the daemon is down by the doc's own shutdown; then the box

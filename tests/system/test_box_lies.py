@@ -39,9 +39,9 @@ CASES = [
     ("ur", "timestamp_back", "driver", "timestamp:", 20),
     ("ur", "timestamp_fast", "driver", "timestamp:", 200),
     ("ur", "timestamp_stall", "link_lost", "stale", 1500),
-    ("modbus", "modbus_extra", "driver", "registers:", 20),
-    ("modbus", "modbus_short", "driver", "registers:", 20),
-    ("modbus", "modbus_domain", "driver", "register 5:", 20),
+    ("modbus", "modbus_extra", "driver", "registers:", 4),
+    ("modbus", "modbus_short", "driver", "registers:", 4),
+    ("modbus", "modbus_domain", "driver", "register 5:", 4),
 ]
 
 

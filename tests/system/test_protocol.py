@@ -7,33 +7,10 @@ will not settle refuses the cycle instead of biasing it).
 
 from __future__ import annotations
 
-import asyncio
-
 import numpy as np
 import pytest
-from fluidsense.common.budget import PartsBudget
 from fluidsense.common.scenes import PlateScene
-from support.harness import CONFIG
-
-
-def _run(profile: str, body, seed: int = 3, residual_kpa: float = 0.0, **sequence):
-    from fluidsense.controller.config import CellConfig, load_profile
-    from fluidsense.daemon import app
-    from fluidsense.drivers.registry import Perturbations, SimDriverConfig
-
-    # the protocol is about the tube, not the parts: without the profile's error budget the
-    # sensor's offset is its fixed one (a session's zero draw would move it within the TEB)
-    prof = load_profile(CONFIG / "profiles" / f"{profile}.yaml").model_copy(update={"budget": PartsBudget()})
-    if sequence:
-        prof = prof.model_copy(update={"sequence": prof.sequence.model_copy(update=sequence)})
-    cfg = CellConfig(driver=SimDriverConfig(clock="virtual", seed=seed,
-                                            perturb=Perturbations(residual_kpa=residual_kpa)), profile=prof)
-
-    async def main():
-        async with app.controller(cfg) as ctrl:
-            return await body(ctrl)
-
-    return asyncio.run(main())
+from support.protocol import run_profile
 
 
 async def _first_and_tenth(ctrl):
@@ -47,7 +24,7 @@ def test_a_residual_tube_pressure_makes_the_first_cycle_wait_not_read_low():
     venting read 0.9-3 mm low): the first cycle waits for the vent, then reads the true
     offset and the same P_eq as the cycles after it."""
     plan = 10.0 + 10.0  # charge_s + isolate_s of pneunet-bending
-    first, later = _run("pneunet-bending", _first_and_tenth, residual_kpa=8.0)
+    first, later = run_profile("pneunet-bending", _first_and_tenth, residual_kpa=8.0)
     assert first.t_open - first.t_start > plan + 20  # it waited for the vent
     assert first.offset / 1e3 == pytest.approx(0.2, abs=0.01)  # the sensor's own offset (0.25 mm)
     later_peq = np.array([r.p_eq for r in later]) / 1e3
@@ -60,7 +37,7 @@ def test_a_residual_tube_pressure_makes_the_first_cycle_wait_not_read_low():
 def test_without_the_wait_the_residual_biases_the_first_cycle():
     """The same cell with the check switched off (settle_timeout_s = 0): the offset reads
     the tube's residual and the first P_eq is off: what the wait prevents."""
-    first, later = _run("pneunet-bending", _first_and_tenth, residual_kpa=8.0, settle_timeout_s=0)
+    first, later = run_profile("pneunet-bending", _first_and_tenth, residual_kpa=8.0, settle_timeout_s=0)
     assert first.offset / 1e3 > 0.5
     later_peq = np.array([r.p_eq for r in later]) / 1e3
     assert abs(first.p_eq / 1e3 - later_peq.mean()) > 5 * later_peq.std(ddof=1)

@@ -15,10 +15,9 @@ from pathlib import Path
 import pytest
 from fluidsense.common.scenes import CylinderScene
 from fluidsense.controller.cycles.reanalysis import replay_file
-from fluidsense.drivers.recording.reader import RecordingReader
 from support.events import fast_profile
 from support.harness import REPO, sim_config
-from support.recording import record, the_file
+from support.recording import BOMBS, record, the_file, with_chunk
 
 
 @pytest.fixture(scope="module")
@@ -93,63 +92,9 @@ def test_sigkill_mid_cycle_then_replay(tmp_path, daemon_factory):
 
 
 # ----------------------------------------------------------------- hostile recordings (issue 14, item 5)
-def _with_chunk(path: Path, good: Path, chunk) -> None:
-    """A recording whose records after its config are one hand-made chunk."""
-    from mcap.data_stream import RecordBuilder
-    from mcap.writer import CompressionType, Writer
-
-    with RecordingReader(good) as reader:
-        meta, config = dict(reader.metadata), reader.config
-    with open(path, "wb") as f:
-        w = Writer(f, compression=CompressionType.NONE, use_chunking=False)
-        w.start()
-        w.add_metadata("fluidsense", meta)
-        cid = w.register_channel("/config", "json", w.register_schema("config", "jsonschema", b"{}"))
-        w.add_message(cid, log_time=0, data=json.dumps(config).encode(), publish_time=0)
-        builder = RecordBuilder()
-        chunk.write(builder)
-        f.write(builder.end())
+# (the bombs: tests/support/recording.py)
 
 
-def _zeros_zstd(n: int) -> bytes:
-    """zstd of n zero bytes, compressed piece by piece (never n bytes in memory)."""
-    import zstandard
-
-    chunker = zstandard.ZstdCompressor(level=1).chunker(size=n, chunk_size=2**22)
-    zero, out = bytes(2**22), []
-    for _ in range(n // len(zero)):
-        out += chunker.compress(zero)
-    return b"".join(out + list(chunker.finish()))
-
-
-def _zeros_lz4(n: int) -> bytes:
-    import lz4.frame
-
-    c = lz4.frame.LZ4FrameCompressor()
-    zero = bytes(2**22)
-    return c.begin() + b"".join(c.compress(zero) for _ in range(n // len(zero))) + c.flush()
-
-
-def _chunk(compression: str, data: bytes, declared: int):
-    from mcap.records import Chunk
-
-    return Chunk(compression=compression, data=data, message_start_time=0, message_end_time=0, uncompressed_crc=0,
-                 uncompressed_size=declared)
-
-
-BOMBS = {
-    # a chunk that says it is huge: refused before any decompression
-    "declared 4 GB": (lambda: _chunk("zstd", _zeros_zstd(2**24), 2**32),
-                      "a chunk declares 4294967296 bytes uncompressed, more than the 67108864 this reader accepts"),
-    # within the size cap but 60 MB from a few KB: refused by its ratio, before decompression
-    "ratio": (lambda: _chunk("zstd", _zeros_zstd(60 * 2**20), 60 * 2**20),
-              "more than 200 times its size: refused as a decompression bomb"),
-    # a chunk that lies (says 1000 bytes, holds 256 MB): decompression stops at 1001
-    "zstd lie": (lambda: _chunk("zstd", _zeros_zstd(2**28), 1000),
-                 "a chunk decompresses to more than 1001 bytes, not the 1000 it declares"),
-    "lz4 lie": (lambda: _chunk("lz4", _zeros_lz4(2**26), 1000),
-                "a chunk decompresses to more than 1001 bytes, not the 1000 it declares"),
-}
 
 
 PEAK_RSS = ("import resource, sys\nfrom fluidsense import cli\ncode = cli.main(['replay', sys.argv[1]])\n"
@@ -161,7 +106,7 @@ def test_cli_replay_of_a_bomb_exits_2_with_one_line_and_little_memory(tmp_path, 
     allocated what the zstd frame said). The replay's peak memory stays within 50 MB of
     replaying the good file it was cut from."""
     path = tmp_path / "bomb.mcap"
-    _with_chunk(path, good_file, BOMBS["zstd lie"][0]())
+    with_chunk(path, good_file, BOMBS["zstd lie"][0]())
     out = subprocess.run([sys.executable, "-m", "fluidsense", "replay", str(path)], cwd=REPO,
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and out.stdout == ""

@@ -7,36 +7,13 @@ will not settle refuses the cycle instead of biasing it).
 
 from __future__ import annotations
 
-import asyncio
-
 import numpy as np
 import pytest
-from fluidsense.common.budget import PartsBudget
 from fluidsense.common.scenes import PlateScene
 from fluidsense.controller.config import SequenceConfig
 from fluidsense.controller.cycles import features as F
 from fluidsense.controller.cycles.sequencer import Sequencer, State
-from support.harness import CONFIG
-
-
-def _run(profile: str, body, seed: int = 3, residual_kpa: float = 0.0, **sequence):
-    from fluidsense.controller.config import CellConfig, load_profile
-    from fluidsense.daemon import app
-    from fluidsense.drivers.registry import Perturbations, SimDriverConfig
-
-    # the protocol is about the tube, not the parts: without the profile's error budget the
-    # sensor's offset is its fixed one (a session's zero draw would move it within the TEB)
-    prof = load_profile(CONFIG / "profiles" / f"{profile}.yaml").model_copy(update={"budget": PartsBudget()})
-    if sequence:
-        prof = prof.model_copy(update={"sequence": prof.sequence.model_copy(update=sequence)})
-    cfg = CellConfig(driver=SimDriverConfig(clock="virtual", seed=seed,
-                                            perturb=Perturbations(residual_kpa=residual_kpa)), profile=prof)
-
-    async def main():
-        async with app.controller(cfg) as ctrl:
-            return await body(ctrl)
-
-    return asyncio.run(main())
+from support.protocol import run_profile
 
 
 def test_a_tube_that_does_not_settle_refuses_the_cycle():
@@ -46,7 +23,7 @@ def test_a_tube_that_does_not_settle_refuses_the_cycle():
         await ctrl.scene.place(PlateScene(height_mm=10))
         return await ctrl.run_cycle()
 
-    res = _run("pneunet-bending", body, residual_kpa=20.0, settle_timeout_s=5.0)
+    res = run_profile("pneunet-bending", body, residual_kpa=20.0, settle_timeout_s=5.0)
     assert not res.ok and res.t_open is None
     assert res.aborted.startswith("not settled") and "kPa over" in res.aborted
 

@@ -100,6 +100,9 @@ class CharacteriseJournal(CycleJournal):
         for key in CharacteriseJournal.FLOW_NUMBERS:
             if key in e:
                 out[key] = None if e[key] is None else float(e[key])
+        # the trace's sample period (journals written before it was kept have none: the
+        # ISO valve's rise is then not fitted, said so)
+        out["dt_s"] = None if e.get("dt_s") is None else float(e["dt_s"])
         rise = e["rise_t_s"]
         out["rise_t_s"] = None if rise is None else [float(x) for x in rise]
         if out["rise_t_s"] is not None and len(out["rise_t_s"]) != len(RISE_FRACTIONS):
@@ -185,6 +188,32 @@ def check_plan(profile: Profile, levels: Sequence[float], cycles: int) -> list[f
 
 
 # ------------------------------------------------------------------ one cycle's trace
+def smooth_width(dt: float) -> int:
+    """Samples in the moving average the rise's crossings are taken on (odd, at least 1)."""
+    return max(1, int(round(RISE_SMOOTH_S / dt)) | 1)
+
+
+def smoothed(q: np.ndarray, w: int) -> np.ndarray:
+    return np.convolve(q, np.ones(w) / w, mode="same") if q.size > w else q
+
+
+def rise_crossings(t: np.ndarray, qs: np.ndarray, level: float) -> list[float] | None:
+    """The rise, kept compactly: when the trace (upwards, already averaged over
+    RISE_SMOOTH_S) first crossed each of RISE_FRACTIONS of ``level`` (interpolated), or None
+    when it missed one. On the averaged trace: the first crossing of a noisy trace comes
+    early, the more so where the rise is slow (it biased the resistance 2-6 % low). The ISO
+    valve's fit takes the simulated rise through this same function, so the averaging's
+    own shift (large where the rise is fast beside the window) is in the model too."""
+    times = []
+    for f in RISE_FRACTIONS:
+        i = np.flatnonzero(qs >= f * level)
+        if not i.size or i[0] == 0:
+            return None
+        j = i[0]
+        times.append(float(t[j - 1] + (f * level - qs[j - 1]) * (t[j] - t[j - 1]) / (qs[j] - qs[j - 1])))
+    return times
+
+
 def read_trace(t: np.ndarray, p: np.ndarray, p_eq: float, noise: float, window: tuple[float, float]) -> dict:
     """Lag, 2 % settling time, the drift after settling and the 63 % rise time of one
     free-air cycle (t: s since the commanded opening; p: Pa, offset removed). Oriented so
@@ -192,7 +221,7 @@ def read_trace(t: np.ndarray, p: np.ndarray, p_eq: float, noise: float, window: 
     sign = 1.0 if p_eq >= 0 else -1.0
     q, level = sign * p, abs(p_eq)
     out: dict[str, Any] = {"lag_s": None, "settle_s": None, "drift_kpa_per_s": None,
-                           "drift_se_kpa_per_s": None, "rise_s": None, "rise_t_s": None}
+                           "drift_se_kpa_per_s": None, "rise_s": None, "rise_t_s": None, "dt_s": None}
     # lag: the rise's early part (out of the noise, below 30 %) extrapolated back to zero
     lo, hi = max(0.02 * level, 5 * noise), 0.3 * level
     first_hi = np.flatnonzero(q >= hi)
@@ -212,21 +241,11 @@ def read_trace(t: np.ndarray, p: np.ndarray, p_eq: float, noise: float, window: 
     r63 = np.flatnonzero(q >= (1 - math.exp(-1)) * level)
     if r63.size and out["lag_s"] is not None:
         out["rise_s"] = float(t[r63[0]] - out["lag_s"])
-    # the rise, kept compactly: when it first crossed each fraction of P_eq (interpolated),
-    # on the trace averaged over RISE_SMOOTH_S: the first crossing of a noisy trace comes
-    # early, the more so where the rise is slow (it biased the resistance 2-6 % low)
     dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
-    w = max(1, int(round(RISE_SMOOTH_S / dt)) | 1)
-    qs = np.convolve(q, np.ones(w) / w, mode="same") if q.size > w else q
-    times = []
-    for f in RISE_FRACTIONS:
-        i = np.flatnonzero(qs >= f * level)
-        if not i.size or i[0] == 0:
-            break
-        j = i[0]
-        times.append(float(t[j - 1] + (f * level - qs[j - 1]) * (t[j] - t[j - 1]) / (qs[j] - qs[j - 1])))
-    if len(times) == len(RISE_FRACTIONS):
-        out["rise_t_s"] = times
+    w = smooth_width(dt)
+    qs = smoothed(q, w)
+    out["rise_t_s"] = rise_crossings(t, qs, level)
+    out["dt_s"] = dt
     # settling: the last time the trace was outside the band before the window ended, on the
     # averaged trace (where the average is whole): a raw sample passes 5 sd of white noise
     # once in 1.7e6, and a pressure-flow cycle's 30 s hold has 3e4 of them (a hidden
@@ -756,9 +775,24 @@ def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
                 kept["circuit.resistor_pa_s_per_m3"] = "the rise's resistance is within the valve's assumed figure"
         else:
             kept["circuit.resistor_pa_s_per_m3"] = "too few rises could be fitted"
+    elif c_cfg.valve is not None and not flow:
+        # an ISO 6358 valve: C from the rise against the simulated plant's own network
+        from .valve_rise import fit_iso_valve
+
+        iso = fit_iso_valve(entries, start, v_side, c_fit, fixed / ML, cov, noise_rms)
+        kept.pop("circuit.valve_delay_s", None)
+        fitted += iso.fitted
+        measured += iso.measured
+        kept.update(iso.kept)
+        notes += iso.notes
+        refused += iso.refused
+        kept["circuit.valve_resistance_pa_s_per_m3"] = "not used: the circuit's valve is ISO 6358"
+        if c_cfg.resistor_pa_s_per_m3 > 0:
+            kept["circuit.resistor_pa_s_per_m3"] = ("in series with the ISO valve: the rise shows them together; "
+                                                    "the resistor is kept and C is fitted for the pair")
     else:
         why = ("the pressure-flow circuit: its rise (regulator, buffer and path) is not modelled here" if flow else
-               "an ISO 6358 valve or a hose: the rise is not a laminar two-volume one, and its conductance is "
+               "a hose with a laminar valve: the rise is not a laminar two-volume one, and its resistance is "
                "not fitted yet")
         if flow:
             kept["circuit.valve_delay_s"] = why
@@ -816,8 +850,12 @@ def characterised_profile(start_data: dict[str, Any], start: Profile, result: Ch
         kept["actuator (other fields)"] = CONTACT_OTHERS
         notes += contact.notes
     for f in fitted:
-        section, _, key = f.field.partition(".")
-        data[section][key] = float(f"{f.value:.6g}")
+        *path, key = f.field.split(".")
+        node = data
+        for part in path:  # a nested field (circuit.valve.sonic_conductance_dm3_per_s_bar): copied, then set
+            node[part] = dict(node.get(part) or {})
+            node = node[part]
+        node[key] = float(f"{f.value:.6g}")
     data["name"] = name
     data["description"] = (f"{start.name} characterised on {rig} "
                            f"({(date or datetime.datetime.now(datetime.UTC)).date().isoformat()})")

@@ -16,8 +16,9 @@ b with a larger C gives nearly the same elliptic flow curve. The fit states the
 correlation of C and b its own Jacobian gives (3-parameter, at the top level) in its notes.
 
 What the rise cannot show, kept and said so: a rise over fewer than ISO_MIN_RISE_SAMPLES
-samples (a polled box), a rise whose times hardly move with C (a hose or an actuator's
-lag that dominates: ISO_MIN_SENSITIVITY), a fit at the edge of the searched range.
+samples (a polled box), a rise whose times move less with C than with the hose's stated
+length (a long hose dominates: an error in it would move C by more than itself), a fit at the edge
+of the searched range.
 Refused: a residual far beyond the sensor's noise (ISO_RESIDUAL_NOISE) - the circuit is
 not the model (a hose not as stated, a b far off, heat) and its C would be a number
 fitted to the wrong shape.
@@ -47,7 +48,7 @@ COARSE = np.geomspace(0.3, 3.3, 9)
 _STEP = float(COARSE[1] / COARSE[0])
 FINE = np.geomspace(1 / _STEP, _STEP, 9)  # from the coarse optimum's neighbour to its other neighbour
 ISO_MIN_RISE_SAMPLES = 20  # samples from 10 to 90 %: fewer and the shape is the sample period's
-ISO_MIN_SENSITIVITY = 0.2  # |d ln t / d ln C| of the rise's times below this: C does not show
+HOSE_STEP = 1.05  # the hose's length changed by this to see how much it sets the rise
 ISO_RESIDUAL_NOISE = 5.0  # rms pressure residual of the rise beyond this many sensor-noise sd: refused
 T_END_FACTOR = 2.5  # the model runs this many times the rig's slowest 90 % crossing (coarse C can be slow)
 
@@ -69,6 +70,12 @@ def _hw(start: Profile, v0_ml: float, c_ml_kpa: float, cond: float, b: float | N
                                                 **({} if b is None else {"critical_ratio": b})})
     act = hw.actuator.model_copy(update={"v0_ml": v0_ml, "compliance_ml_per_kpa": c_ml_kpa})
     return hw.model_copy(update={"circuit": hw.circuit.model_copy(update={"valve": valve}), "actuator": act})
+
+
+def _longer_hose(start: Profile, factor: float) -> Profile:
+    h = start.circuit.hose
+    return start.model_copy(update={"circuit": start.circuit.model_copy(
+        update={"hose": h.model_copy(update={"length_m": h.length_m * factor})})})
 
 
 def _model_times(hw, p0: float, level: float, dt: float, t_end: float) -> np.ndarray | None:
@@ -189,11 +196,25 @@ def fit_iso_valve(entries: Sequence[dict[str, Any]], start: Profile, v_side_ml: 
         m.fit_spline(c_best * FINE)
         if m.spline is None:
             return keep("the modelled rise did not reach 90 % near the best C")
-    # does C show? how far the top level's crossing times move per unit of ln C
-    sens = np.median(np.abs(models[top_lv].spline(math.log(c_best), 1)))
-    if sens < ISO_MIN_SENSITIVITY:
-        return keep(f"the rise's times move only {sens:.2f} % per % of C (a hose or the actuator's lag sets "
-                    f"the rise, below {ISO_MIN_SENSITIVITY:g}): the valve does not show in it")
+    # does C show? how far the top level's crossing times move per unit of ln C, against
+    # how far they move with the stated hose's length (its volume and friction, the level
+    # its own): where the hose moves them more, it dominates the rise, and an error in the
+    # stated hose moves C by more than itself
+    sens = float(np.median(np.abs(models[top_lv].spline(math.log(c_best), 1))))
+    if start.circuit.hose is not None:
+        extra = start.circuit.hose.volume_m3 * (HOSE_STEP - 1) / ML
+        longer = _Level(_longer_hose(start, HOSE_STEP), v_side_ml - fixed_ml, c_fit, top_lv * KPA, dt, t_end,
+                        (v_side_ml + extra) * ML, c_fit * ML / KPA)
+        t_base, t_long = models[top_lv].times(c_best), longer.times(c_best)
+        if t_base is None or t_long is None:
+            return keep("the modelled rise with a longer hose did not reach 90 %")
+        sens_hose = float(np.median(np.abs(np.log(t_long / t_base)))) / math.log(HOSE_STEP)
+        out.notes.append(f"ISO valve: the rise's times move {sens:.2f} % per % of C and {sens_hose:.2f} % per % "
+                         "of the hose's stated length")
+        if sens < sens_hose:
+            return keep(f"the hose dominates the rise: its times move {sens:.2f} % per % of C and {sens_hose:.2f} "
+                        "% per % of the hose's stated length, so an error in the stated hose would move C by more "
+                        "than itself")
     fits = per_cycle(models)
     lags = np.array([f[0] for f in fits])
     ln_cs = np.array([f[1] for f in fits])

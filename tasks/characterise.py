@@ -775,6 +775,11 @@ def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
                 kept["circuit.resistor_pa_s_per_m3"] = "the rise's resistance is within the valve's assumed figure"
         else:
             kept["circuit.resistor_pa_s_per_m3"] = "too few rises could be fitted"
+    elif c_cfg.valve is not None and not flow and refused:
+        # the rise's model is built on the fitted volumes: none to build it on
+        for name in ("circuit.valve.sonic_conductance_dm3_per_s_bar", "circuit.valve.critical_ratio",
+                     "circuit.valve_delay_s"):
+            kept[name] = "the free P-V fit does not hold (above): the rise's model needs its volumes"
     elif c_cfg.valve is not None and not flow:
         # an ISO 6358 valve: C from the rise against the simulated plant's own network
         from .valve_rise import fit_iso_valve

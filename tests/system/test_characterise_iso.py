@@ -146,7 +146,10 @@ def test_b_is_not_separable_and_a_b_far_off_is_refused(tmp_path):
         print(f"kept b {b}: C {c.value:.4g} [{c.lo95:.4g}, {c.hi95:.4g}]; {rms}")  # -s
     resid = [float(rms.split(", ")[1].split(" kPa")[0]) for _, _, rms in rows]
     noise = shipped.sensor.noise_sd_kpa
-    assert max(resid) < 2 * noise, resid  # flat within the sensor's noise: the rise cannot tell
+    # on this plant (the model exact) the residual is lowest at the plant's b, but +-0.1 of b
+    # costs less than the sensor's noise twice over: a shape that the model's assumptions
+    # outweigh on a rig (docs/cli.md: the fingers' assumed lag 30 ms off costs 0.28 kPa)
+    assert resid[1] == min(resid) and max(resid) < 2 * noise, resid
     assert rows[0][1].value > rows[1][1].value > rows[2][1].value  # C takes b's place
 
     d = tmp_path / "far"

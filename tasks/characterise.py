@@ -28,11 +28,15 @@ What the readings can tell apart (docs/cli.md, "characterise"):
   series, no ISO 6358 valve), the path's resistance from the rise (an isothermal two-volume
   model with the fitted volumes, least squares on each trace). The rig shows only the sum of
   the valve and the resistor: the valve's assumed figure is kept and the resistor takes the
-  rest. Other circuits keep theirs (said so).
+  rest. A tank circuit with an ISO 6358 valve: its sonic conductance C and the delay from
+  the rise against the simulated plant's own network of the circuit (tasks/valve_rise.py),
+  its critical ratio kept (the rise cannot separate it from C). Other circuits keep theirs
+  (said so).
 
 The fit is refused, naming why, when it cannot hold: fewer than three levels or two cycles
 per level, a leak, a window that reads before the actuator settled, a residual beyond the
-cycles' own spread (lack-of-fit test), a non-physical volume, a flow sensor at its rail.
+cycles' own spread (lack-of-fit test), a non-physical volume, a flow sensor at its rail, an
+ISO valve's rise far beyond the sensor's noise from its model.
 The flow-control circuit (method 3) is refused before any valve moves: its sweep is of a
 flow programme, not of a pressure, and is not built here.
 """

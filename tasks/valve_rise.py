@@ -280,7 +280,9 @@ def fit_iso_valve(entries: Sequence[dict[str, Any]], start: Profile, v_side_ml: 
             f"{smooth_width(dt)} samples, after the fitted delay below) against the simulated plant's network of "
             "this circuit (the ISO 6358 valve, the stated hose and tank, the fitted free P-V law, the kept "
             f"actuator lag), one C per rise; critical ratio {b0:g} kept; geometric mean, 95 % interval from the "
-            "rises' spread (Student's t on ln C) and the fitted volumes' covariance"))
+            "rises' spread (Student's t on ln C) and the fitted volumes' covariance. Not in the interval: what the "
+            "model takes as stated (the critical ratio, the actuator's response_s, the hose's bore and length): "
+            "their errors move C outside it (notes)"))
     out.fitted.append(FittedNumber(
         field=DELAY_FIELD, value=max(m_lag, 0.0), lo95=max(m_lag - h_lag, 0.0), hi95=max(m_lag + h_lag, 0.0),
         unit="s", how=f"mean over {n} rises of the lag fitted with C above (the offset of the plant's rise from "
@@ -299,7 +301,7 @@ def fit_iso_valve(entries: Sequence[dict[str, Any]], start: Profile, v_side_ml: 
         shift = 100 * (math.exp(-coef[1] * 0.1) - 1)
         out.notes.append(f"ISO valve: correlation of ln C and b in a (lag, C, b) fit of the rise: {corr:+.4f}; "
                          f"a critical ratio 0.1 above the kept {b0:g} would fit a C {shift:+.1f} % off "
-                         "(not in C's interval)")
+                         "(C's interval takes b as exact)")
         out.kept[B_FIELD] = (f"the rise cannot separate it from C (their correlation in a fit of both: "
                              f"{corr:+.4f}; the valve's pressure ratio runs from "
                              f"{(start.circuit.p_atm) / (start.circuit.p_atm + top_lv * KPA):.2f} to 1): kept, "

@@ -60,7 +60,16 @@ from fluidsense.controller.ports import TaskPort
 from scipy import integrate, optimize, stats
 
 from .journal import CycleJournal
+from .rise_trace import (
+    RISE_FRACTIONS,
+    RISE_MIN_LEVEL,
+    free_equilibrium,
+    rise_crossings,
+    smooth_width,
+    smoothed,
+)
 from .stopping import fault_dict, stopped_message
+from .valve_rise import fit_iso_valve
 
 Place = Callable[[Any], Awaitable[None]]
 
@@ -71,15 +80,12 @@ LEAK_T = 4.0  # a drift this many standard errors from zero is a leak
 SETTLE_FRACTION = 0.02  # the 2 % settling time, as docs/physics.md's timing rows
 DEFAULT_LEVELS = 5
 KEY_DIGITS = 3  # levels are compared in kPa to 1 Pa
-RISE_FRACTIONS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)  # the rise kept per cycle: when it crossed these
-RISE_SMOOTH_S = 0.011  # moving average before the crossings are taken (11 samples at 1 kHz)
 # The rise model's own error (smoothing, sampling, the law taken as quasi-static), as an sd:
 # against the simulated plant (tests/system/test_characterise.py, ten set-ups) its resistance came
 # 0.0-0.5 % low and its lag within 0.3 ms, with the cycles' spread alone giving +-0.3 %
 RISE_MODEL_REL = 0.005
 RISE_MODEL_LAG_S = 0.0005
 RISE_DRAWS = 40  # draws of the fitted volumes carried into the rise's fit
-RISE_MIN_LEVEL = 0.5  # rises fitted only at levels at least this fraction of the top one (clear of the noise)
 # pressure-flow: the default sweep's top keeps the opening's flow (level / the path's stated
 # resistance, laminar) this far inside the flow sensor's range. At the shipped profile's own
 # 23.8 kPa the simulated HAFBLF0750 (+-0.75 SLPM) sat at its rail for 87-100 ms per cycle
@@ -192,32 +198,6 @@ def check_plan(profile: Profile, levels: Sequence[float], cycles: int) -> list[f
 
 
 # ------------------------------------------------------------------ one cycle's trace
-def smooth_width(dt: float) -> int:
-    """Samples in the moving average the rise's crossings are taken on (odd, at least 1)."""
-    return max(1, int(round(RISE_SMOOTH_S / dt)) | 1)
-
-
-def smoothed(q: np.ndarray, w: int) -> np.ndarray:
-    return np.convolve(q, np.ones(w) / w, mode="same") if q.size > w else q
-
-
-def rise_crossings(t: np.ndarray, qs: np.ndarray, level: float) -> list[float] | None:
-    """The rise, kept compactly: when the trace (upwards, already averaged over
-    RISE_SMOOTH_S) first crossed each of RISE_FRACTIONS of ``level`` (interpolated), or None
-    when it missed one. On the averaged trace: the first crossing of a noisy trace comes
-    early, the more so where the rise is slow (it biased the resistance 2-6 % low). The ISO
-    valve's fit takes the simulated rise through this same function, so the averaging's
-    own shift (large where the rise is fast beside the window) is in the model too."""
-    times = []
-    for f in RISE_FRACTIONS:
-        i = np.flatnonzero(qs >= f * level)
-        if not i.size or i[0] == 0:
-            return None
-        j = i[0]
-        times.append(float(t[j - 1] + (f * level - qs[j - 1]) * (t[j] - t[j - 1]) / (qs[j] - qs[j - 1])))
-    return times
-
-
 def read_trace(t: np.ndarray, p: np.ndarray, p_eq: float, noise: float, window: tuple[float, float]) -> dict:
     """Lag, 2 % settling time, the drift after settling and the 63 % rise time of one
     free-air cycle (t: s since the commanded opening; p: Pa, offset removed). Oriented so
@@ -397,18 +377,6 @@ class Characterisation:
                 "pure_error_kpa": self.pure_error_kpa, "levels": self.levels,
                 **({} if self.residual_ml is None else {"residual_ml": self.residual_ml,
                                                          "pure_error_ml": self.pure_error_ml})}
-
-
-def free_equilibrium(p0: np.ndarray | float, v_tank: float, v_act0: float, c: float, p_atm: float):
-    """Gauge pressure (Pa) at which a tank of ``v_tank`` at gauge ``p0`` and an actuator side
-    of volume ``v_act0 + c p`` (actuator, hose and ports, from atmosphere) settle: eq. 1,
-    ``c Pe^2 + (Vt + V0 + c Pa) Pe - P0 Vt = 0``; the root that goes to P0 Vt / (Vt + V0)
-    as c goes to zero (either sign of P0)."""
-    b = v_tank + v_act0 + c * p_atm
-    p0 = np.asarray(p0, dtype=float)
-    disc = b * b + 4.0 * c * p0 * v_tank
-    # the numerically stable form of (-b + sqrt(disc)) / (2c)
-    return 2.0 * p0 * v_tank / (b + np.sqrt(disc))
 
 
 def _t95(dof: int) -> float:
@@ -786,8 +754,6 @@ def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
             kept[name] = "the free P-V fit does not hold (above): the rise's model needs its volumes"
     elif c_cfg.valve is not None and not flow:
         # an ISO 6358 valve: C from the rise against the simulated plant's own network
-        from .valve_rise import fit_iso_valve
-
         iso = fit_iso_valve(entries, start, v_side, c_fit, fixed / ML, cov, noise_rms)
         kept.pop("circuit.valve_delay_s", None)
         fitted += iso.fitted

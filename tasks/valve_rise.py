@@ -36,7 +36,7 @@ from fluidsense.common.units import KPA, ML
 from fluidsense.controller.config.profile import FittedNumber, Profile
 from scipy import interpolate, optimize, stats
 
-from .characterise import RISE_FRACTIONS, RISE_MIN_LEVEL, free_equilibrium, rise_crossings, smooth_width, smoothed
+from .rise_trace import RISE_FRACTIONS, RISE_MIN_LEVEL, free_equilibrium, rise_crossings, smooth_width, smoothed
 
 C_FIELD = "circuit.valve.sonic_conductance_dm3_per_s_bar"
 B_FIELD = "circuit.valve.critical_ratio"

@@ -81,6 +81,7 @@ def _longer_hose(start: Profile, factor: float) -> Profile:
 def _model_times(hw, p0: float, level: float, dt: float, t_end: float) -> np.ndarray | None:
     """The plant's crossing times (s from the opening) for a tank at ``p0``, at fractions
     of its own equilibrium ``level`` (both Pa, oriented upwards as the rig's are)."""
+    # imported when used: a characterisation that fits no ISO valve never loads the simulator
     from fluidsense.drivers.sim.rise import free_rise
 
     t, p = free_rise(hw, p0, t_end, dt)

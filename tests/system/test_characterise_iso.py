@@ -7,7 +7,8 @@ b, and the residual against b: a profile likelihood), a b far from the kept one 
 by the residual, and a hose that dominates the rise keeping C.
 
 (The fit: tasks/valve_rise.py. Each set-up is 20 cycles of 13 s of plant, virtual time,
-and a fit of about 4 s: ten of them take about two minutes, hence this tier.)
+and a fit of about 4 s: ten of them take about two minutes, hence this tier. Its in-process
+half, where the rise cannot show C: tests/unit/test_characterise_iso.py.)
 """
 
 from __future__ import annotations

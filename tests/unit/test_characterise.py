@@ -156,33 +156,3 @@ def test_cli_refuses_a_leaking_actuator_and_writes_nothing(tmp_path, capsys):
     assert "a leak: the settled free-air pressure falls" in run.stderr and "no profile written" in run.stderr
     assert not out.exists() and len(journal_path(out).read_text().splitlines()) == 1 + 6
 
-
-# ------------------------------------------------------------------ the ISO 6358 valve: what the rise cannot show
-def _iso_entries(dt_s, span_s=0.3):
-    """Entries of the sorting cell (0.4 L tank, ISO valve, hose) from eq. 1, every rise
-    ``span_s`` from 10 to 90 %, at sample period ``dt_s`` (None: a journal without it)."""
-    rng = np.random.default_rng(5)
-    out, cid = [], 0
-    for lv in (12.8, 25.6, 38.4, 51.2, 64.0):
-        pe = ch.free_equilibrium(lv * KPA, 0.4e-3, 148.0 * ML, 1.56 * ML / KPA, 101325.0) / KPA
-        for k in range(3):
-            cid += 1
-            out.append({"level_kpa": lv, "k": k, "cycle_id": cid, "p_eq_kpa": pe + rng.normal(0, 0.04),
-                        "noise_kpa": 0.07, "lag_s": 0.013, "settle_s": 0.8, "rise_s": 0.1,
-                        "drift_kpa_per_s": rng.normal(0, 1e-3), "drift_se_kpa_per_s": 1e-3,
-                        "rise_t_s": list(0.015 + np.linspace(0.0, span_s, 9) ** 1.3), "dt_s": dt_s})
-    return out
-
-
-def test_an_iso_valve_is_kept_where_the_rise_cannot_show_it():
-    """The sorting cell's ISO valve: a polled trace (50 ms samples: the 10-90 % rise in 4-5 of
-    them) and a journal without the sample period keep C, b and the delay, each said so,
-    before any model runs; the fit of the volumes holds."""
-    prof = load_profile(REPO / "config" / "profiles" / "sorting-gripper.yaml")
-    polled = ch.fit(_iso_entries(0.05), prof)
-    why = polled.kept["circuit.valve.sonic_conductance_dm3_per_s_bar"]
-    assert "samples at the 50 ms sample period" in why and polled.kept["circuit.valve.critical_ratio"] == why
-    assert "circuit.valve.sonic_conductance_dm3_per_s_bar" not in {f.field for f in polled.fitted}
-    old = ch.fit(_iso_entries(None), prof)
-    assert "sample period" in old.kept["circuit.valve_delay_s"]
-    assert polled.value("actuator.v0_ml") == pytest.approx(100.08, rel=0.1)

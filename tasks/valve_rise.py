@@ -12,8 +12,13 @@ shift is in both. Per cycle, least squares of the crossing times against
 
 Why b is kept: from a tank at 150-165 kPa abs into an actuator at atmosphere the valve's
 pressure ratio runs 0.6 -> 1, never choked for b below 0.6, and over that range a smaller
-b with a larger C gives nearly the same elliptic flow curve. The fit states the
-correlation of C and b its own Jacobian gives (3-parameter, at the top level) in its notes.
+b with a larger C gives nearly the same elliptic flow curve: ln C and b correlate -0.998
+in a fit of both. On the simulated plant (its model exact) the residual is lowest at the
+plant's b but shallow: b 0.1 off costs 1-2 times the sensor's noise, while the fingers'
+assumed lag 30 ms off costs 4 times (tests/system/test_characterise_iso.py), so on a rig
+b would be fitted to what the model's stated parts get wrong. The fit states the
+correlation its own Jacobian gives (3-parameter, at the top level) in its notes, and what
+a b 0.1 off would do to C; C's interval takes b as exact.
 
 What the rise cannot show, kept and said so: a rise over fewer than ISO_MIN_RISE_SAMPLES
 samples (a polled box), a rise whose times move less with C than with the hose's stated

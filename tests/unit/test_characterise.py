@@ -155,4 +155,3 @@ def test_cli_refuses_a_leaking_actuator_and_writes_nothing(tmp_path, capsys):
     assert run.returncode == documented_exit("characterise", "the cycles ran but the fit does not hold") == 1
     assert "a leak: the settled free-air pressure falls" in run.stderr and "no profile written" in run.stderr
     assert not out.exists() and len(journal_path(out).read_text().splitlines()) == 1 + 6
-

@@ -28,11 +28,15 @@ What the readings can tell apart (docs/cli.md, "characterise"):
   series, no ISO 6358 valve), the path's resistance from the rise (an isothermal two-volume
   model with the fitted volumes, least squares on each trace). The rig shows only the sum of
   the valve and the resistor: the valve's assumed figure is kept and the resistor takes the
-  rest. Other circuits keep theirs (said so).
+  rest. A tank circuit with an ISO 6358 valve: its sonic conductance C and the delay from
+  the rise against the simulated plant's own network of the circuit (tasks/valve_rise.py),
+  its critical ratio kept (the rise cannot separate it from C). Other circuits keep theirs
+  (said so).
 
 The fit is refused, naming why, when it cannot hold: fewer than three levels or two cycles
 per level, a leak, a window that reads before the actuator settled, a residual beyond the
-cycles' own spread (lack-of-fit test), a non-physical volume, a flow sensor at its rail.
+cycles' own spread (lack-of-fit test), a non-physical volume, a flow sensor at its rail, an
+ISO valve's rise far beyond the sensor's noise from its model.
 The flow-control circuit (method 3) is refused before any valve moves: its sweep is of a
 flow programme, not of a pressure, and is not built here.
 """
@@ -56,7 +60,16 @@ from fluidsense.controller.ports import TaskPort
 from scipy import integrate, optimize, stats
 
 from .journal import CycleJournal
+from .rise_trace import (
+    RISE_FRACTIONS,
+    RISE_MIN_LEVEL,
+    free_equilibrium,
+    rise_crossings,
+    smooth_width,
+    smoothed,
+)
 from .stopping import fault_dict, stopped_message
+from .valve_rise import fit_iso_valve
 
 Place = Callable[[Any], Awaitable[None]]
 
@@ -67,15 +80,12 @@ LEAK_T = 4.0  # a drift this many standard errors from zero is a leak
 SETTLE_FRACTION = 0.02  # the 2 % settling time, as docs/physics.md's timing rows
 DEFAULT_LEVELS = 5
 KEY_DIGITS = 3  # levels are compared in kPa to 1 Pa
-RISE_FRACTIONS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)  # the rise kept per cycle: when it crossed these
-RISE_SMOOTH_S = 0.011  # moving average before the crossings are taken (11 samples at 1 kHz)
 # The rise model's own error (smoothing, sampling, the law taken as quasi-static), as an sd:
 # against the simulated plant (tests/system/test_characterise.py, ten set-ups) its resistance came
 # 0.0-0.5 % low and its lag within 0.3 ms, with the cycles' spread alone giving +-0.3 %
 RISE_MODEL_REL = 0.005
 RISE_MODEL_LAG_S = 0.0005
 RISE_DRAWS = 40  # draws of the fitted volumes carried into the rise's fit
-RISE_MIN_LEVEL = 0.5  # rises fitted only at levels at least this fraction of the top one (clear of the noise)
 # pressure-flow: the default sweep's top keeps the opening's flow (level / the path's stated
 # resistance, laminar) this far inside the flow sensor's range. At the shipped profile's own
 # 23.8 kPa the simulated HAFBLF0750 (+-0.75 SLPM) sat at its rail for 87-100 ms per cycle
@@ -100,6 +110,9 @@ class CharacteriseJournal(CycleJournal):
         for key in CharacteriseJournal.FLOW_NUMBERS:
             if key in e:
                 out[key] = None if e[key] is None else float(e[key])
+        # the trace's sample period (journals written before it was kept have none: the
+        # ISO valve's rise is then not fitted, said so)
+        out["dt_s"] = None if e.get("dt_s") is None else float(e["dt_s"])
         rise = e["rise_t_s"]
         out["rise_t_s"] = None if rise is None else [float(x) for x in rise]
         if out["rise_t_s"] is not None and len(out["rise_t_s"]) != len(RISE_FRACTIONS):
@@ -192,7 +205,7 @@ def read_trace(t: np.ndarray, p: np.ndarray, p_eq: float, noise: float, window: 
     sign = 1.0 if p_eq >= 0 else -1.0
     q, level = sign * p, abs(p_eq)
     out: dict[str, Any] = {"lag_s": None, "settle_s": None, "drift_kpa_per_s": None,
-                           "drift_se_kpa_per_s": None, "rise_s": None, "rise_t_s": None}
+                           "drift_se_kpa_per_s": None, "rise_s": None, "rise_t_s": None, "dt_s": None}
     # lag: the rise's early part (out of the noise, below 30 %) extrapolated back to zero
     lo, hi = max(0.02 * level, 5 * noise), 0.3 * level
     first_hi = np.flatnonzero(q >= hi)
@@ -212,21 +225,11 @@ def read_trace(t: np.ndarray, p: np.ndarray, p_eq: float, noise: float, window: 
     r63 = np.flatnonzero(q >= (1 - math.exp(-1)) * level)
     if r63.size and out["lag_s"] is not None:
         out["rise_s"] = float(t[r63[0]] - out["lag_s"])
-    # the rise, kept compactly: when it first crossed each fraction of P_eq (interpolated),
-    # on the trace averaged over RISE_SMOOTH_S: the first crossing of a noisy trace comes
-    # early, the more so where the rise is slow (it biased the resistance 2-6 % low)
     dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
-    w = max(1, int(round(RISE_SMOOTH_S / dt)) | 1)
-    qs = np.convolve(q, np.ones(w) / w, mode="same") if q.size > w else q
-    times = []
-    for f in RISE_FRACTIONS:
-        i = np.flatnonzero(qs >= f * level)
-        if not i.size or i[0] == 0:
-            break
-        j = i[0]
-        times.append(float(t[j - 1] + (f * level - qs[j - 1]) * (t[j] - t[j - 1]) / (qs[j] - qs[j - 1])))
-    if len(times) == len(RISE_FRACTIONS):
-        out["rise_t_s"] = times
+    w = smooth_width(dt)
+    qs = smoothed(q, w)
+    out["rise_t_s"] = rise_crossings(t, qs, level)
+    out["dt_s"] = dt
     # settling: the last time the trace was outside the band before the window ended, on the
     # averaged trace (where the average is whole): a raw sample passes 5 sd of white noise
     # once in 1.7e6, and a pressure-flow cycle's 30 s hold has 3e4 of them (a hidden
@@ -374,18 +377,6 @@ class Characterisation:
                 "pure_error_kpa": self.pure_error_kpa, "levels": self.levels,
                 **({} if self.residual_ml is None else {"residual_ml": self.residual_ml,
                                                          "pure_error_ml": self.pure_error_ml})}
-
-
-def free_equilibrium(p0: np.ndarray | float, v_tank: float, v_act0: float, c: float, p_atm: float):
-    """Gauge pressure (Pa) at which a tank of ``v_tank`` at gauge ``p0`` and an actuator side
-    of volume ``v_act0 + c p`` (actuator, hose and ports, from atmosphere) settle: eq. 1,
-    ``c Pe^2 + (Vt + V0 + c Pa) Pe - P0 Vt = 0``; the root that goes to P0 Vt / (Vt + V0)
-    as c goes to zero (either sign of P0)."""
-    b = v_tank + v_act0 + c * p_atm
-    p0 = np.asarray(p0, dtype=float)
-    disc = b * b + 4.0 * c * p0 * v_tank
-    # the numerically stable form of (-b + sqrt(disc)) / (2c)
-    return 2.0 * p0 * v_tank / (b + np.sqrt(disc))
 
 
 def _t95(dof: int) -> float:
@@ -756,9 +747,27 @@ def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
                 kept["circuit.resistor_pa_s_per_m3"] = "the rise's resistance is within the valve's assumed figure"
         else:
             kept["circuit.resistor_pa_s_per_m3"] = "too few rises could be fitted"
+    elif c_cfg.valve is not None and not flow and refused:
+        # the rise's model is built on the fitted volumes: none to build it on
+        for name in ("circuit.valve.sonic_conductance_dm3_per_s_bar", "circuit.valve.critical_ratio",
+                     "circuit.valve_delay_s"):
+            kept[name] = "the free P-V fit does not hold (above): the rise's model needs its volumes"
+    elif c_cfg.valve is not None and not flow:
+        # an ISO 6358 valve: C from the rise against the simulated plant's own network
+        iso = fit_iso_valve(entries, start, v_side, c_fit, fixed / ML, cov, noise_rms)
+        kept.pop("circuit.valve_delay_s", None)
+        fitted += iso.fitted
+        measured += iso.measured
+        kept.update(iso.kept)
+        notes += iso.notes
+        refused += iso.refused
+        kept["circuit.valve_resistance_pa_s_per_m3"] = "not used: the circuit's valve is ISO 6358"
+        if c_cfg.resistor_pa_s_per_m3 > 0:
+            kept["circuit.resistor_pa_s_per_m3"] = ("in series with the ISO valve: the rise shows them together; "
+                                                    "the resistor is kept and C is fitted for the pair")
     else:
         why = ("the pressure-flow circuit: its rise (regulator, buffer and path) is not modelled here" if flow else
-               "an ISO 6358 valve or a hose: the rise is not a laminar two-volume one, and its conductance is "
+               "a hose with a laminar valve: the rise is not a laminar two-volume one, and its resistance is "
                "not fitted yet")
         if flow:
             kept["circuit.valve_delay_s"] = why
@@ -816,8 +825,12 @@ def characterised_profile(start_data: dict[str, Any], start: Profile, result: Ch
         kept["actuator (other fields)"] = CONTACT_OTHERS
         notes += contact.notes
     for f in fitted:
-        section, _, key = f.field.partition(".")
-        data[section][key] = float(f"{f.value:.6g}")
+        *path, key = f.field.split(".")
+        node = data
+        for part in path:  # a nested field (circuit.valve.sonic_conductance_dm3_per_s_bar): copied, then set
+            node[part] = dict(node.get(part) or {})
+            node = node[part]
+        node[key] = float(f"{f.value:.6g}")
     data["name"] = name
     data["description"] = (f"{start.name} characterised on {rig} "
                            f"({(date or datetime.datetime.now(datetime.UTC)).date().isoformat()})")

@@ -683,8 +683,9 @@ def compare(rig: ContactFit, sim_entries: Sequence[dict[str, Any]], profile: Pro
     """The simulated cell's readings against the rig's: dP_eq and the contact pressure
     judged (they differ when beyond SEPARATE_Z standard errors of their difference, the
     contact pressure's own error CONTACT_MODEL_SD_KPA included), and the controller's
-    contact time where the rise's timing was fitted (``timing_fitted``: a laminar circuit;
-    its error includes the contact pressure's, over the free rise's slope there); the
+    contact time where the rise's timing was fitted (``timing_fitted``: a laminar circuit's
+    path, or an ISO valve's C; its error includes the contact pressure's, over the free
+    rise's slope there); the
     absolute P_eq reported (the free equilibrium is the free fit's, and a regulator that
     lands anew only when its setpoint changes shifts every P_eq of a session alike)."""
     free, targets = readings(sim_entries, profile)

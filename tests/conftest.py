@@ -29,13 +29,14 @@ from support.harness import REPO, Daemon, sim_config
 # 13 min was usual. (The order, not the measured seconds, is what matters.) Keyed by tier:
 # a unit file of the same name is not the long one.
 LONGEST_FIRST = [
-    "system/test_box_lies.py", "system/test_scenes.py", "system/test_characterise.py", "system/test_gripper_box.py",
+    "system/test_characterise.py", "system/test_gripper_box.py", "system/test_characterise_contact.py",
+    "system/test_characterise_iso.py", "system/test_box_lies.py", "system/test_characterise_flow.py", "system/test_scenes.py",
     "system/test_check.py", "system/test_calibration.py", "system/test_speed_stability.py", "system/test_drivers.py",
     "system/test_serial.py", "system/test_report.py", "system/test_accuracy.py", "system/test_tasks.py",
     "system/test_recording.py", "system/test_zmq.py", "system/test_controlbox.py", "system/test_soak.py",
     "system/test_backends.py", "system/test_security.py", "system/test_box_watchdog.py", "system/test_serial_lies.py",
     "system/test_stop_signals.py", "system/test_controller.py", "system/test_examples.py", "system/test_protocol.py",
-    "system/test_jobs.py", "system/test_cli.py", "system/test_characterise_contact.py", "system/test_chart.py",
+    "system/test_jobs.py", "system/test_cli.py", "system/test_chart.py",
     # the acceptance tier, by itself in `make accept`: the README's walk is the longest by far
     "accept/test_readme.py", "accept/test_bringup_doc.py", "accept/test_ship.py", "accept/test_examples.py",
 ]

@@ -9,6 +9,7 @@ stated 95 % intervals.
 from __future__ import annotations
 
 import asyncio
+import json
 
 import numpy as np
 import pytest
@@ -155,3 +156,25 @@ def test_cli_refuses_a_leaking_actuator_and_writes_nothing(tmp_path, capsys):
     assert run.returncode == documented_exit("characterise", "the cycles ran but the fit does not hold") == 1
     assert "a leak: the settled free-air pressure falls" in run.stderr and "no profile written" in run.stderr
     assert not out.exists() and len(journal_path(out).read_text().splitlines()) == 1 + 6
+
+
+def test_a_characterised_profile_is_one_calibrate_and_sense_take(tmp_path, capsys):
+    """The written profile is a profile like a shipped one: ``calibrate --profile mine``
+    (found as ./mine.yaml) calibrates it on a simulated cell, and ``sense`` with that
+    calibration reads a 70 mm cylinder, which no target was, within its interval. The
+    simulated cell runs the profile's own numbers, the fitted ones among them."""
+    cell = sim_config(tmp_path, profile=str(REPO / "config" / "profiles" / f"{START}.yaml"))
+    out = tmp_path / "mine.yaml"
+    run = run_cli(capsys, "characterise", "--config", str(cell), "--out", str(out), "--levels", "20,40,63",
+                  "--cycles", "2", "--yes")
+    assert run.returncode == 0, run.stderr
+    cal = tmp_path / "mine.json"
+    run = run_cli(capsys, "calibrate", "--profile", "mine", "--values", "40,60,80,100", "--cycles", "3", "--out",
+                  str(cal), "--yes", "--json", cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    assert json.loads(cal.read_text())["profile"] == load_profile(out).name
+    run = run_cli(capsys, "sense", "-k", str(cal), "--profile", "mine", "--scene", "cylinder", "--set",
+                  "diameter_mm=70", "--json", "--yes", cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    sensed = json.loads(run.stdout)
+    assert sensed["status"] == "ok" and sensed["interval"][0] <= 70 <= sensed["interval"][1], sensed

@@ -126,7 +126,7 @@ def test_cli_writes_a_profile_that_design_accepts(tmp_path):
 
 
 # ------------------------------------------------------------------ the proof, through the emulated box
-def test_the_box_recovers_a_hidden_actuator_end_to_end(tmp_path):
+def test_the_box_recovers_a_hidden_actuator_end_to_end(tmp_path, capsys):
     """``fluidsense simcell`` with a hidden quick PneuNet gripper (v0 x1.12, c x0.88),
     characterised through the Modbus driver by the CLI from the shipped profile, in real
     time: the hidden values lie within the written profile's 95 % intervals, which say
@@ -156,6 +156,10 @@ def test_the_box_recovers_a_hidden_actuator_end_to_end(tmp_path):
         assert (f.hi95 - f.lo95) / 2 < 0.2 * f.value, (key, f)  # an interval that says something
     assert prof.provenance.rig.startswith("driver modbus at 127.0.0.")
     assert math.isfinite(prof.sequence.eq_sd_kpa)
+    # issue 36 item 4: design on what the box's characterisation wrote, against the hidden actuator
+    hidden_best, mine_best = _design(capsys, hidden_path), _design(capsys, out)
+    print(f"box: design's best resolution, hidden {hidden_best}, characterised {mine_best}")  # -s
+    assert _same(hidden_best, mine_best), (hidden_best, mine_best)
 
 
 def test_resume_runs_only_the_missing_cycles(tmp_path):

@@ -5,8 +5,9 @@ The copy is the checkout's tracked files (what a clone has: no runs/, no outputs
 checkout's ``.venv`` linked in (what ``make demo`` would create; its stamp is there, so
 ``make demo`` only runs the demo). Every line runs as written, nothing replaced: the README's
 fixed addresses and ports (127.0.0.1:5560/5561, RTDE's 30004, 127.0.0.2) belong to a
-network namespace of the test's own (``unshare -n`` as root, keeping the real-time priorities, else ``unshare -rn``: a private loopback), so no other
-daemon or box of a shared machine can meet them. A background job (``&``) runs until the
+network namespace of the test's own (a private loopback: ``unshare -n`` as root, which keeps
+the real-time priorities, else ``unshare -rn``), so no other daemon or box of a shared
+machine can meet them. A background job (``&``) runs until the
 README stops it (``cmd shutdown``) or says to (``kill %1``), which the test then does at the
 block's end; each must end cleanly.
 

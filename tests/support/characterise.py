@@ -36,14 +36,14 @@ def hidden_profile(tmp_path, seed: int, start=START, **extra):
     return profile_config(tmp_path, start, actuator=actuator, **extra), actuator
 
 
-def characterise_in_process(tmp_path, seed: int, plant_profile_path, levels=None, cycles=CYCLES):
-    """The shipped profile runs the cycles; the simulated plant is the hidden profile's
-    hardware (the controller never sees it). Virtual time."""
-    start = load_profile(profile_config(tmp_path, START))
-    hidden_cfg = load_cell_config(sim_config(tmp_path, seed=seed, profile=str(plant_profile_path)))
+def measure_hidden(tmp_path, seed: int, plant_path, start, levels, cycles: int, out: str | None = None):
+    """The starting profile runs the cycles of ``levels`` x ``cycles`` on the simulated plant
+    of the hidden profile at ``plant_path`` (the controller never sees it), in virtual time;
+    the journal's entries (``out``'s journal, default out-SEED.yaml)."""
+    hidden_cfg = load_cell_config(sim_config(tmp_path, seed=seed, profile=str(plant_path)))
     cfg = hidden_cfg.model_copy(update={"profile": start})
-    levels = ch.check_plan(start, levels or ch.default_levels(start, LEVELS), cycles)
-    journal = ch.CharacteriseJournal.open(journal_path(tmp_path / f"out-{seed}.yaml"),
+    levels = ch.check_plan(start, levels, cycles)
+    journal = ch.CharacteriseJournal.open(journal_path(tmp_path / (out or f"out-{seed}.yaml")),
                                           {"levels_kpa": levels, "cycles": cycles}, resume=False)
 
     async def main():
@@ -54,5 +54,12 @@ def characterise_in_process(tmp_path, seed: int, plant_profile_path, levels=None
         finally:
             await ctrl.stop()
 
-    entries = asyncio.run(main())
-    return start, entries
+    return asyncio.run(main())
+
+
+def characterise_in_process(tmp_path, seed: int, plant_profile_path, levels=None, cycles=CYCLES):
+    """The shipped profile (START) runs the cycles on the hidden profile's plant: (the
+    starting profile, the journal's entries)."""
+    start = load_profile(profile_config(tmp_path, START))
+    return start, measure_hidden(tmp_path, seed, plant_profile_path, start,
+                                 levels or ch.default_levels(start, LEVELS), cycles)

@@ -8,17 +8,13 @@ values within their stated 95 % intervals. An in-process study, too long for the
 
 from __future__ import annotations
 
-import asyncio
 
 import numpy as np
 import pytest
-from fluidsense.controller.config import load_cell_config, load_profile
-from fluidsense.controller.service import Controller
-from fluidsense.drivers.registry import build_backend
+from fluidsense.controller.config import load_profile
 from fluidsense.tasks import characterise as ch
-from fluidsense.tasks.journal import journal_path
+from support.characterise import measure_hidden
 from support.configs import profile_config
-from support.harness import sim_config
 
 START = "pneunet-bending-pressure-flow"
 HIDDEN_SETUPS = 10
@@ -39,22 +35,9 @@ def characterise_hidden(tmp_path, seed: int):
     fv, fc = hidden_factors(seed)
     hidden = {"v0_ml": round(start.actuator.v0_ml * fv, 4),
               "compliance_ml_per_kpa": round(start.actuator.compliance_ml_per_kpa * fc, 5)}
-    hidden_cfg = load_cell_config(sim_config(tmp_path, seed=seed,
-                                             profile=str(profile_config(tmp_path, START, actuator=hidden))))
-    cfg = hidden_cfg.model_copy(update={"profile": start})
-    levels = ch.check_plan(start, ch.default_levels(start), CYCLES)
-    journal = ch.CharacteriseJournal.open(journal_path(tmp_path / "out.yaml"), {"levels_kpa": levels,
-                                                                                "cycles": CYCLES}, resume=False)
-
-    async def main():
-        ctrl = Controller(cfg, build_backend(cfg.driver, hidden_cfg.profile.hardware))
-        await ctrl.start()
-        try:
-            return await ch.measure(ctrl.task_port, levels, CYCLES, journal)
-        finally:
-            await ctrl.stop()
-
-    return start, asyncio.run(main()), hidden
+    entries = measure_hidden(tmp_path, seed, profile_config(tmp_path, START, actuator=hidden), start,
+                             ch.default_levels(start), CYCLES, out="out.yaml")
+    return start, entries, hidden
 
 
 @pytest.mark.timeout(900)  # ten characterisations of 20 cycles of 70 s virtual time, about 15 s of CPU each

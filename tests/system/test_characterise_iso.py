@@ -13,20 +13,17 @@ half, where the rise cannot show C: tests/unit/test_characterise_iso.py.)
 
 from __future__ import annotations
 
-import asyncio
 
 import numpy as np
 import pytest
-from fluidsense.controller.config import load_cell_config, load_profile
+from fluidsense.controller.config import load_profile
 from fluidsense.controller.config.loading import read_yaml
 from fluidsense.controller.config.profile import Profile
-from fluidsense.controller.service import Controller
-from fluidsense.drivers.registry import build_backend
 from fluidsense.tasks import characterise as ch
 from fluidsense.tasks import valve_rise as vr
-from fluidsense.tasks.journal import journal_path
+from support.characterise import measure_hidden
 from support.configs import profile_config
-from support.harness import REPO, sim_config
+from support.harness import REPO
 
 START = "sorting-gripper"  # the product's main cell: 0.4 L tank, ISO 6358 valve, 3.3 m hose, sensor at the valve
 HIDDEN_SETUPS = 10
@@ -55,21 +52,7 @@ def hidden_profile(tmp_path, seed: int, **circuit):
 def characterise(tmp_path, seed: int, plant_path, start: Profile, levels=None, cycles=CYCLES):
     """The starting profile runs the cycles on the hidden profile's simulated plant (the
     controller never sees it), virtual time; the journal's entries."""
-    hidden_cfg = load_cell_config(sim_config(tmp_path, seed=seed, profile=str(plant_path)))
-    cfg = hidden_cfg.model_copy(update={"profile": start})
-    levels = ch.check_plan(start, levels or ch.default_levels(start, LEVELS), cycles)
-    journal = ch.CharacteriseJournal.open(journal_path(tmp_path / f"out-{seed}.yaml"),
-                                          {"levels_kpa": levels, "cycles": cycles}, resume=False)
-
-    async def main():
-        ctrl = Controller(cfg, build_backend(cfg.driver, hidden_cfg.profile.hardware))
-        await ctrl.start()
-        try:
-            return await ch.measure(ctrl.task_port, levels, cycles, journal)
-        finally:
-            await ctrl.stop()
-
-    return asyncio.run(main())
+    return measure_hidden(tmp_path, seed, plant_path, start, levels or ch.default_levels(start, LEVELS), cycles)
 
 
 def fitted(res, name):

@@ -344,6 +344,15 @@ async def measure(port: TaskPort, levels: Sequence[float], cycles: int, journal:
 
 
 # ------------------------------------------------------------------ the fit
+def _mean_over_cycles(values: list[tuple[float, float]]) -> tuple[float, float, float]:
+    """Each cycle's (value, its own standard error): the mean, its standard error (the
+    cycles' scatter, never below what the cycles' own errors give) and the 95 % half-width."""
+    x = np.array([v for v, _ in values])
+    se = float(x.std(ddof=1)) / math.sqrt(x.size) if x.size > 1 else values[0][1]
+    se = max(se, math.sqrt(sum(s**2 for _, s in values)) / x.size)
+    return float(x.mean()), se, _t95(x.size - 1) * se
+
+
 class FitRefused(FluidsenseError):
     """The readings do not support a profile: ``reasons`` says why, each on its own."""
 
@@ -644,11 +653,7 @@ def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
     # the leak: the drift after settling, over every cycle
     drifts = [(e["drift_kpa_per_s"], e["drift_se_kpa_per_s"]) for e in entries if e["drift_kpa_per_s"] is not None]
     if drifts:
-        d = np.array([x for x, _ in drifts])
-        m_d = float(d.mean())
-        se_d = float(d.std(ddof=1)) / math.sqrt(d.size) if d.size > 1 else drifts[0][1]
-        se_d = max(se_d, math.sqrt(sum(s**2 for _, s in drifts)) / d.size)
-        h_d = _t95(d.size - 1) * se_d
+        m_d, se_d, h_d = _mean_over_cycles(drifts)
         measured.append(FittedNumber(field="drift_kpa_per_s", value=m_d, lo95=m_d - h_d, hi95=m_d + h_d,
                                      unit="kPa/s", how="mean slope of the free-air trace from the window's start to "
                                      "the valve's closing, oriented away from atmosphere (a leak is negative)"))
@@ -668,15 +673,11 @@ def fit(entries: Sequence[dict[str, Any]], start: Profile) -> Characterisation:
     settled = [(e["flow_settled_slpm"], e["flow_settled_se_slpm"]) for e in entries
                if e.get("flow_settled_slpm") is not None]
     if flow and settled:
-        q = np.array([x for x, _ in settled])
-        m_q = float(q.mean())
-        se_q = float(q.std(ddof=1)) / math.sqrt(q.size) if q.size > 1 else settled[0][1]
-        se_q = max(se_q, math.sqrt(sum(s**2 for _, s in settled)) / q.size)
-        h_q = _t95(q.size - 1) * se_q
+        m_q, se_q, h_q = _mean_over_cycles(settled)
         measured.append(FittedNumber(field="settled_flow_slpm", value=m_q, lo95=m_q - h_q, hi95=m_q + h_q,
                                      unit="SLPM", how=f"mean flow into the actuator over the window "
                                      f"({seq.windows[0].start_s:g}-{seq.windows[0].end_s:g} s), offset removed, "
-                                     f"over {q.size} cycles (a leak is positive)"))
+                                     f"over {len(settled)} cycles (a leak is positive)"))
         if m_q > LEAK_T * se_q:
             refused.append(f"a leak: once settled, {m_q:.3g} SLPM still flows in at the regulated pressure "
                            f"(+- {h_q:.2g}, {m_q / se_q:.1f} standard errors): V_eq holds what leaked, not the "

@@ -72,6 +72,13 @@ class SequenceConfig(StrictModel):
     settle_floor_kpa: Real = Field(
         0.003, ge=0, le=10, description="drift over settle_window_s always taken as flat (a very quiet sensor "
         "would otherwise wait for drifts no measurement can see)")
+    charge_tolerance_kpa: Real | None = Field(
+        None, gt=0, le=100, description="the valve opens only on a tank (tank) or buffer (pressure_flow) whose "
+        "sensor reads P0 within this, averaged over offset_s before opening; else the cycle is refused ('not "
+        "charged'), since a short charge gives a P_eq as wrong as any contact. None: the profile's P0 margin (the "
+        "tank sensor's offset and quantum, 4 sd of the regulator's repeatability and 6 sd of the noise, about "
+        "1.1 kPa with the defaults). Give more for a regulator whose setpoint is off by a steady amount (the "
+        "free-air reference, taken at the same setpoint, cancels that)")
     windows: list[Window] = Field(default_factory=lambda: [Window(name="eq", start_s=4.0, end_s=5.0)],
                                   min_length=1, max_length=16)
     flow_window: Window | None = Field(

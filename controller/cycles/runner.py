@@ -72,7 +72,8 @@ class CycleRunner:
         self.profile, self.backend = profile, backend
         self.freeze_s = freeze_for(profile, freeze_s)
         self._clock, self._events, self._faults = clock, events, faults
-        self.sequencer = Sequencer(profile.sequence, backend.valves.safe_positions, settled=self._settled)
+        self.sequencer = Sequencer(profile.sequence, backend.valves.safe_positions, settled=self._settled,
+                                   charged=self._charged)
         self.references: dict[float, Reference] = {}
         #: called with (p0_pa, key, reference) when a cycle stores a free-air reference
         self.on_reference: list[Callable[[float, float, Reference], None]] = []
@@ -230,6 +231,26 @@ class CycleRunner:
             return None
         return (f"the vented actuator still moves {change / KPA:+.4f} kPa over {window:g} s "
                 f"(flat is within {limit / KPA:.4f} kPa)")
+
+    def _charged(self, t_now: float) -> str | None:
+        """None when the tank (tank method) or the regulated buffer (pressure_flow) has read
+        P0 within ``charge_tolerance_kpa`` over the last ``offset_s``, else what it read.
+        Without a tank sensor (flow control) there is nothing to check."""
+        cfg, seq = self.profile.sequence, self.sequencer
+        if self._trace is None or "p_tank" not in self._trace.channels:
+            return None
+        t, values = self._trace.tail(cfg.offset_s)
+        sel = t > t_now - cfg.offset_s
+        if not sel.any():
+            return f"no tank reading in the last {cfg.offset_s:g} s before opening"
+        p_tank = float(values[sel, self._trace.channels.index("p_tank")].mean())
+        tol = (cfg.charge_tolerance_kpa or self.profile.p0_margin_kpa) * KPA
+        if abs(p_tank - seq.p0_pa) <= tol:
+            return None
+        what = "tank" if cfg.method == "tank" else "regulated buffer"
+        return (f"the {what} reads {p_tank / KPA:.2f} kPa before opening, P0 is {seq.p0_pa / KPA:.2f} kPa "
+                f"(within {tol / KPA:.2f} kPa expected): the reading would be wrong (the supply below P0, "
+                "the regulator, a leak from the tank, the tank sensor?)")
 
     def _measurement_due(self) -> bool:
         seq = self.sequencer

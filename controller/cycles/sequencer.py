@@ -10,7 +10,10 @@ ISOLATE  tank method: supply valve closed, the tank holds its charge. Skipped wh
          lasts longer, and past ``settle_timeout_s`` the cycle is aborted "not settled".
          So every cycle, the first of a session too, starts from the same empty actuator
          and reads a true offset (paper, Methods: a blank for the sensor offset, then
-         the mean of the last 0.5-1 s before the valve opens).
+         the mean of the last 0.5-1 s before the valve opens). Once settled, the tank
+         (or the regulated buffer) must read P0 within ``charge_tolerance_kpa`` (``charged``,
+         the runner's check), else the cycle is aborted "not charged": a supply or regulator
+         that falls short would give a wrong reading marked ok.
 ACTUATE  actuation valve open (t_open): the actuator fills from the tank, the regulator
          or the flow controller.
 HOLD     from the first measurement window until the valve closes.
@@ -83,11 +86,14 @@ class Sequencer:
     """``valves``: the circuit's valves and their safe positions (name -> open)."""
 
     def __init__(self, cfg: SequenceConfig, valves: dict[str, bool] | None = None,
-                 settled: Callable[[float], str | None] | None = None):
+                 settled: Callable[[float], str | None] | None = None,
+                 charged: Callable[[float], str | None] | None = None):
         """``settled(t)``: None when the vented actuator reads flat at ``t``, else why not
-        (default: always flat)."""
+        (default: always flat); ``charged(t)``: None when the tank or buffer holds P0 at
+        ``t``, else why not (default: always charged)."""
         self.cfg = cfg
         self._settled = settled or (lambda t: None)
+        self._charged = charged or (lambda t: None)
         self._settle_since: float | None = None
         self.valves = dict(valves if valves is not None else {SUPPLY: False, ACTUATE: False})
         self.state = State.IDLE
@@ -190,6 +196,8 @@ class Sequencer:
         if why is None:
             if self._settle_since is not None:
                 log.info("cycle %d: actuator settled after %.1f s more", self.cycle_id, t - self._settle_since)
+            if (short := self._charged(t)) is not None:
+                return self.abort(t, f"not charged: {short}")
             return self._open(t)
         if self._settle_since is None:
             self._settle_since = t

@@ -28,6 +28,37 @@ def test_a_tube_that_does_not_settle_refuses_the_cycle():
     assert res.aborted.startswith("not settled") and "kPa over" in res.aborted
 
 
+def test_a_tank_that_falls_short_of_p0_refuses_the_cycle():
+    """A clogged supply line (1e11 Pa s/m^3 where the tank's is 5e7: the tank's time
+    constant some 200 s) leaves the tank far below P0 when the valve would open: the cycle
+    is refused naming both pressures, the valve never opens. The same cell with its own
+    supply opens and reads ok."""
+    async def body(ctrl):
+        await ctrl.scene.place(PlateScene(height_mm=10))
+        return await ctrl.run_cycle()
+
+    res = run_profile("pneunet-bending", body, circuit={"supply_resistance_pa_s_per_m3": 1e11})
+    assert not res.ok and res.t_open is None
+    assert res.aborted.startswith("not charged: the tank reads")
+    p_read = float(res.aborted.split("reads ")[1].split(" kPa")[0])
+    assert 0 < p_read < res.p0 / 1e3 - 5 and f"P0 is {res.p0 / 1e3:.2f} kPa" in res.aborted
+    fine = run_profile("pneunet-bending", body)
+    assert fine.ok and fine.t_open is not None
+
+
+def test_sequencer_opens_only_on_a_charged_tank():
+    cfg = SequenceConfig(charge_s=2.0, isolate_s=1.0, actuate_s=5.0, vent_s=1.0, windows=[
+        {"name": "eq", "start_s": 1.0, "end_s": 2.0}])
+    short = Sequencer(cfg, charged=lambda t: "the tank reads 40 kPa")
+    short.start(0.0)
+    t = 0.0
+    while short.busy and short.state != State.VENT:
+        t += 0.01
+        short.on_time(t)
+    assert short.t_open is None and short.aborted == "not charged: the tank reads 40 kPa"
+    assert t == pytest.approx(3.0, abs=0.02)  # refused when it would have opened, not later
+
+
 def test_drift_finds_a_slope_and_not_noise():
     rng = np.random.default_rng(4)
     t = np.arange(0, 10, 1e-3)

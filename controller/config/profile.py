@@ -73,12 +73,18 @@ class SequenceConfig(StrictModel):
         0.003, ge=0, le=10, description="drift over settle_window_s always taken as flat (a very quiet sensor "
         "would otherwise wait for drifts no measurement can see)")
     charge_tolerance_kpa: Real | None = Field(
-        None, gt=0, le=100, description="the valve opens only on a tank (tank) or buffer (pressure_flow) whose "
-        "sensor reads P0 within this, averaged over offset_s before opening; else the cycle is refused ('not "
-        "charged'), since a short charge gives a P_eq as wrong as any contact. None: the profile's P0 margin (the "
+        None, gt=0, le=100, description="the charge ends, and the valve opens, only on a tank (tank) or buffer "
+        "(pressure_flow) whose sensor reads P0 within this, averaged over offset_s: a charge that has not got "
+        "there goes on (up to charge_timeout_s more), and a tank that has fallen short by the opening refuses "
+        "the cycle ('not charged'), since a short charge gives a P_eq as wrong as any contact. None: the "
+        "profile's P0 margin (the "
         "tank sensor's offset and quantum, 4 sd of the regulator's repeatability and 6 sd of the noise, about "
         "1.1 kPa with the defaults). Give more for a regulator whose setpoint is off by a steady amount (the "
         "free-air reference, taken at the same setpoint, cancels that)")
+    charge_timeout_s: Real = Field(
+        30.0, ge=0, le=3600, description="how long past charge_s to go on charging a tank that does not read P0 "
+        "yet (the first cycle of a session starts from an empty tank) before the cycle is refused ('not "
+        "charged': a supply below P0, a blocked line)")
     windows: list[Window] = Field(default_factory=lambda: [Window(name="eq", start_s=4.0, end_s=5.0)],
                                   min_length=1, max_length=16)
     flow_window: Window | None = Field(

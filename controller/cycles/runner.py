@@ -242,13 +242,13 @@ class CycleRunner:
         t, values = self._trace.tail(cfg.offset_s)
         sel = t > t_now - cfg.offset_s
         if not sel.any():
-            return f"no tank reading in the last {cfg.offset_s:g} s before opening"
+            return f"no tank reading in the last {cfg.offset_s:g} s"
         p_tank = float(values[sel, self._trace.channels.index("p_tank")].mean())
         tol = (cfg.charge_tolerance_kpa or self.profile.p0_margin_kpa) * KPA
         if abs(p_tank - seq.p0_pa) <= tol:
             return None
         what = "tank" if cfg.method == "tank" else "regulated buffer"
-        return (f"the {what} reads {p_tank / KPA:.2f} kPa before opening, P0 is {seq.p0_pa / KPA:.2f} kPa "
+        return (f"the {what} reads {p_tank / KPA:.2f} kPa, P0 is {seq.p0_pa / KPA:.2f} kPa "
                 f"(within {tol / KPA:.2f} kPa expected): the reading would be wrong (the supply below P0, "
                 "the regulator, a leak from the tank, the tank sensor?)")
 

@@ -2,7 +2,11 @@
 
 IDLE -> CHARGE -> ISOLATE -> ACTUATE -> HOLD -> VENT -> IDLE
 
-CHARGE   regulator at P0 (tank: supply valve open, the tank fills).
+CHARGE   regulator at P0 (tank: supply valve open, the tank fills). It ends only once the
+         tank (or the regulated buffer) reads P0 within ``charge_tolerance_kpa``
+         (``charged``, checked by the runner on its samples): the first cycle of a
+         session starts from an empty tank, which a short ``charge_s`` may not fill; past
+         ``charge_timeout_s`` more the cycle is aborted "not charged" (a supply below P0).
 ISOLATE  tank method: supply valve closed, the tank holds its charge. Skipped when its
          duration is 0. The sensor offset is read just before the next step, while the
          actuator is still vented. The valve opens only once the vented actuator reads
@@ -11,9 +15,9 @@ ISOLATE  tank method: supply valve closed, the tank holds its charge. Skipped wh
          So every cycle, the first of a session too, starts from the same empty actuator
          and reads a true offset (paper, Methods: a blank for the sensor offset, then
          the mean of the last 0.5-1 s before the valve opens). Once settled, the tank
-         (or the regulated buffer) must read P0 within ``charge_tolerance_kpa`` (``charged``,
-         the runner's check), else the cycle is aborted "not charged": a supply or regulator
-         that falls short would give a wrong reading marked ok.
+         (or the regulated buffer) must still read P0 (``charged``, below), else the
+         cycle is aborted "not charged": a tank that leaked while isolated would give a
+         wrong reading marked ok.
 ACTUATE  actuation valve open (t_open): the actuator fills from the tank, the regulator
          or the flow controller.
 HOLD     from the first measurement window until the valve closes.
@@ -39,6 +43,7 @@ from fluidsense.controller.config import SequenceConfig
 log = logging.getLogger(__name__)
 
 SETTLE_RECHECK_S = 0.5  # while waiting for the actuator to settle, look again this often
+CHARGE_RECHECK_S = 0.1  # while a tank charges on, look again this often (a tank fills in ~1 s)
 
 
 class State(str, enum.Enum):
@@ -95,6 +100,7 @@ class Sequencer:
         self._settled = settled or (lambda t: None)
         self._charged = charged or (lambda t: None)
         self._settle_since: float | None = None
+        self._charge_since: float | None = None
         self.valves = dict(valves if valves is not None else {SUPPLY: False, ACTUATE: False})
         self.state = State.IDLE
         self.cycle_id = 0
@@ -141,7 +147,7 @@ class Sequencer:
         self.p0_pa = self.cfg.p0_pa if p0_pa is None else p0_pa
         self.t_start, self.t_open, self.t_end, self.aborted = t, None, None, None
         self._isolate_at = float("inf")
-        self._settle_since = None
+        self._settle_since = self._charge_since = None
         self.hold = hold
         self._go(t, State.CHARGE, "start")
         self._deadline = t + self.cfg.charge_s
@@ -167,6 +173,10 @@ class Sequencer:
     def _advance(self, t: float) -> list[Action]:
         cfg = self.cfg
         if self.state == State.CHARGE:
+            if (short := self._charged(t)) is not None:
+                return self._charge_on(t, short)
+            if self._charge_since is not None:
+                log.info("cycle %d: tank charged after %.1f s more", self.cycle_id, t - self._charge_since)
             if cfg.isolate_s > 0:
                 self._go(t, State.ISOLATE, "charged")
                 self._deadline = t + cfg.isolate_s
@@ -188,6 +198,18 @@ class Sequencer:
             self._deadline = float("inf")
             return []
         raise SequenceError(f"no transition from {self.state}")  # pragma: no cover
+
+    def _charge_on(self, t: float, short: str) -> list[Action]:
+        """The tank is not at P0 yet: charge on and look again shortly, up to
+        ``charge_timeout_s``, then refuse the cycle."""
+        if self._charge_since is None:
+            self._charge_since = t
+            log.info("cycle %d: charging on: %s", self.cycle_id, short)
+        waited = t - self._charge_since
+        if waited >= self.cfg.charge_timeout_s:
+            return self.abort(t, f"not charged: {short} after {waited:.0f} s more charging")
+        self._deadline = t + CHARGE_RECHECK_S
+        return []
 
     def _open_when_settled(self, t: float) -> list[Action]:
         """Open now if the vented actuator reads flat; else look again shortly, up to

@@ -131,7 +131,7 @@ class ReferenceKeeper:
         if "profile" in changed:
             return (f"measured with profile {theirs.get('profile')!r}, this daemon runs {self.ident['profile']!r}; "
                     "take a new one")
-        what = ", ".join(f"driver (kind, rate or sensor wiring)" if p == "driver" else f"the profile's {p}"
+        what = ", ".join("driver (kind, rate or sensor wiring)" if p == "driver" else f"the profile's {p}"
                          for p in changed)
         return f"{what} changed since it was measured; take a new one"
 

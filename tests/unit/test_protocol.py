@@ -54,12 +54,17 @@ def test_a_short_first_charge_goes_on_until_the_tank_reads_p0():
     async def body(ctrl):
         return [await ctrl.run_cycle() for _ in range(3)]
 
-    first, *rest = run_profile("pneunet-gripper", body, charge_s=0.5, isolate_s=0.5, actuate_s=2.0, vent_s=0.5,
-                               offset_s=0.3, windows=[Window(name="eq", start_s=1.0, end_s=1.5)])
-    assert all(r.ok for r in (first, *rest))
+    fast = dict(charge_s=0.5, isolate_s=0.5, actuate_s=2.0, vent_s=0.5, offset_s=0.3,
+                windows=[Window(name="eq", start_s=1.0, end_s=1.5)])
+    first, *rest = run_profile("pneunet-gripper", body, **fast)
+    unchecked = run_profile("pneunet-gripper", body, **fast, charge_tolerance_kpa=100.0)
+    print("P_eq kPa, checked:", [round(r.p_eq / 1e3, 2) for r in (first, *rest)],
+          "unchecked:", [round(r.p_eq / 1e3, 2) for r in unchecked])  # docs/accuracy.md quotes these (-s)
+    assert all(r.ok for r in (first, *rest, *unchecked))
     assert first.t_open - first.t_start > 1.0 + 0.05  # it charged on
-    # 60.1 kPa in the tank read about 1.5 kPa low (dP_eq/dP0 = 0.51); the cycles' own sd is 0.04
+    # the cycles' own sd is 0.04 kPa; unchecked, the first read about 1 kPa below the rest
     assert abs(first.p_eq - np.mean([r.p_eq for r in rest])) < 0.3e3
+    assert np.mean([r.p_eq for r in unchecked[1:]]) - unchecked[0].p_eq > 0.5e3
 
 
 def _run(seq: Sequencer, until) -> float:

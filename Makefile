@@ -40,15 +40,21 @@ check: $(STAMP)
 # installed, the AVR image in simavr. CI (CI=true, a fresh machine) installs those packages
 # first (firmware-deps; firmware/README.md says why); elsewhere `make firmware-deps` does,
 # and without them the AVR tests are skipped, said in one line. --dist loadfile hands whole
-# files to the two workers, longest first (tests/conftest.py LONGEST_FIRST). A unit test past
-# its minute ends its worker (tests/conftest.py TIER_TIMEOUT_METHOD); xdist then gives that
-# file to a new worker, which meets the same test: two such restarts end the run.
-PYTEST_XDIST := -n 2 --dist loadfile --no-loadscope-reorder --max-worker-restart 2 --durations=30 --durations-min=5
+# files to the workers, longest first (tests/conftest.py LONGEST_FIRST). Three workers on two
+# cores: the real-time tests wait on their boxes and daemons, and a third worker fills those
+# waits (on the quiet 2-core machine 12 min 38 s, the cores 91 % busy, against 15 min and
+# 73 % with two: docs/architecture.md). The acceptance tier keeps two: its walks are
+# real-time runs of minutes beside the image build. A unit test past its minute ends its
+# worker (tests/conftest.py TIER_TIMEOUT_METHOD); xdist then gives that file to a new
+# worker, which meets the same test: two such restarts end the run.
+XDIST_OPTS := --dist loadfile --no-loadscope-reorder --max-worker-restart 2 --durations=30 --durations-min=5
+PYTEST_XDIST := -n 2 $(XDIST_OPTS)
+PYTEST_XDIST_TEST := -n 3 $(XDIST_OPTS)
 test: $(STAMP) firmware-host
 	@if [ "$$CI" = true ]; then $(MAKE) -s firmware-deps || echo "make test: installing $(AVR_DEBS) failed"; fi
 	@if $(AVR_READY); then $(MAKE) -s firmware-sim; else echo "make test: $(AVR_DEBS) not installed (make \
 	firmware-deps): the AVR image's tests are skipped, the host board's run"; fi
-	$(BIN)/python -m pytest tests/unit tests/system $(PYTEST_XDIST)
+	$(BIN)/python -m pytest tests/unit tests/system $(PYTEST_XDIST_TEST)
 
 # `make accept`: the acceptance tier. As root it installs what it needs with apt-get: the AVR
 # toolchain and simavr (firmware-deps) and podman, runc and debootstrap (image-check); not

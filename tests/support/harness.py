@@ -10,6 +10,7 @@ import os
 import socket
 import subprocess
 import sys
+import time
 import uuid
 from pathlib import Path
 
@@ -164,6 +165,24 @@ class Daemon:
             t, msg = frames[0].decode(), json.loads(frames[1])
             if topic is None or t == topic:
                 return t, msg
+
+    def wait_state(self, target: str, timeout_s: float = 60.0, box=None) -> dict:
+        """The next ``state`` message into ``target``, within ``timeout_s`` in all. A cycle
+        that ends first (a fault, a vent, back to idle) fails at once with why, the cycle's
+        result, the daemon's status and the box's log (``box``: an EmulatorProcess), where
+        waiting on would only run into the test's timeout with none of it."""
+        deadline = time.monotonic() + timeout_s
+        seen: list[str] = []
+        while (left := deadline - time.monotonic()) > 0:
+            _, msg = self.next_message("state", timeout_s=left)
+            if msg["to"] == target:
+                return msg
+            seen.append(f"{msg['from']} -> {msg['to']} ({msg.get('reason')})")
+            if msg["to"] in ("fault", "vent", "idle"):
+                status = self.request({"cmd": "status"}) if self.proc.poll() is None else "(daemon gone)"
+                log = box.log()[-4000:] if box is not None else "(no box)"
+                raise AssertionError(f"the cycle ended before {target}: {seen}\nstatus: {status}\nbox log:\n{log}")
+        raise AssertionError(f"no state {target} within {timeout_s} s: {seen}")
 
     def stderr_now(self) -> str:
         if self.proc.poll() is None:

@@ -141,8 +141,7 @@ def test_a_killed_daemon_is_vented_by_the_box_within_the_watchdog_timeout(kind, 
         try:
             daemon.wait_welcome()
             assert "cycle_id" in daemon.request({"cmd": "cycle"})
-            while daemon.next_message("state", timeout_s=60)[1]["to"] != "hold":
-                pass
+            daemon.wait_state("hold", 60, box=box)
             before = box.state()
             assert before["digital_outputs"] & 0b11 == INFLATED
             os.killpg(daemon.proc.pid, signal.SIGKILL)  # the daemon and its helper processes

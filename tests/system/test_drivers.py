@@ -305,8 +305,7 @@ def _child_pids(pid: int, module: str) -> list[int]:
 def _inflate(daemon: Daemon, box) -> None:
     """Start a cycle and return once the box shows the gripper connected to the tank."""
     assert "cycle_id" in daemon.request({"cmd": "cycle"})
-    while daemon.next_message("state", timeout_s=30)[1]["to"] != "actuate":
-        pass
+    daemon.wait_state("actuate", 30, box=box)
     box.wait_for(lambda s: s["digital_outputs"] & 0b10, 2.0, "gripper connected")
 
 

@@ -285,8 +285,7 @@ def _inflate(d: Daemon, sim: SimSerialProcess) -> None:
     """A cycle started, up to its inflation: the actuate valve open on the device's pin."""
     d.wait_welcome()
     assert d.request({"cmd": "cycle"})["ok"]
-    while (to := d.next_message("state")[1]["to"]) != "actuate":
-        assert to != "fault", d.request({"cmd": "status"})["fault"]
+    d.wait_state("actuate", 30)
     assert sim.control(cmd="state")["valves"]["actuate"] is True
 
 

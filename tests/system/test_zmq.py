@@ -115,10 +115,7 @@ def test_real_time_heartbeat_and_sigterm_vents_then_exits(tmp_path, daemon_facto
     assert beat["realtime"] == rt["sched_fifo"] in ("granted", "refused") and rt["priority"] == 20
     assert rt["detail"].startswith("SCHED_FIFO priority 20 " + ("refused" if rt["sched_fifo"] == "refused" else "("))
     assert d.request({"cmd": "cycle"})["ok"]
-    while True:  # wait, in real time, for the actuation valve to open: the actuator inflates
-        _, st = d.next_message("state", timeout_s=10)
-        if st["to"] == "actuate":
-            break
+    d.wait_state("actuate", 30)  # in real time, the actuation valve opens: the actuator inflates
     d.proc.send_signal(signal.SIGTERM)
     tail = []
     while True:

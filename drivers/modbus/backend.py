@@ -163,6 +163,16 @@ class ModbusHeartbeat(BoxWatchdog):
         self.beats = (self.beats + 1) & 0xFFFF
         await self.link.write(self.register, self.beats)
 
+    async def _ensure_running(self) -> None:
+        """A beat before a cycle's first command, on the same link (its requests go in
+        order): the program has counted silence since it was sent at connection, and the
+        loop's own beats start with its first block, which can come after a cycle asked
+        for at once. A command that reached the box first could meet the end of that
+        silence and be vented a moment later: the likely cause of a command fault seen
+        once in ``make test`` (the supply valve read back closed 1 s into the first
+        charge, the tank never charged; no box log was kept to confirm it)."""
+        await self._kick()
+
 
 class ModbusRegulator(Regulator):
     def __init__(self, link: ModbusConnection, wiring: RegulatorWiring, regs: RegisterMap, scale: AnalogScale):

@@ -189,3 +189,40 @@ def test_fluidsense_watchdog_prints_the_thread_for_the_integrators_program_and_i
     refused = subprocess.run([sys.executable, "-m", "fluidsense", "watchdog", "--config", str(cell), "--install"],
                              capture_output=True, text=True, timeout=60, cwd=REPO)
     assert refused.returncode == 2 and "--install would replace it" in refused.stderr
+
+
+def test_a_cycle_beats_the_box_watchdog_before_its_first_command(tmp_path):
+    """The box's watchdog program counts silence from when it was sent, at connection; the
+    loop's beats start with its first block, which can come after a cycle asked for at once.
+    ``ensure_running`` (called before every cycle) therefore beats once itself, on the link
+    the cycle's commands then take in order, so no command meets the end of that silence.
+    Without it (the base class's no-op) the register would not move here."""
+    from fluidsense.drivers.modbus.backend import ModbusConnection, ModbusHeartbeat
+    from pymodbus.client import ModbusTcpClient
+
+    with free_simcell(tmp_path, "modbus", profile="sorting-gripper-quick.yaml", driver=NO_ARM) as (box, cell):
+        cfg = load_cell_config(cell).driver
+
+        def beat() -> int:
+            client = ModbusTcpClient(cfg.host, port=cfg.port, timeout=5)
+            assert client.connect()
+            try:
+                return client.read_holding_registers(cfg.watchdog.heartbeat_register, count=1).registers[0]
+            finally:
+                client.close()
+
+        async def body():
+            link = ModbusConnection(cfg)
+            await link.open()
+            dog = ModbusHeartbeat(link, cfg.watchdog)
+            await dog.setup()
+            try:
+                before = await _box(beat)
+                await dog.ensure_running()
+                return before, await _box(beat)
+            finally:
+                await dog.stop()
+                await link.close()
+
+        before, after = asyncio.run(asyncio.wait_for(body(), 60))
+        assert after == (before + 1) & 0xFFFF

@@ -35,10 +35,12 @@ def test_sim_source_accounts_for_every_slot_and_cleans_up(short_tmp):
     assert out.returncode == 0, out.stderr
     res = json.loads(out.stdout)
     assert res["source"] == "sim" and res["rate_hz"] == 1000.0
-    # 2 s at 1 kHz, less what the daemon sends before the subscriber has joined: about 0.4 s
-    # on a quiet machine (1580 seen), up to a second on a loaded 2-core one (1480 seen under
-    # the suite); every slot after the join is accounted for by lost == 0 below
-    assert res["samples"] >= 1000
+    # 2 s at 1 kHz from the first sample (the measurement began at the daemon's welcome, and
+    # its sampler's start-up, up to 1.1 s beside the suite and two busy loops, counted as
+    # missing: 870 seen); short of 2000 only by what arrives after the window closes, at most
+    # the 0.25 s the loop may lag its samples before it faults on overrun. Every slot in
+    # between is accounted for by lost == 0 below
+    assert res["samples"] >= 2000 - 250 - 10
     assert res["lost"] == 0 and res["duplicated"] == 0
     assert res["late_fraction"] == 0.0 and res["lateness_us"]["max"] < 1e-3  # stamped on the grid
     e2e, daemon, wire = res["e2e_latency_ms"], res["to_daemon_send_ms"], res["daemon_send_to_subscriber_ms"]

@@ -77,7 +77,7 @@ class SequenceConfig(StrictModel):
         "(pressure_flow) whose sensor reads P0 within this, averaged over offset_s: a charge that has not got "
         "there goes on (up to charge_timeout_s more), and a tank that has fallen short by the opening refuses "
         "the cycle ('not charged'), since a short charge gives a P_eq as wrong as any contact. None: the "
-        "profile's P0 margin (the "
+        "profile's P0 margin, at least 0.05 kPa (the "
         "tank sensor's offset and quantum, 4 sd of the regulator's repeatability and 6 sd of the noise, about "
         "1.1 kPa with the defaults). Give more for a regulator whose setpoint is off by a steady amount (the "
         "free-air reference, taken at the same setpoint, cancels that)")

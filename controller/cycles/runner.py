@@ -46,6 +46,8 @@ from .sequencer import (
 
 log = logging.getLogger(__name__)
 
+CHARGE_FLOOR_KPA = 0.05  # the default charge tolerance's least (sequence.charge_tolerance_kpa)
+
 
 def freeze_for(profile: Profile, freeze_s: float | None) -> float | None:
     """``freeze_s`` where a frozen p_act can be told from a live one: not for a sensor the
@@ -244,7 +246,9 @@ class CycleRunner:
         if not sel.any():
             return f"no tank reading in the last {cfg.offset_s:g} s"
         p_tank = float(values[sel, self._trace.channels.index("p_tank")].mean())
-        tol = (cfg.charge_tolerance_kpa or self.profile.p0_margin_kpa) * KPA
+        # at least CHARGE_FLOOR_KPA: a profile that declares its sensor and regulator ideal
+        # has a margin of 0, which a tank approaching P0 exponentially would never meet
+        tol = (cfg.charge_tolerance_kpa or max(self.profile.p0_margin_kpa, CHARGE_FLOOR_KPA)) * KPA
         if abs(p_tank - seq.p0_pa) <= tol:
             return None
         what = "tank" if cfg.method == "tank" else "regulated buffer"

@@ -129,3 +129,33 @@ def test_sequencer_waits_while_not_settled_and_aborts_after_the_timeout():
         never.on_time(t)
     assert never.t_open is None and never.aborted.startswith("not settled: still venting")
     assert t == pytest.approx(3.0 + 4.0, abs=0.1)
+
+
+def test_an_ideal_profile_charges_within_the_floor():
+    """A profile that declares its sensors and regulator ideal has a P0 margin of 0, which a
+    tank approaching P0 exponentially never meets: without the tolerance's floor
+    (runner.CHARGE_FLOOR_KPA) its first cycle charged on for the timeout and was refused
+    with the tank reading 63.00 of 63.00 kPa."""
+    import asyncio
+
+    from fluidsense.common.budget import PartsBudget
+    from fluidsense.controller.config import CellConfig, load_profile
+    from fluidsense.daemon import app
+    from fluidsense.drivers.registry import SimDriverConfig
+    from support.harness import CONFIG
+
+    prof = load_profile(CONFIG / "profiles" / "pneunet-gripper.yaml")
+    ideal = dict(noise_sd_kpa=0.0, quantum_kpa=0.0, offset_kpa=0.0)
+    prof = prof.model_copy(update={
+        "budget": PartsBudget(), "sensor": prof.sensor.model_copy(update=ideal),
+        "tank_sensor": prof.tank_sensor.model_copy(update=ideal),
+        "circuit": prof.circuit.model_copy(update={"regulator_repeatability_kpa": 0.0})})
+    assert prof.p0_margin_kpa == 0.0
+
+    async def main():
+        async with app.controller(CellConfig(driver=SimDriverConfig(clock="virtual", seed=3), profile=prof)) as ctrl:
+            return await ctrl.run_cycle()
+
+    res = asyncio.run(main())
+    assert res.ok and res.t_open - res.t_start == pytest.approx(prof.sequence.charge_s + prof.sequence.isolate_s,
+                                                                abs=0.02)

@@ -168,8 +168,8 @@ class Daemon:
 
     def wait_state(self, target: str, timeout_s: float = 60.0, box=None) -> dict:
         """The next ``state`` message into ``target``, within ``timeout_s`` in all. A cycle
-        that ends first (a fault, a vent, back to idle) fails at once with why, the cycle's
-        result, the daemon's status and the box's log (``box``: an EmulatorProcess), where
+        that ends first (a fault, a vent, back to idle) fails at once with its transitions,
+        the daemon's status (its last cycle in it) and the box's log (``box``: an EmulatorProcess), where
         waiting on would only run into the test's timeout with none of it."""
         deadline = time.monotonic() + timeout_s
         seen: list[str] = []

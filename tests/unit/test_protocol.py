@@ -1,6 +1,7 @@
-"""The measurement protocol: the valve opens only on a vented actuator that reads flat, so
-the first cycle of a session reads the same offset and P_eq as the tenth (and a tube that
-will not settle refuses the cycle instead of biasing it).
+"""The measurement protocol, what must hold before the valve opens: a vented actuator that
+reads flat, so the first cycle of a session reads the same offset and P_eq as the tenth (a
+tube that will not settle refuses the cycle instead of biasing it), and a tank charged to P0
+(a supply that falls short refuses it).
 
 (Its tests with real peers: tests/system/test_protocol.py.)
 """
@@ -38,7 +39,8 @@ def test_a_tank_that_falls_short_of_p0_refuses_the_cycle():
         await ctrl.scene.place(PlateScene(height_mm=10))
         return await ctrl.run_cycle()
 
-    res = run_profile("pneunet-bending", body, circuit={"supply_resistance_pa_s_per_m3": 1e11}, charge_timeout_s=5.0)
+    res = run_profile("pneunet-bending", body, parts={"circuit": {"supply_resistance_pa_s_per_m3": 1e11}},
+                      charge_timeout_s=5.0)
     assert not res.ok and res.t_open is None
     assert res.aborted.startswith("not charged: the tank reads") and "after 5 s more charging" in res.aborted
     p_read = float(res.aborted.split("reads ")[1].split(" kPa")[0])
@@ -114,19 +116,11 @@ def test_sequencer_waits_while_not_settled_and_aborts_after_the_timeout():
         {"name": "eq", "start_s": 1.0, "end_s": 2.0}], settle_timeout_s=4.0)
     answers = iter(["still venting"] * 3)
     seq = Sequencer(cfg, settled=lambda t: next(answers, None))
-    seq.start(0.0)
-    t = 0.0
-    while seq.t_open is None and seq.busy:
-        t += 0.01
-        seq.on_time(t)
+    _run(seq, lambda s: s.t_open is not None)
     assert seq.state == State.ACTUATE and seq.t_open == pytest.approx(3.0 + 3 * 0.5, abs=0.05)
 
     never = Sequencer(cfg, settled=lambda t: "still venting")
-    never.start(0.0)
-    t = 0.0
-    while never.busy and never.state != State.VENT:
-        t += 0.01
-        never.on_time(t)
+    t = _run(never, lambda s: s.state == State.VENT)
     assert never.t_open is None and never.aborted.startswith("not settled: still venting")
     assert t == pytest.approx(3.0 + 4.0, abs=0.1)
 
@@ -136,26 +130,12 @@ def test_an_ideal_profile_charges_within_the_floor():
     tank approaching P0 exponentially never meets: without the tolerance's floor
     (runner.CHARGE_FLOOR_KPA) its first cycle charged on for the timeout and was refused
     with the tank reading 63.00 of 63.00 kPa."""
-    import asyncio
-
-    from fluidsense.common.budget import PartsBudget
-    from fluidsense.controller.config import CellConfig, load_profile
-    from fluidsense.daemon import app
-    from fluidsense.drivers.registry import SimDriverConfig
-    from support.harness import CONFIG
-
-    prof = load_profile(CONFIG / "profiles" / "pneunet-gripper.yaml")
     ideal = dict(noise_sd_kpa=0.0, quantum_kpa=0.0, offset_kpa=0.0)
-    prof = prof.model_copy(update={
-        "budget": PartsBudget(), "sensor": prof.sensor.model_copy(update=ideal),
-        "tank_sensor": prof.tank_sensor.model_copy(update=ideal),
-        "circuit": prof.circuit.model_copy(update={"regulator_repeatability_kpa": 0.0})})
-    assert prof.p0_margin_kpa == 0.0
+    parts = {"sensor": ideal, "tank_sensor": ideal, "circuit": {"regulator_repeatability_kpa": 0.0}}
 
-    async def main():
-        async with app.controller(CellConfig(driver=SimDriverConfig(clock="virtual", seed=3), profile=prof)) as ctrl:
-            return await ctrl.run_cycle()
+    async def body(ctrl):
+        assert ctrl.profile.p0_margin_kpa == 0.0
+        return ctrl.profile.sequence, await ctrl.run_cycle()
 
-    res = asyncio.run(main())
-    assert res.ok and res.t_open - res.t_start == pytest.approx(prof.sequence.charge_s + prof.sequence.isolate_s,
-                                                                abs=0.02)
+    seq, res = run_profile("pneunet-gripper", body, parts=parts)
+    assert res.ok and res.t_open - res.t_start == pytest.approx(seq.charge_s + seq.isolate_s, abs=0.02)

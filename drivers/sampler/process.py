@@ -26,6 +26,7 @@ import resource
 import signal
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import zmq
@@ -207,11 +208,29 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return _with_poller(args, sender, ctl)
     finally:
-        if os.getppid() != int(args["parent_pid"]):
+        orphaned = os.getppid() != int(args["parent_pid"])
+        if orphaned:
             data.setsockopt(zmq.LINGER, 0)  # nobody left to read what is queued
         data.close()
         ctl.close()
         ctx.term()
+        if orphaned:
+            _remove_endpoints(args)
+
+
+def _remove_endpoints(args: dict[str, Any]) -> None:
+    """The ipc endpoints' files and their directory, which the daemon bound and removes when
+    it stops: killed (SIGKILL, the OOM killer), it left them in /tmp for good. Only those two
+    files and an emptied directory: nothing else is removed."""
+    paths = [Path(args[name].removeprefix("ipc://")) for name in ("data", "control")
+             if args[name].startswith("ipc://")]
+    for path in paths:
+        path.unlink(missing_ok=True)
+    for folder in {path.parent for path in paths}:
+        try:
+            folder.rmdir()
+        except OSError as exc:  # not empty, or already gone: not ours to force
+            log.debug("left %s: %s", folder, exc)
 
 
 def _with_poller(args: dict[str, Any], sender: Sender, ctl: zmq.Socket) -> int:

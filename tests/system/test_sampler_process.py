@@ -166,6 +166,9 @@ def test_a_bad_poller_spec_or_a_poller_that_cannot_open_fails_setup():
 
 
 def test_the_sampler_exits_when_its_parent_dies(tmp_path):
+    """SIGKILL of the daemon: its sampler exits (in about 10 ms) and removes the directory of
+    the endpoints the daemon had bound, which nobody else is left to remove (a suite of
+    daemons killed this way once left three such directories in /tmp per run)."""
     script = textwrap.dedent(f"""
         import asyncio, sys
         sys.path.insert(0, {str(REPO)!r})
@@ -174,13 +177,15 @@ def test_the_sampler_exits_when_its_parent_dies(tmp_path):
             src = SampledSource(SamplerConfig(poller={{"factory": {SYNTHETIC!r}}}, channels=["p"]))
             await src.setup()
             await src.read_block()
-            print(src.pid, flush=True)
+            print(src.pid, src._dir, flush=True)
             await asyncio.sleep(3600)
         asyncio.run(main())
     """)
     parent = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True, cwd=REPO)
     try:
-        pid = int(parent.stdout.readline())
+        pid, endpoints = parent.stdout.readline().split()
+        pid = int(pid)
+        assert os.path.exists(os.path.join(endpoints, "data"))
         parent.kill()
         parent.wait(30)
         for _ in range(600):  # at most 60 s; it normally takes about 10 ms
@@ -194,6 +199,7 @@ def test_the_sampler_exits_when_its_parent_dies(tmp_path):
         else:
             os.kill(pid, signal.SIGKILL)
             raise AssertionError(f"sampler {pid} outlived its parent")
+        assert not os.path.exists(endpoints), os.listdir(endpoints)
     finally:
         if parent.poll() is None:
             parent.kill()

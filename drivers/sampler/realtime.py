@@ -87,6 +87,16 @@ def set_loop_priority(priority: int | None) -> dict[str, Any]:
     return result
 
 
+def release_loop_priority() -> None:
+    """The calling thread back at normal priority, the loop's priority forgotten: for a
+    library caller (a test, a bench) that ran a controller's loop the way the daemon does
+    (``set_loop_priority``) and goes on with other work in the same thread."""
+    global _loop_priority
+    _loop_priority = None
+    if hasattr(os, "sched_setscheduler"):
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+
+
 def share_loop_priority() -> None:
     """The calling thread, one of the loop's process's own, at the loop's priority when the
     loop has one. A thread at normal priority that holds the GIL (or the queue's lock)

@@ -97,6 +97,22 @@ def free_simcell(tmp_path: Path, kind: str, profile: str | None = None, driver: 
         assert "Traceback" not in box.log(), box.log()
 
 
+@contextlib.contextmanager
+def daemon_loop_priority(cfg):
+    """The calling thread's loop at the priority a daemon's gets (``loop.rt_priority``,
+    SCHED_FIFO when permitted) for the block, normal after it. A controller run in the test
+    process against real-time peers stands for the daemon's: at normal priority, beside
+    the suite's workers and busy loops, it measured this machine's scheduler instead of
+    the product's loop."""
+    from fluidsense.drivers.sampler import realtime
+
+    realtime.set_loop_priority(cfg.loop.rt_priority)
+    try:
+        yield
+    finally:
+        realtime.release_loop_priority()
+
+
 def ipc_endpoints(tmp_path: Path) -> tuple[str, str]:
     """ipc endpoints in a per-test directory: no port can clash between tests."""
     tag = uuid.uuid4().hex[:8]

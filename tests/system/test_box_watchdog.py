@@ -24,7 +24,7 @@ from fluidsense.drivers.registry import build_backend
 from fluidsense.drivers.ur.watchdog import safe_levels, watchdog_lines
 from fluidsense.simulator.controlbox.watchdog import WatchdogProgram
 from support.box_watchdog import INFLATED, LEVELS, REGISTER, TIMEOUT_S, Box
-from support.harness import CONFIG, Daemon, free_simcell
+from support.harness import CONFIG, Daemon, daemon_loop_priority, free_simcell
 
 
 
@@ -98,7 +98,8 @@ def test_a_link_lost_without_a_box_watchdog_vents_as_the_first_act_when_it_retur
                 result = await asyncio.wait_for(ctrl.run_cycle(), 60)
                 return down, status, result
 
-        down, status, result = asyncio.run(asyncio.wait_for(body(), 240))
+        with daemon_loop_priority(cfg):
+            down, status, result = asyncio.run(asyncio.wait_for(body(), 240))
         # while down, status shows the last report from the device (inflated), and its age
         assert status["valves"] == {"supply": False, "actuate": True} and status["valves_age_s"] > 0
         assert result.ok
@@ -123,7 +124,8 @@ def test_a_link_lost_is_vented_by_the_box_watchdog_program_within_its_timeout(tm
                 ctrl.reset()
                 return down, vented, fault_event
 
-        down, vented, fault = asyncio.run(asyncio.wait_for(body(), 240))
+        with daemon_loop_priority(cfg):
+            down, vented, fault = asyncio.run(asyncio.wait_for(body(), 240))
         (t_vent, outputs, by), = [e for e in _journal_after(vented, down["t"]) if e[2] == "watchdog"]
         # the last heartbeat came at most a kick period (timeout / 4) before the cable was pulled
         assert t_vent - down["t"] <= TIMEOUT_S + 0.01

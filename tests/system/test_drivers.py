@@ -28,7 +28,7 @@ from fluidsense.controller.config import load_cell_config
 from fluidsense.controller.service import Controller
 from fluidsense.drivers.registry import build_backend
 from support.configs import cell_config, task_config, whole
-from support.harness import CONFIG, REPO, Daemon, free_simcell, free_tcp_port
+from support.harness import CONFIG, REPO, Daemon, daemon_loop_priority, free_simcell, free_tcp_port
 
 KINDS = ["ur", "modbus"]
 
@@ -223,7 +223,8 @@ def test_link_loss_is_a_fault_and_the_driver_reconnects_on_one_clock(kind, no_da
                 result = await asyncio.wait_for(ctrl.run_cycle(), 30)
                 assert result.ok and 25e3 < result.p_eq < 40e3, (result.aborted, result.p_eq, result.missed)
 
-        asyncio.run(asyncio.wait_for(body(), 150))
+        with daemon_loop_priority(cfg):
+            asyncio.run(asyncio.wait_for(body(), 150))
 
 
 async def _until(predicate, timeout_s: float, what: str) -> None:

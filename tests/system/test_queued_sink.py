@@ -13,7 +13,9 @@ def test_the_sink_thread_runs_at_the_sample_loops_real_time_priority():
     """The loop's thread at SCHED_FIFO resets the policy of the threads it starts (they are
     clones: SCHED_RESET_ON_FORK); the recording's thread, which takes the GIL and the
     queue's lock the loop takes, asks for the loop's priority back. In a fresh process,
-    as the daemon sets it; skipped where real-time priority is refused."""
+    as the daemon sets it; skipped where real-time priority is refused. Released
+    (release_loop_priority, as tests/support/harness.py's daemon_loop_priority does), the
+    thread and the threads it starts are at normal priority again."""
     import subprocess
     import sys
 
@@ -34,9 +36,16 @@ def test_the_sink_thread_runs_at_the_sample_loops_real_time_priority():
         "sink = QueuedSink(Probe(), wait_when_full=True)\n"
         "sink.on_event('probe', 0.0, {})\n"
         "sink.close()\n"
-        "print(granted, plain[0] == os.SCHED_OTHER, seen[0] == (os.SCHED_FIFO, 7))\n")
+        "from fluidsense.drivers.sampler.realtime import release_loop_priority\n"
+        "release_loop_priority()\n"
+        "again = QueuedSink(Probe(), wait_when_full=True)\n"
+        "again.on_event('probe', 0.0, {})\n"
+        "again.close()\n"
+        "print(granted, plain[0] == os.SCHED_OTHER, seen[0] == (os.SCHED_FIFO, 7),\n"
+        "      os.sched_getscheduler(0) == os.SCHED_OTHER and seen[1] == (os.SCHED_OTHER, 0))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
     if out[0] == "False":
         pytest.skip("SCHED_FIFO is refused here (no CAP_SYS_NICE or RLIMIT_RTPRIO)")
-    # a thread of its own is reset to normal priority; the sink's thread takes the loop's
-    assert out == ["True", "True", "True"], out
+    # a thread of its own is reset to normal priority; the sink's thread takes the loop's;
+    # released (a library caller done with its loop), the thread and a later sink's are normal
+    assert out == ["True", "True", "True", "True"], out

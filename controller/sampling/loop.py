@@ -48,6 +48,10 @@ class SampleLoop:
         self.samples = self.blocks = self.missed = self.late = 0
         self.proc_s: deque[float] = deque(maxlen=2000)
         self._wall_lag0: float | None = None  # wall clock minus sample time of the least late block
+        # when the block before was taken (perf_counter): an overrun says how long the loop
+        # was away, which tells a slow block (proc_s) from a loop that did not run
+        self._taken_s: float | None = None
+        self._away_s = 0.0
 
     @property
     def source(self) -> SampleSource:
@@ -101,6 +105,8 @@ class SampleLoop:
                 continue
             failures = 0
             t0 = time.perf_counter()
+            self._away_s = t0 - self._taken_s if self._taken_s is not None else 0.0
+            self._taken_s = t0
             self.samples += len(block)
             self.blocks += 1
             self.missed += block.missed
@@ -177,5 +183,8 @@ class SampleLoop:
             return None
         behind = lag - self._wall_lag0
         if behind > self.cfg.supervision.overrun_s:
-            return Fault(FaultKind.OVERRUN, None, block.t_end, f"the loop is {behind:.3f} s behind its samples")
+            slowest = max(self.proc_s, default=0.0)
+            return Fault(FaultKind.OVERRUN, None, block.t_end,
+                         f"the loop is {behind:.3f} s behind its samples ({self._away_s * 1e3:.0f} ms since it took "
+                         f"the block before; the slowest block since the last heartbeat took {slowest * 1e3:.0f} ms)")
         return None

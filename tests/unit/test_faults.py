@@ -126,6 +126,7 @@ def test_a_stalled_loop_is_an_overrun_vented_at_once_and_latched_once_and_the_co
     already done, which hung the controller). The stall is the condition under test, not a
     way to let time pass; the timeout below only turns a hang into a failure."""
     import asyncio
+    import re
     import time
 
     from fluidsense.controller.service import Controller, Sink
@@ -168,6 +169,9 @@ def test_a_stalled_loop_is_an_overrun_vented_at_once_and_latched_once_and_the_co
 
     first, vented, vent_delay_s, second, stopped = run(body())
     assert first.kind == "overrun" and vented and vent_delay_s == 0.0
+    # the fault tells a loop that did not come back (here a sink's 0.5 s inside one block)
+    away_ms = re.search(r"\((\d+) ms since it took the block before", first.detail)
+    assert away_ms and int(away_ms.group(1)) >= 500, first.detail
     assert second is None
     assert stopped
 

@@ -13,7 +13,7 @@ from fluidsense.simulator.actuators import volume_law
 from fluidsense.simulator.equilibrium import eq2_resolution, equilibrium
 from fluidsense.simulator.gas import Network, Pipe, VolumeLaw
 from fluidsense.simulator.plant import Plant
-from fluidsense.simulator.resolution import linear_sweep, resolution_at, search
+from fluidsense.simulator.resolution import evaluate, linear_sweep, resolution_at, search
 from support.cli import run_cli
 from support.harness import REPO
 
@@ -76,6 +76,11 @@ def test_design_search_picks_the_best_feasible_and_the_plant_agrees():
     state, _ = plant.sample(np.array([60.0]))
     p_dyn = plant.pressures_abs(state)[1, 0] - P_ATM
     assert p_dyn / KPA == pytest.approx(best.p_eq_range_kpa[0], rel=1e-3)
+    # the search keeps one volume law per target value across the grid: every grid point is
+    # what evaluating it alone, each law built afresh, gives
+    alone = [evaluate(act, lambda x: WallScene(distance_mm=x), targets, d.tank_l, d.p0_kpa, P_ATM, (-5, 80),
+                      (-103.4, 103.4)) for d in grid]
+    assert [d.to_dict() for d in grid] == [d.to_dict() for d in alone]
 
 
 def test_design_command(tmp_path, capsys):

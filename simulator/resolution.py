@@ -41,7 +41,7 @@ def resolution_at(actuator, scene_at: SceneAt, target: float, step: float, p0: f
     target value. ``law_at``: the actuator's volume law at a target value (None: free air),
     when a caller evaluating many tanks and P0s keeps them (``search``: a law depends on
     neither)."""
-    law_at = law_at or _laws(actuator, scene_at, p_atm, cache=False)
+    law_at = law_at or _laws(actuator, scene_at, p_atm)
 
     def peq(x: float) -> float:
         return equilibrium(p0, v_tank, law_at(x), p_atm)
@@ -58,17 +58,14 @@ def resolution_at(actuator, scene_at: SceneAt, target: float, step: float, p0: f
     return Point(target, p, d, everywhere, edge=touching(p) and not everywhere)
 
 
-def _laws(actuator, scene_at: SceneAt, p_atm: float, cache: bool) -> Callable[[float | None], VolumeLaw]:
-    """The volume law at a target value (None: free air), kept per value with ``cache``."""
+def _laws(actuator, scene_at: SceneAt, p_atm: float) -> Callable[[float | None], VolumeLaw]:
+    """The volume law at a target value (None: free air), each built once."""
     kept: dict[float | None, VolumeLaw] = {}
 
     def law_at(x: float | None) -> VolumeLaw:
-        if x in kept:
-            return kept[x]
-        law = volume_law(actuator, EmptyScene() if x is None else scene_at(x), p_atm)
-        if cache:
-            kept[x] = law
-        return law
+        if x not in kept:
+            kept[x] = volume_law(actuator, EmptyScene() if x is None else scene_at(x), p_atm)
+        return kept[x]
 
     return law_at
 
@@ -148,8 +145,8 @@ def search(actuator, scene_at: SceneAt, targets: Sequence[float], tanks_l: Seque
     """Every (tank, P0) on the grid; the best is the feasible one with the largest worst-case
     resolution (ties: the smaller P0, then the smaller tank)."""
     # the volume laws depend on the target, not on the tank or P0: built once per target
-    # value, not once per grid point (about 40 % of a search's time)
-    law_at = _laws(actuator, scene_at, p_atm, cache=True)
+    # value, not once per grid point (about half of a search's time)
+    law_at = _laws(actuator, scene_at, p_atm)
     grid = [evaluate(actuator, scene_at, targets, vt, p0, p_atm, p_limits_kpa, sensor_kpa, law_at)
             for vt in tanks_l for p0 in p0s_kpa]
     feasible = [d for d in grid if d.feasible]

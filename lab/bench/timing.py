@@ -220,25 +220,8 @@ def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, loa
         cpu0, wall0 = _cpu_s(daemon.pid), time.monotonic()
         dev_cpu0 = _cpu_s(device.pid) if device is not None else 0.0
         times, newest_age, oldest_age, in_daemon, faults = [], [], [], [], []
-        next_cycle = time.monotonic() + 2.0 if cycles else float("inf")
-        pending = [first]
-        while time.monotonic() < stop_at:
-            if time.monotonic() >= next_cycle:
-                _request(ctx, tmp, {"cmd": "cycle"})  # refused while one runs: the next try is 5 s on
-                next_cycle += 5.0
-            if pending:
-                frames, arrival = pending.pop()
-            elif not sub.poll(1000):
-                continue
-            else:
-                frames, arrival = sub.recv_multipart(), time.monotonic()
-            if frames[0] == b"fault":  # e.g. overrun: the loop fell behind its samples
-                fault = json.loads(frames[1])
-                faults.append({"kind": fault["kind"], "detail": fault["detail"], "t_s": fault["t_s"]})
-                _request(ctx, tmp, {"cmd": "reset"})  # measure on: the next cycles go on after it
-                continue
-            if frames[0] != b"pressure":
-                continue
+
+        def take(frames: list[bytes], arrival: float) -> None:
             msg = json.loads(frames[1])
             origin = msg["clock_origin_s"]
             t = msg["times_s"]
@@ -246,6 +229,22 @@ def _measure(tmp: Path, cfg: Path, seconds: float, source: str, rate: float, loa
             newest_age.append(arrival - (origin + t[-1]))
             in_daemon.append(msg["sent_s"] - (origin + t[-1]))
             oldest_age.append(arrival - (origin + t[0]))
+
+        take(*first)
+        next_cycle = time.monotonic() + 2.0 if cycles else float("inf")
+        while time.monotonic() < stop_at:
+            if time.monotonic() >= next_cycle:
+                _request(ctx, tmp, {"cmd": "cycle"})  # refused while one runs: the next try is 5 s on
+                next_cycle += 5.0
+            if not sub.poll(1000):
+                continue
+            frames, arrival = sub.recv_multipart(), time.monotonic()
+            if frames[0] == b"fault":  # e.g. overrun: the loop fell behind its samples
+                fault = json.loads(frames[1])
+                faults.append({"kind": fault["kind"], "detail": fault["detail"], "t_s": fault["t_s"]})
+                _request(ctx, tmp, {"cmd": "reset"})  # measure on: the next cycles go on after it
+            elif frames[0] == b"pressure":
+                take(frames, arrival)
         cpu = (_cpu_s(daemon.pid) - cpu0) / (time.monotonic() - wall0)
         dev_cpu = (_cpu_s(device.pid) - dev_cpu0) / (time.monotonic() - wall0) if device is not None else None
         link = _status(ctx, tmp).get("source_link") if source == "serial" else None

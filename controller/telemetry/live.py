@@ -18,12 +18,12 @@ import select
 import shutil
 import subprocess
 import sys
-import tempfile
 import time
 from typing import Any
 
 import zmq
 from fluidsense.common.errors import ConfigError
+from fluidsense.common.rundirs import private_dir
 from fluidsense.common.samples import SampleBlock
 from fluidsense.drivers.recording.messages import block_payload, to_json
 from fluidsense.drivers.recording.schema import SAMPLES
@@ -34,6 +34,7 @@ from .live_bridge import STOP, T0
 
 log = logging.getLogger(__name__)
 
+DIR_PREFIX = "fluidsense-live-"  # the inlet's folder: <temp>/DIR_PREFIX<pid>-XXXXXXXX
 START_TIMEOUT_S = 30.0
 STOP_TIMEOUT_S = 3.0
 
@@ -60,7 +61,7 @@ class LiveSink(Sink):
         self.sent = 0
         self._said_dead = False
         self._closed = False
-        self._dir = tempfile.mkdtemp(prefix=f"fluidsense-live-{os.getpid()}-")  # 0700: only our user
+        self._dir = str(private_dir(DIR_PREFIX))  # 0700: only our user
         inlet = f"ipc://{self._dir}/inlet"
         args = {"host": cfg.host, "port": cfg.port, "backlog": cfg.backlog, "inlet": inlet,
                 "t0_unix_ns": self.t0_unix_ns, "parent_pid": os.getpid(),

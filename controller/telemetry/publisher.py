@@ -29,17 +29,15 @@ import os
 import secrets
 import select
 import shutil
-import stat
 import subprocess
 import sys
-import tempfile
 import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import zmq
 from fluidsense.common.names import INSTANCE_HEX, TOPICS, WELCOME
+from fluidsense.common.rundirs import private_dir
 from fluidsense.controller.telemetry.outlet import STOP
 
 log = logging.getLogger(__name__)
@@ -90,19 +88,6 @@ def encode(topic: str, seq: int, t_s: float, payload: dict[str, Any], topic_seq:
     return [topic.encode("ascii"), json.dumps(_clean(msg), default=_default, allow_nan=False).encode()]
 
 
-def _sweep_stale_dirs() -> None:
-    """Remove the inlet directories of our user's daemons that are gone (killed)."""
-    for path in Path(tempfile.gettempdir()).glob(f"{DIR_PREFIX}*-*"):
-        try:
-            pid = int(path.name.removeprefix(DIR_PREFIX).split("-", 1)[0])
-            st = path.lstat()
-        except (ValueError, OSError):
-            continue
-        if st.st_uid != os.getuid() or not stat.S_ISDIR(st.st_mode) or Path(f"/proc/{pid}").exists():
-            continue
-        shutil.rmtree(path, ignore_errors=True)
-
-
 class Publisher:
     publishes = True  # pressure batches are built for it (NullPublisher: not)
 
@@ -117,10 +102,9 @@ class Publisher:
         self.dropped = 0  # messages that never reached the outlet
         self.restarts = 0
         self._hwm = hwm
-        _sweep_stale_dirs()
         # 0700: only our user reaches the inlet; the pid in the name lets a later daemon
         # remove it if this one is killed before it can
-        self._dir = tempfile.mkdtemp(prefix=f"{DIR_PREFIX}{os.getpid()}-")
+        self._dir = str(private_dir(DIR_PREFIX))
         self._inlet = f"ipc://{self._dir}/inlet"
         self._proc: subprocess.Popen | None = None
         self._next_check = 0.0

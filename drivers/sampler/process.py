@@ -220,8 +220,9 @@ def main(argv: list[str] | None = None) -> int:
 
 def _remove_endpoints(args: dict[str, Any]) -> None:
     """The ipc endpoints' files and their directory, which the daemon bound and removes when
-    it stops: killed (SIGKILL, the OOM killer), it left them in /tmp for good. Only those two
-    files and an emptied directory: nothing else is removed."""
+    it stops: killed (SIGKILL, the OOM killer), it cannot, and a sampler that outlives it
+    does (a sampler killed with it leaves them to the next daemon's start: common/rundirs.py).
+    Only those two files and an emptied directory: nothing else is removed."""
     paths = [Path(args[name].removeprefix("ipc://")) for name in ("data", "control")
              if args[name].startswith("ipc://")]
     for path in paths:

@@ -21,7 +21,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import tempfile
 from collections import deque
 from pathlib import Path
 from typing import Any
@@ -36,6 +35,7 @@ from fluidsense.common.errors import (
     DriverError,
     LinkLostError,
 )
+from fluidsense.common.rundirs import private_dir
 from fluidsense.common.samples import SampleBlock
 from fluidsense.drivers.base import SampleSource
 
@@ -46,6 +46,7 @@ log = logging.getLogger(__name__)
 
 #: how often a waiting read_block() checks that the process is still alive
 LIVENESS_POLL_S = 0.05
+DIR_PREFIX = "fluidsense-sampler-"  # the endpoints' folder: <temp>/DIR_PREFIX<pid>-XXXXXXXX (common/rundirs.py)
 RCVHWM = 1000  # blocks; with the sampler's SNDHWM, about 20 s of 1 kHz data can queue
 
 
@@ -102,7 +103,7 @@ class SampledSource(SampleSource):
     # ----------------------------------------------------------------- set-up
     async def _setup(self) -> None:
         self._lost = None
-        self._dir = Path(tempfile.mkdtemp(prefix="fluidsense-sampler-"))
+        self._dir = private_dir(DIR_PREFIX)
         self._ctx = zmq.asyncio.Context()
         try:
             self._pull = self._ctx.socket(zmq.PULL)

@@ -14,12 +14,17 @@ from __future__ import annotations
 import asyncio
 import os
 import signal
+import tempfile
 import time
+from pathlib import Path
 
 import pytest
+from fluidsense.common import rundirs
 from fluidsense.common.errors import FaultError
 from fluidsense.controller.config import load_cell_config
 from fluidsense.controller.service import Controller
+from fluidsense.controller.telemetry import publisher
+from fluidsense.drivers.sampler import source
 from fluidsense.drivers.registry import build_backend
 from fluidsense.drivers.ur.watchdog import safe_levels, watchdog_lines
 from fluidsense.simulator.controlbox.watchdog import WatchdogProgram
@@ -152,6 +157,11 @@ def test_a_killed_daemon_is_vented_by_the_box_within_the_watchdog_timeout(kind, 
             down = box.wait_for(lambda s: _p_act_kpa(cfg, s) < 1.0, 30, "the gripper vented")
         finally:
             daemon.close()
+        # nobody was left to remove the endpoints' folders; the next daemon's start does
+        for prefix in (source.DIR_PREFIX, publisher.DIR_PREFIX):
+            left = set(Path(tempfile.gettempdir()).glob(f"{prefix}{daemon.proc.pid}-*"))
+            assert len(left) == 1, (prefix, left)
+            assert left <= set(rundirs.sweep_stale(prefix)) and not any(p.exists() for p in left)
         (t_vent, _, by), *_ = _journal_after(vented, before["t"])
         assert by in ("watchdog", "runstate")
         assert t_vent - before["t"] <= TIMEOUT_S + 0.25  # the kill came after the state was read

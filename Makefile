@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed
 # installed package; they are not in the wheel
 LAB := $(BIN)/python -m lab
 
-.PHONY: demo check test accept install clean wheel image-deps image-check image-base image-clean lint-imports report speed-accuracy stability timing faults fuzz busy grips soak firmware firmware-host firmware-sim firmware-deps
+.PHONY: demo check test accept suite-cpu install clean wheel image-deps image-check image-base image-clean lint-imports report speed-accuracy stability timing faults fuzz busy grips soak firmware firmware-host firmware-sim firmware-deps
 
 $(STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
@@ -147,6 +147,12 @@ busy: $(STAMP)
 grips: $(STAMP)
 	mkdir -p docs/performance
 	$(LAB) bench grips --loads 0,2 --empty 100 --sizes 40,60,100 --objects 5 --json > docs/performance/grips.json
+
+# Where make test's CPU goes (tests/README.md): its pytest run, with each test's CPU and each
+# process the tests start reported, per test file and per kind of process. The firmware
+# images it tests are make test's to build; without them their tests skip.
+suite-cpu: $(STAMP) firmware-host
+	$(LAB) bench suite-cpu -- tests/unit tests/system $(PYTEST_XDIST_TEST)
 
 # Soak figures of docs/soak.md: 8 hours of sample time in virtual time (~10 minutes).
 soak: $(STAMP)

@@ -24,7 +24,7 @@ from pathlib import Path
 
 NAME = "suite-cpu"
 HELP = "CPU of a test run, per test file and per kind of process the tests start"
-DESCRIPTION = ("Run pytest on PATHS (default: the unit and system tiers, as make test does) and print the CPU "
+DESCRIPTION = ("Run pytest with PYTEST_ARGS (make suite-cpu: make test's) and print the CPU "
                "of each test file (in the worker, and in the processes its tests started) and of each kind of "
                "process started: what a shorter suite must take away.")
 
@@ -94,11 +94,11 @@ def pytest_runtest_protocol(item, nextitem):
 
 
 def register(p: argparse.ArgumentParser) -> None:
-    p.add_argument("paths", nargs="*", default=["tests/unit", "tests/system"],
-                   help="what pytest runs (default: tests/unit tests/system, as make test)")
-    p.add_argument("-n", "--workers", default="3", help="pytest-xdist workers (default 3, as make test)")
     p.add_argument("--top", type=int, default=25, help="rows of each table (default 25)")
     p.add_argument("--json", action="store_true")
+    p.add_argument("pytest_args", nargs=argparse.REMAINDER, metavar="-- PYTEST_ARGS",
+                   help="what pytest runs, after --, with its options (make suite-cpu gives make test's: the "
+                   "unit and system tiers, its workers and their scheduling)")
 
 
 def process_kind(argv: list[str]) -> str:
@@ -154,10 +154,9 @@ def run(args: argparse.Namespace) -> int:
         (folder / "fluidsense_suitecpu_plugin.py").write_text(_PLUGIN)
         env = {**os.environ, "FLUIDSENSE_SUITECPU_DIR": tmp,
                "PYTHONPATH": os.pathsep.join(filter(None, [tmp, os.environ.get("PYTHONPATH")]))}
-        cmd = [sys.executable, "-m", "pytest", *args.paths, "-q", "-p", "fluidsense_suitecpu_plugin",
+        pytest_args = args.pytest_args[1:] if args.pytest_args[:1] == ["--"] else args.pytest_args
+        cmd = [sys.executable, "-m", "pytest", *pytest_args, "-q", "-p", "fluidsense_suitecpu_plugin",
                "-p", "no:cacheprovider"]
-        if args.workers not in ("0", ""):
-            cmd += ["-n", args.workers]
         before = os.times()
         t0 = time.monotonic()
         # the run's own output goes to stderr: stdout is this bench's figures

@@ -26,7 +26,7 @@ def test_works_in_the_worker():
 
 def test_the_runs_cpu_is_told_per_file_and_per_kind_of_process(tmp_path):
     (tmp_path / "test_small.py").write_text(TESTS)
-    out = subprocess.run([sys.executable, "-m", "lab", "bench", "suite-cpu", str(tmp_path), "-n", "0", "--json"],
+    out = subprocess.run([sys.executable, "-m", "lab", "bench", "suite-cpu", "--json", "--", str(tmp_path), "-n", "0"],
                          cwd=REPO, capture_output=True, text=True, timeout=240)
     assert out.returncode == 0, out.stderr
     res = json.loads(out.stdout)

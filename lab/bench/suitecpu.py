@@ -6,8 +6,9 @@ busy, so a shorter ``make test`` needs less CPU, and this says where it is. Each
 is read around it (``getrusage`` of the worker, and of the children it reaped during the
 test); each Python process the run starts (daemons, emulated boxes, samplers, CLI
 commands) reports its own CPU as it ends, through a ``sitecustomize`` on its PYTHONPATH.
-A process killed by SIGKILL reports nothing: its CPU is in the tests' child total only
-(the line "not reported").
+A process killed by SIGKILL, or started with an environment of its own (without the
+run's PYTHONPATH), reports nothing: its CPU is in the tests' child total only (the line
+"not reported").
 """
 
 from __future__ import annotations
@@ -172,8 +173,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"{out['command']}: exit {rc}, {out['tests']} tests, {wall:.0f} s wall, {out['cpu_s']:.0f} s CPU "
           f"({out['cpu_s'] / wall:.2f} cores)")
     print(f"in the workers {out['self_s']:.0f} s; in the processes the tests started {out['child_s']:.0f} s "
-          f"(reported as they ended {out['started_reported_s']:.0f} s, not reported: killed "
-          f"{out['not_reported_s']:.0f} s)")
+          f"(reported as they ended {out['started_reported_s']:.0f} s; not reported, killed or started with "
+          f"an environment of their own: {out['not_reported_s']:.0f} s)")
     print("\nper test file (CPU s: in the worker + in its processes, wall s, tests):")
     for f in out["files"]:
         print(f"  {f['self_s'] + f['child_s']:7.1f} = {f['self_s']:6.1f} + {f['child_s']:6.1f}  "

@@ -319,6 +319,10 @@ class SimulatedCell:
         law = volume_law(self.hw.actuator, scene, self.p_atm)
         self.scene, self.scene_set_t, self.detached_at = scene, t_eff, None
         self._invalidate(t_eff)
+        # a moving scene before this one has its refreshes scheduled as far ahead as
+        # samples were computed: from t_eff on they would put it back (a scene set for
+        # later, as a closing gripper's, stays: it comes after this one)
+        self.plant.cancel_laws("actuator", "refresh", t_eff)
         self.plant.schedule_law(t_eff, "actuator", law)
         self.plant.schedule_valve(t_eff, AIR, False)
         self._next_scene_update = t_eff + update_step(scene) if is_dynamic(scene) else float("inf")
@@ -335,7 +339,7 @@ class SimulatedCell:
         while self._next_scene_update <= until:
             t = self._next_scene_update
             law = volume_law(self.hw.actuator, self.scene, self.p_atm, t - self.scene_set_t)
-            self.plant.schedule_law(t, "actuator", law)
+            self.plant.schedule_law(t, "actuator", law, kind="refresh")
             self._next_scene_update = t + update_step(self.scene)
 
     def _check_detach(self, t: float, p_act_gauge: float) -> None:

@@ -86,6 +86,17 @@ class Plant:
         """Run ``apply`` at plant time ``t`` (it changes valves, laws, setpoints...)."""
         heapq.heappush(self._events, _Event(float(t), next(self._seq), apply, what))
 
+    def cancel_laws(self, node: str, kind: str, from_t: float) -> int:
+        """Drop the law changes of ``node`` scheduled as ``kind`` (``schedule_law``) and due
+        at or after ``from_t`` (not yet applied: applied ones are out of the queue); how many."""
+        what = f"law {node} {kind}"
+        kept = [ev for ev in self._events if ev.what != what or ev.t < from_t]
+        dropped = len(self._events) - len(kept)
+        if dropped:
+            heapq.heapify(kept)
+            self._events = kept
+        return dropped
+
     def schedule_valve(self, t: float, valve: str, open_: bool) -> None:
         if valve not in self.valves:
             raise KeyError(valve)
@@ -101,13 +112,15 @@ class Plant:
 
         self.schedule(t, apply, "regulator")
 
-    def schedule_law(self, t: float, node: str, law: VolumeLaw) -> None:
+    def schedule_law(self, t: float, node: str, law: VolumeLaw, kind: str = "set") -> None:
+        """``kind`` names the change for ``cancel_laws``: the cell sets a scene's law
+        ("set") and refreshes a moving scene's ("refresh")."""
         i = self.net.index[node]
 
         def apply() -> None:
             self.laws[i] = law
 
-        self.schedule(t, apply, f"law {node}")
+        self.schedule(t, apply, f"law {node} {kind}")
 
     def schedule_scale(self, t: float, node: str, factor: float) -> None:
         """Multiply the gas in a node at time t: what warming a closed volume does to its

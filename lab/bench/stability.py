@@ -115,6 +115,10 @@ def _features(ref_stale, runs) -> list[tuple[float, dict[str, float | None]]]:
 
 
 def size_part(name: str, trials: int, seed: int) -> list[dict[str, Any]]:
+    """Each method's 95 % error under ``name`` at each strength; a strength whose cycles the
+    controller refuses (its charge check: a regulator that lands beyond the profile's P0
+    margin) gets rows without a value that say why (``refused``)."""
+    from fluidsense.common.errors import FluidsenseError
     from fluidsense.controller.sensing.calibration import Calibration, CalibrationError
 
     nominal = _gripper()
@@ -128,7 +132,14 @@ def size_part(name: str, trials: int, seed: int) -> list[dict[str, Any]]:
     rows = []
     for strength in strengths:
         prof, pert, scene = _variant(name, strength)
-        _, runs = asyncio.run(_run_cell(prof, pert, scene, targets, seed + 2))
+        try:
+            _, runs = asyncio.run(_run_cell(prof, pert, scene, targets, seed + 2))
+        except FluidsenseError as exc:  # the controller refused the cycles: no reading to score
+            log.warning("size, %s %g %s: %s", name, strength, unit, exc)
+            rows += [{"part": "size", "perturbation": name, "strength": strength, "unit": unit, "subject": method,
+                      "metric": "err95_mm", "value": None, "bias_mm": None, "decided_fraction": 0.0,
+                      "threshold": SIZE_THRESHOLD_MM, "pass": False, "refused": str(exc)} for method in SIZE_METHODS]
+            continue
         test = _features(ref_cal, runs)
         for method, (feat, _, fit) in SIZE_METHODS.items():
             xs = [x for x, f in cal if f[feat] is not None]
@@ -166,16 +177,16 @@ def _task(name: str):
     return task, cell_path(path, task)
 
 
-def _attempt(task, cell, **kw) -> dict[str, Any] | None:
-    """A task's summary, or None when it ended in a fault or an error: a failed run of
-    the perturbed cell, which the row counts, not a failed benchmark."""
+def _attempt(task, cell, **kw) -> tuple[dict[str, Any] | None, str | None]:
+    """(a task's summary, None), or (None, why) when it ended in a fault or an error: a
+    failed run of the perturbed cell, which the row counts and names, not a failed benchmark."""
     from fluidsense.common.errors import FluidsenseError
 
     try:
-        return asyncio.run(_run_task(task, cell, **kw))
+        return asyncio.run(_run_task(task, cell, **kw)), None
     except FluidsenseError as exc:
         log.warning("%s task failed: %s", task.task, exc)
-        return None
+        return None, str(exc)
 
 
 async def _run_task(task, cell, **kw):
@@ -204,13 +215,13 @@ def ripeness_part(seed: int, misalignment: float) -> list[dict[str, Any]]:
     for mis, d0, centre in combos:
         t = task.model_copy(update={"misalignment_mm": mis, "d0_from": d0, "centering_grip": centre,
                                     "shuffle_seed": seed})
-        s = _attempt(t, cell)
+        s, why = _attempt(t, cell)
         rate = s["success_rate"] if s is not None else 0.0
         rows.append({"part": "ripeness", "perturbation": "off-centre", "strength": mis, "unit": "mm",
                      "subject": {"t_c_onset": "t_c first rise", "t_c_threshold": "t_c at dP = 2 kPa",
                                  "dp_max": "dp_max"}[d0] + (" + centering grip" if centre else ""),
                      "metric": "round_success", "value": rate, "threshold": TASK_THRESHOLD,
-                     "pass": rate >= TASK_THRESHOLD, "task_faults": int(s is None)})
+                     "pass": rate >= TASK_THRESHOLD, "task_faults": int(s is None), "failed": why})
     return rows
 
 
@@ -229,14 +240,17 @@ def sorting_part(seed: int, orders: int = 10) -> list[dict[str, Any]]:
     for name, strength, run_kw, task_kw in variants:
         t = task.model_copy(update=task_kw)
         wins = faults = 0
+        failed = None
         for order in perms[:orders]:
-            s = _attempt(t, cell, order_mm=list(order), **dict(run_kw))
+            s, why = _attempt(t, cell, order_mm=list(order), **dict(run_kw))
             wins += bool(s and s["success"])
             faults += s is None
+            failed = failed or why
         unit = PERTURBATIONS.get(name, ("x", None, ""))[0] if name != "none" else ""
         rows.append({"part": "sorting", "perturbation": name, "strength": strength, "unit": unit,
                      "subject": "sorting task", "metric": "success_rate", "value": wins / orders,
-                     "threshold": TASK_THRESHOLD, "pass": wins / orders >= TASK_THRESHOLD, "task_faults": faults})
+                     "threshold": TASK_THRESHOLD, "pass": wins / orders >= TASK_THRESHOLD, "task_faults": faults,
+                     "failed": failed})
     return rows
 
 
@@ -247,7 +261,7 @@ def picking_part(seed: int, repeats: int = 3) -> list[dict[str, Any]]:
         toms = [tm.model_copy(update={"slip_after_s": slip, "min_grip_kpa": 5.0}) for tm in task.tomatoes]
         detected = total = recognised = 0
         for k in range(repeats):
-            s = _attempt(task.model_copy(update={"tomatoes": toms}), cell, overrides={"driver": {"seed": seed + k}})
+            s, _ = _attempt(task.model_copy(update={"tomatoes": toms}), cell, overrides={"driver": {"seed": seed + k}})
             if s is None:  # every tomato of the run counts as not picked, no slip seen
                 total += len(toms)
                 continue

@@ -79,19 +79,28 @@ def _markdown(res) -> str:
             for s in strengths:
                 r = next(r for r in rows if r["part"] == "size" and r["perturbation"] == name
                          and r["subject"] == method and r["strength"] == s)
+                if r.get("refused"):
+                    cells.append("refused")
+                    continue
                 v = "-" if r["value"] is None else f"{r['value']:.2f} mm"
                 if r["decided_fraction"] < 0.995:
                     v += f" ({100 * r['decided_fraction']:.0f} % decided)"
                 cells.append(f"{v} {'pass' if r['pass'] else '**FAIL**'}")
             lines.append(f"| {method} | " + " | ".join(cells) + " |")
+        refused = {r["strength"]: r["refused"] for r in rows
+                   if r["part"] == "size" and r["perturbation"] == name and r.get("refused")}
+        lines += [""] + [f"Refused at {s:g} {unit}, every cycle (no reading to score): {why}" for s, why in refused.items()]
         lines.append("")
     lines += ["## Tasks", "", "| task | subject | perturbation | metric | value | threshold | result |",
               "|---|---|---|---|---|---|---|"]
     for r in rows:
         if r["part"] == "size":
             continue
+        result = "pass" if r["pass"] else "**FAIL**"
+        if r.get("task_faults"):
+            result += f" ({r['task_faults']} run(s) ended in an error, the first: {r.get('failed') or 'not kept'})"
         lines.append(f"| {r['part']} | {r['subject']} | {r['perturbation']} {r['strength']:g} {r['unit']} | "
-                     f"{r['metric']} | {r['value']:.2f} | {r['threshold']:g} | {'pass' if r['pass'] else '**FAIL**'} |")
+                     f"{r['metric']} | {r['value']:.2f} | {r['threshold']:g} | {result} |")
     lines += ["", "## Mitigations and what they buy", ""] + _mitigations(rows) + [""]
     return "\n".join(lines)
 
@@ -121,4 +130,8 @@ def _mitigations(rows) -> list[str]:
             continue
         unit = " mm (95 % error)" if part == "size" else " (round success)"
         out.append(f"- {what}: {before} {a:.2f} -> {after} {b:.2f}{unit}.")
+    refused = {(r["perturbation"], r["strength"], r["unit"]) for r in rows if r["part"] == "size" and r.get("refused")}
+    for pert, s, unit in sorted(refused):
+        out.append(f"- the charge check (the tank must read P0 within the profile's margin before the valve opens): "
+                   f"{pert} {s:g} {unit}: every cycle refused, so no method reads a wrong size.")
     return out

@@ -157,7 +157,7 @@ def test_off_centre_tomatoes_fool_the_first_rise_not_the_threshold():
     for d0 in ("t_c_onset", "t_c_threshold"):
         t = task.model_copy(update={"misalignment_mm": 10.0, "d0_from": d0, "shuffle_seed": ST.SEED, "rounds": 1,
                                     "calibration_grips": 3})
-        summary = ST._attempt(t, cell)
-        assert summary is not None, d0
+        summary, why = ST._attempt(t, cell)
+        assert summary is not None, (d0, why)
         rates[d0] = summary["success_rate"]
     assert rates["t_c_onset"] < ST.TASK_THRESHOLD <= rates["t_c_threshold"], rates

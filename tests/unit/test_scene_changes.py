@@ -28,7 +28,7 @@ def test_the_scene_after_a_moving_one_holds_from_its_first_sample(chunk_s):
     if chunk_s is not None:
         cell.pace_for_real_time(chunk_s)
     cell.set_scene(PullScene(material="OO-30", rate_n_per_s=0.2, delay_s=0.0), 0.0)
-    _blocks(cell, 0.505)  # mid-chunk: the pull's next refreshes are already scheduled
+    _blocks(cell, 0.55)  # mid-chunk: the pull's refreshes to its end are already scheduled
     cell.set_scene(EmptyScene(), cell.t_last)
     empty = volume_law(hw.actuator, cell.scene, cell.p_atm).volume
     actuator = cell.plant.net.index["actuator"]

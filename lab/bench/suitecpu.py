@@ -104,7 +104,7 @@ def register(p: argparse.ArgumentParser) -> None:
 
 def process_kind(argv: list[str]) -> str:
     """A short name for a process's command line: ``fluidsense run``, ``-m
-    fluidsense.drivers.sampler.process``, ``-c`` (a script given inline), ``pytest worker``."""
+    fluidsense.drivers.sampler.process``, ``-c`` and the start of a script given inline."""
     args = argv[1:]
     while args and args[0] in ("-u", "-B", "-E", "-s", "-I"):
         args = args[1:]
@@ -115,7 +115,7 @@ def process_kind(argv: list[str]) -> str:
             return f"{args[1]} {args[2]}"
         return f"-m {args[1]}"
     if args[0] == "-c":
-        return "-c " + (args[1] if len(args) > 1 else "")[:40]
+        return "-c " + " ".join((args[1] if len(args) > 1 else "").split())[:40]
     return Path(args[0]).name
 
 

@@ -5,7 +5,8 @@ The suite is CPU-bound on two cores: its wall time is its CPU over what the work
 busy, so a shorter ``make test`` needs less CPU, and this says where it is. Each test's CPU
 is read around it (``getrusage`` of the worker, and of the children it reaped during the
 test); each Python process the run starts (daemons, emulated boxes, samplers, CLI
-commands) reports its own CPU as it ends, through a ``sitecustomize`` on its PYTHONPATH.
+commands) reports its own CPU as it ends, through a ``sitecustomize`` on its PYTHONPATH
+(both probes: ``_suitecpu_probe/``; this module runs the pytest run and sums up).
 A process killed by SIGKILL, or started with an environment of its own (without the
 run's PYTHONPATH), reports nothing: its CPU is in the tests' child total only (the line
 "not reported").
@@ -29,69 +30,8 @@ DESCRIPTION = ("Run pytest with PYTEST_ARGS (make suite-cpu: make test's) and pr
                "of each test file (in the worker, and in the processes its tests started) and of each kind of "
                "process started: what a shorter suite must take away.")
 
-# In every Python process of the run: at exit (or os._exit, which the sampler and the
-# ur_rtde worker end with), one line with its command and its CPU.
-_SITECUSTOMIZE = '''
-import atexit, json, os, resource, sys
-
-_OUT = os.environ["FLUIDSENSE_SUITECPU_DIR"]
-_done = False
-
-
-def _report():
-    global _done
-    if _done:
-        return
-    _done = True
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    try:
-        with open(os.path.join(_OUT, "procs.jsonl"), "a") as f:
-            f.write(json.dumps({"pid": os.getpid(), "argv": list(getattr(sys, "orig_argv", sys.argv))[:4],
-                                "cpu_s": r.ru_utime + r.ru_stime,
-                                "test": os.environ.get("PYTEST_CURRENT_TEST", "")}) + "\\n")
-    except OSError:
-        pass
-
-
-_exit = os._exit
-
-
-def _exit_reporting(code):
-    _report()
-    _exit(code)
-
-
-atexit.register(_report)
-os._exit = _exit_reporting
-'''
-
-# In each pytest worker: one line per test with its wall time and CPU.
-_PLUGIN = '''
-import json, os, resource, time
-import pytest
-
-_OUT = os.environ["FLUIDSENSE_SUITECPU_DIR"]
-
-
-def _now():
-    s, c = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
-    return time.monotonic(), s.ru_utime + s.ru_stime, c.ru_utime + c.ru_stime
-
-
-def pytest_configure(config):
-    with open(os.path.join(_OUT, "pytest-pids"), "a") as f:  # the run's own processes, not the tests'
-        f.write(f"{os.getpid()}\\n")
-
-
-@pytest.hookimpl(hookwrapper=True)
-def pytest_runtest_protocol(item, nextitem):
-    t0, s0, c0 = _now()
-    yield
-    t1, s1, c1 = _now()
-    worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
-    with open(os.path.join(_OUT, f"tests.{worker}.jsonl"), "a") as f:
-        f.write(json.dumps({"id": item.nodeid, "wall_s": t1 - t0, "self_s": s1 - s0, "child_s": c1 - c0}) + "\\n")
-'''
+# what runs inside the measured processes: a sitecustomize and a pytest plugin
+PROBE = Path(__file__).with_name("_suitecpu_probe")
 
 
 def register(p: argparse.ArgumentParser) -> None:
@@ -151,10 +91,8 @@ def summarise(folder: Path, top: int) -> dict:
 def run(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory(prefix="fluidsense-suitecpu-") as tmp:
         folder = Path(tmp)
-        (folder / "sitecustomize.py").write_text(_SITECUSTOMIZE)
-        (folder / "fluidsense_suitecpu_plugin.py").write_text(_PLUGIN)
         env = {**os.environ, "FLUIDSENSE_SUITECPU_DIR": tmp,
-               "PYTHONPATH": os.pathsep.join(filter(None, [tmp, os.environ.get("PYTHONPATH")]))}
+               "PYTHONPATH": os.pathsep.join(filter(None, [str(PROBE), os.environ.get("PYTHONPATH")]))}
         pytest_args = args.pytest_args[1:] if args.pytest_args[:1] == ["--"] else args.pytest_args
         cmd = [sys.executable, "-m", "pytest", *pytest_args, "-q", "-p", "fluidsense_suitecpu_plugin",
                "-p", "no:cacheprovider"]

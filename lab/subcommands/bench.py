@@ -15,6 +15,8 @@ def register(sub, full: bool = True) -> None:
 
     benches = p.add_subparsers(dest="bench", required=True, metavar="NAME")
     for name, module in discover().items():
-        bp = benches.add_parser(name, help=module.HELP, description=getattr(module, "DESCRIPTION", module.HELP))
+        # argparse %-formats a help string: "95 % error" would end the listing in a ValueError
+        bp = benches.add_parser(name, help=module.HELP.replace("%", "%%"),
+                                description=getattr(module, "DESCRIPTION", module.HELP))
         module.register(bp)
         bp.set_defaults(func=module.run)

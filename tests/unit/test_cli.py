@@ -19,3 +19,17 @@ def test_help(command, expected, capsys):
     assert out.returncode == 0, out.stderr
     for word in expected:
         assert word in out.stdout
+
+
+def test_the_benches_listing_names_every_bench(capsys):
+    """`python -m lab bench --help`: argparse %-formats each help line, and a bench's own
+    "95 % error" once ended the listing in a ValueError."""
+    from lab.__main__ import main
+    from lab.bench import discover
+
+    with pytest.raises(SystemExit) as done:
+        main(["bench", "--help"])
+    assert done.value.code == 0
+    listing = capsys.readouterr().out
+    assert all(name in listing for name in discover())
+    assert "95 % |error|" in listing
